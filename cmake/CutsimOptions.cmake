@@ -1,0 +1,23 @@
+# Compiler flags shared by every cutsim target, as INTERFACE targets that the
+# libraries link PRIVATE, so consumers never inherit our warning policy.
+
+add_library(cutsim_warnings INTERFACE)
+add_library(cutsim::warnings ALIAS cutsim_warnings)
+target_compile_options(cutsim_warnings INTERFACE
+  -Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Wold-style-cast
+  -Wcast-align -Wunused -Woverloaded-virtual -Wnull-dereference
+  -Wdouble-promotion -Wformat=2 -Wimplicit-fallthrough
+  -Wno-missing-field-initializers)
+if(CUTSIM_WERROR)
+  target_compile_options(cutsim_warnings INTERFACE -Werror)
+endif()
+
+if(CUTSIM_NATIVE)
+  add_compile_options(-march=native)
+endif()
+
+if(CUTSIM_SANITIZE)
+  add_compile_options(-fsanitize=address,undefined -fno-sanitize-recover=undefined
+                      -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Installs every Debian package cutsim needs to build, test, run its demo and
+# its benchmarks. Idempotent: does nothing when all are present, and runs
+# `apt-get update` once, only when something is missing.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config git
+  # maths and utilities
+  libeigen3-dev libcli11-dev libspdlog-dev libfmt-dev
+  # wire: schema, haptic link, observers
+  libprotobuf-dev protobuf-compiler
+  liblcm-dev liblcm-bin libglib2.0-dev
+  cyclonedds-dev cyclonedds-tools
+  # meshes: gmsh for .msh I/O and for tetrahedralising surfaces
+  libgmsh-dev gmsh
+  # offscreen rendering and images
+  libosmesa6-dev libpng-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+  python3 python3-meshio python3-numpy python3-matplotlib
+  # multi-host tests: namespaces, veth, packet loss
+  iproute2 nftables
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed'; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}" >&2
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
