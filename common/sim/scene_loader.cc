@@ -1,0 +1,270 @@
+#include "common/sim/scene_loader.h"
+
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <google/protobuf/io/tokenizer.h>
+#include <google/protobuf/text_format.h>
+
+#include "common/core/error.h"
+
+namespace cutsim::sim {
+namespace {
+
+namespace pb = google::protobuf;
+
+/// Keeps the first parse error with its position (protobuf reports 0-based).
+class FirstErrorCollector : public pb::io::ErrorCollector {
+ public:
+  void AddError(int line, pb::io::ColumnNumber column, const std::string& message) override {
+    if (!has_error_) {
+      has_error_ = true;
+      line_ = line;
+      column_ = column;
+      message_ = message;
+    }
+  }
+  void AddWarning(int, pb::io::ColumnNumber, const std::string&) override {}
+
+  bool has_error_ = false;
+  int line_ = 0;
+  int column_ = 0;
+  std::string message_;
+};
+
+[[noreturn]] void FieldError(const std::string& source, const std::string& field,
+                             const std::string& message) {
+  ThrowInputError({.file = source, .field = field}, message);
+}
+
+void RequireFinite(const std::string& source, const std::string& field, double value) {
+  if (!std::isfinite(value)) FieldError(source, field, "must be finite");
+}
+
+void RequirePositive(const std::string& source, const std::string& field, double value) {
+  RequireFinite(source, field, value);
+  if (value <= 0.0) FieldError(source, field, fmt::format("must be > 0 (got {})", value));
+}
+
+void RequireNonNegative(const std::string& source, const std::string& field, double value) {
+  RequireFinite(source, field, value);
+  if (value < 0.0) FieldError(source, field, fmt::format("must be >= 0 (got {})", value));
+}
+
+void RequireFiniteVec(const std::string& source, const std::string& field,
+                      const cutsim::v1::Vec3& v) {
+  RequireFinite(source, field + ".x", v.x());
+  RequireFinite(source, field + ".y", v.y());
+  RequireFinite(source, field + ".z", v.z());
+}
+
+double Norm(const cutsim::v1::Vec3& v) {
+  return std::sqrt(v.x() * v.x() + v.y() * v.y() + v.z() * v.z());
+}
+
+void ValidateMesh(cutsim::v1::MeshSource& mesh, const std::string& s) {
+  using MS = cutsim::v1::MeshSource;
+  switch (mesh.source_case()) {
+    case MS::SOURCE_NOT_SET:
+      FieldError(s, "mesh", "a mesh source is required (file, box, cylinder or surface)");
+    case MS::kFile:
+      if (mesh.file().empty()) FieldError(s, "mesh.file", "must name a file");
+      break;
+    case MS::kBox: {
+      const auto& b = mesh.box();
+      RequireFiniteVec(s, "mesh.box.min", b.min());
+      RequireFiniteVec(s, "mesh.box.max", b.max());
+      if (!(b.max().x() > b.min().x() && b.max().y() > b.min().y() && b.max().z() > b.min().z())) {
+        FieldError(s, "mesh.box", "max must exceed min on every axis");
+      }
+      if (b.nx() < 1 || b.ny() < 1 || b.nz() < 1) {
+        FieldError(s, "mesh.box.nx/ny/nz", "cell counts must be >= 1");
+      }
+      break;
+    }
+    case MS::kCylinder: {
+      const auto& c = mesh.cylinder();
+      RequirePositive(s, "mesh.cylinder.radius", c.radius());
+      RequirePositive(s, "mesh.cylinder.length", c.length());
+      if (c.segments() < 3) FieldError(s, "mesh.cylinder.segments", "must be >= 3");
+      if (c.rings() < 1) FieldError(s, "mesh.cylinder.rings", "must be >= 1");
+      if (c.slices() < 1) FieldError(s, "mesh.cylinder.slices", "must be >= 1");
+      break;
+    }
+    case MS::kSurface:
+      if (mesh.surface().file().empty()) FieldError(s, "mesh.surface.file", "must name a file");
+      RequirePositive(s, "mesh.surface.max_edge_length", mesh.surface().max_edge_length());
+      break;
+  }
+  if (mesh.scale() == 0.0) mesh.set_scale(1.0);
+  RequirePositive(s, "mesh.scale", mesh.scale());
+  RequireFiniteVec(s, "mesh.translate", mesh.translate());
+}
+
+void ValidateMaterial(cutsim::v1::Material& m, const std::string& s, int index) {
+  const std::string f = fmt::format("materials[{}]", index);
+  using M = cutsim::v1::Material;
+  switch (m.elasticity_case()) {
+    case M::ELASTICITY_NOT_SET:
+      FieldError(s, f, "needs `lame` or `young_poisson`");
+    case M::kLame:
+      RequireNonNegative(s, f + ".lame.lambda", m.lame().lambda());
+      RequirePositive(s, f + ".lame.mu", m.lame().mu());
+      break;
+    case M::kYoungPoisson: {
+      RequirePositive(s, f + ".young_poisson.youngs_modulus", m.young_poisson().youngs_modulus());
+      const double nu = m.young_poisson().poisson_ratio();
+      RequireFinite(s, f + ".young_poisson.poisson_ratio", nu);
+      if (!(nu > -1.0 && nu < 0.5)) {
+        FieldError(s, f + ".young_poisson.poisson_ratio",
+                   fmt::format("must lie in (-1, 0.5) (got {})", nu));
+      }
+      break;
+    }
+  }
+  RequirePositive(s, f + ".density", m.density());
+  RequireNonNegative(s, f + ".damping_psi", m.damping_psi());
+  RequireNonNegative(s, f + ".damping_phi", m.damping_phi());
+}
+
+}  // namespace
+
+void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
+  if (!scene.has_mesh()) FieldError(s, "mesh", "is required");
+  ValidateMesh(*scene.mutable_mesh(), s);
+
+  if (scene.materials_size() == 0) FieldError(s, "materials", "at least one material is required");
+  int catch_all = 0;
+  for (int i = 0; i < scene.materials_size(); ++i) {
+    ValidateMaterial(*scene.mutable_materials(i), s, i);
+    if (scene.materials(i).regions_size() == 0) ++catch_all;
+  }
+  if (catch_all > 1) {
+    FieldError(s, "materials", "only one material may omit `regions` (it covers all other regions)");
+  }
+
+  for (int i = 0; i < scene.boundary_size(); ++i) {
+    const auto& bc = scene.boundary(i);
+    const std::string f = fmt::format("boundary[{}]", i);
+    using BC = cutsim::v1::BoundaryCondition;
+    switch (bc.selector_case()) {
+      case BC::SELECTOR_NOT_SET:
+        FieldError(s, f, "needs a selector: nodes, box or plane");
+      case BC::kNodes:
+        for (int k = 0; k < bc.nodes().ids_size(); ++k) {
+          if (bc.nodes().ids(k) < 0) FieldError(s, fmt::format("{}.nodes.ids[{}]", f, k), "must be >= 0");
+        }
+        break;
+      case BC::kBox:
+        RequireFiniteVec(s, f + ".box.min", bc.box().min());
+        RequireFiniteVec(s, f + ".box.max", bc.box().max());
+        break;
+      case BC::kPlane:
+        RequireFiniteVec(s, f + ".plane.point", bc.plane().point());
+        if (!(Norm(bc.plane().normal()) > 0.0)) FieldError(s, f + ".plane.normal", "must be non-zero");
+        RequireNonNegative(s, f + ".plane.tolerance", bc.plane().tolerance());
+        break;
+    }
+    RequireFiniteVec(s, f + ".force", bc.force());
+  }
+
+  RequireFiniteVec(s, "gravity", scene.gravity());
+
+  auto& ts = *scene.mutable_time_step();
+  if (ts.safety_factor() == 0.0) ts.set_safety_factor(0.5);
+  RequirePositive(s, "time_step.safety_factor", ts.safety_factor());
+  if (ts.safety_factor() > 1.0) {
+    FieldError(s, "time_step.safety_factor", "must be <= 1 (a fraction of the stable limit)");
+  }
+  RequireNonNegative(s, "time_step.fixed_dt", ts.fixed_dt());
+  if (ts.frame_dt() == 0.0) ts.set_frame_dt(0.01);
+  RequirePositive(s, "time_step.frame_dt", ts.frame_dt());
+  if (ts.threads() < 0) FieldError(s, "time_step.threads", "must be >= 0");
+  if (ts.refresh_every_steps() == 0) ts.set_refresh_every_steps(100);
+  if (ts.refresh_every_steps() < 0) FieldError(s, "time_step.refresh_every_steps", "must be > 0");
+
+  RequireNonNegative(s, "rest.kinetic_energy", scene.rest().kinetic_energy());
+  RequireNonNegative(s, "rest.residual_force", scene.rest().residual_force());
+
+  if (scene.has_tool()) {
+    auto& tool = *scene.mutable_tool();
+    RequireNonNegative(s, "tool.blade_length", tool.blade_length());
+    RequireNonNegative(s, "tool.contact_stiffness", tool.contact_stiffness());
+    RequireNonNegative(s, "tool.contact_damping", tool.contact_damping());
+    double prev_t = -INFINITY;
+    for (int i = 0; i < tool.keyframes_size(); ++i) {
+      const auto& k = tool.keyframes(i);
+      const std::string f = fmt::format("tool.keyframes[{}]", i);
+      RequireFinite(s, f + ".t", k.t());
+      if (k.t() <= prev_t) FieldError(s, f + ".t", "times must increase strictly");
+      prev_t = k.t();
+      RequireFiniteVec(s, f + ".tip", k.tip());
+      RequireFiniteVec(s, f + ".blade_dir", k.blade_dir());
+    }
+  }
+
+  if (scene.has_cutting() && scene.cutting().enabled()) {
+    auto& c = *scene.mutable_cutting();
+    RequirePositive(s, "cutting.alpha", c.alpha());
+    RequirePositive(s, "cutting.kappa", c.kappa());
+    RequireFinite(s, "cutting.zeta", c.zeta());
+    if (c.zeta() < 0.1 || c.zeta() > 1.0) {
+      FieldError(s, "cutting.zeta", fmt::format("must lie in [0.1, 1] (got {})", c.zeta()));
+    }
+    RequireNonNegative(s, "cutting.critical_stress", c.critical_stress());
+    if (c.min_quality() == 0.0) c.set_min_quality(0.05);
+    if (!(c.min_quality() > 0.0 && c.min_quality() < 1.0)) {
+      FieldError(s, "cutting.min_quality", "must lie in (0, 1)");
+    }
+  }
+
+  auto& h = *scene.mutable_haptics();
+  RequireNonNegative(s, "haptics.decay_per_second", h.decay_per_second());
+  if (h.watchdog() == 0.0) h.set_watchdog(0.05);
+  RequirePositive(s, "haptics.watchdog", h.watchdog());
+  RequireNonNegative(s, "haptics.max_force", h.max_force());
+  RequireNonNegative(s, "haptics.max_stiffness", h.max_stiffness());
+
+  if (scene.outputs().every_n_frames() < 0) FieldError(s, "outputs.every_n_frames", "must be >= 0");
+
+  auto& cam = *scene.mutable_camera();
+  if (cam.fov_deg() == 0.0) cam.set_fov_deg(40.0);
+  if (!(cam.fov_deg() > 1.0 && cam.fov_deg() < 179.0)) FieldError(s, "camera.fov_deg", "must lie in (1, 179)");
+  if (cam.width() == 0) cam.set_width(640);
+  if (cam.height() == 0) cam.set_height(480);
+  if (cam.width() < 16 || cam.height() < 16 || cam.width() > 8192 || cam.height() > 8192) {
+    FieldError(s, "camera.width/height", "must lie in [16, 8192]");
+  }
+}
+
+LoadedScene ParseScene(const std::string& text, const std::string& source_name,
+                       const std::filesystem::path& base_dir) {
+  LoadedScene out;
+  out.path = source_name;
+  out.base_dir = base_dir;
+  pb::TextFormat::Parser parser;
+  FirstErrorCollector errors;
+  parser.RecordErrorsTo(&errors);
+  if (!parser.ParseFromString(text, &out.scene)) {
+    ThrowInputError({.file = source_name,
+                     .line = errors.line_ + 1,
+                     .column = errors.column_ + 1},
+                    errors.has_error_ ? errors.message_ : "cannot parse scene");
+  }
+  ValidateScene(out.scene, source_name);
+  return out;
+}
+
+LoadedScene LoadScene(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) ThrowFileError(path.string(), "cannot open scene file");
+  std::ostringstream text;
+  text << in.rdbuf();
+  std::filesystem::path base = path.parent_path();
+  if (base.empty()) base = ".";
+  return ParseScene(text.str(), path.string(), base);
+}
+
+}  // namespace cutsim::sim
