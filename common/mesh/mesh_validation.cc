@@ -51,8 +51,7 @@ void ValidateTetMesh(const TetMesh& mesh, std::string_view source_name, const Me
       const int32_t v = mesh.tets(t, k);
       if (v < 0 || v >= num_nodes) {
         ThrowTet(source_name, origin, t,
-                 fmt::format("node index {} out of range (mesh has {} nodes)",
-                             v < 0 || v >= num_nodes ? IdOf(origin.node_ids, v) : v, num_nodes));
+                 fmt::format("node index {} out of range [0, {})", v, num_nodes));
       }
       used[static_cast<size_t>(v)] = 1;
     }
