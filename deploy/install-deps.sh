@@ -17,6 +17,8 @@ packages=(
   libgmsh-dev gmsh
   # offscreen rendering and images
   libosmesa6-dev libpng-dev
+  # video frames from the viewer (optional at run time; tests of the encoder use it)
+  ffmpeg
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-meshio python3-numpy python3-matplotlib

@@ -3,6 +3,7 @@
 /// Boundary surface of a tet mesh and the topological checks the cutting code
 /// runs after every cut.
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>

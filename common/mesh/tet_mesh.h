@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>  // cross() is defined here, not in Core
 
 namespace cutsim::mesh {
 

@@ -1,5 +1,6 @@
 #include "common/sim/scene_loader.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -97,6 +98,23 @@ void ValidateMesh(cutsim::v1::MeshSource& mesh, const std::string& s) {
       if (mesh.surface().file().empty()) FieldError(s, "mesh.surface.file", "must name a file");
       RequirePositive(s, "mesh.surface.max_edge_length", mesh.surface().max_edge_length());
       break;
+    case MS::kOrgan: {
+      auto& o = *mesh.mutable_organ();
+      RequireFiniteVec(s, "mesh.organ.semi_axes", o.semi_axes());
+      if (o.semi_axes().x() <= 0 || o.semi_axes().y() <= 0 || o.semi_axes().z() <= 0) {
+        FieldError(s, "mesh.organ.semi_axes", "must be > 0 on every axis");
+      }
+      RequirePositive(s, "mesh.organ.edge_length", o.edge_length());
+      RequireFinite(s, "mesh.organ.bean_depth", o.bean_depth());
+      if (o.bean_depth() < 0.0 || o.bean_depth() > 0.6) {
+        FieldError(s, "mesh.organ.bean_depth", "must lie in [0, 0.6]");
+      }
+      const double smallest = std::min({o.semi_axes().x(), o.semi_axes().y(), o.semi_axes().z()});
+      if (o.edge_length() > smallest) {
+        FieldError(s, "mesh.organ.edge_length", "must not exceed the smallest semi-axis");
+      }
+      break;
+    }
   }
   if (mesh.scale() == 0.0) mesh.set_scale(1.0);
   RequirePositive(s, "mesh.scale", mesh.scale());

@@ -1,0 +1,206 @@
+// Force-kernel and full-step throughput of common/fem, with a STREAM-triad
+// memory-bandwidth benchmark in the same binary so results can be read as a
+// fraction of the roofline. Meshes are Kuhn-split boxes built once and cached.
+//
+// Counters: tet_steps_per_s (rate), tets, nodes, bytes_per_tet (estimated
+// DRAM traffic of one force pass: element data + element-force write and
+// re-read + incidence; node arrays assumed cached), and for the triad
+// bytes_per_s.
+#include <omp.h>
+
+#include <array>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+
+#include "common/fem/forces.h"
+#include "common/fem/integrator.h"
+#include "common/fem/model.h"
+#include "common/fem/stable_dt.h"
+#include "common/fem/state.h"
+#include "common/mesh/tet_mesh.h"
+
+namespace cutsim::fem {
+namespace {
+
+mesh::TetMesh MakeBox(int nx, int ny, int nz, double h) {
+  mesh::TetMesh m;
+  const auto id = [&](int i, int j, int k) { return (k * (ny + 1) + j) * (nx + 1) + i; };
+  m.nodes.resize((nx + 1) * (ny + 1) * (nz + 1), 3);
+  for (int k = 0; k <= nz; ++k) {
+    for (int j = 0; j <= ny; ++j) {
+      for (int i = 0; i <= nx; ++i) m.nodes.row(id(i, j, k)) << h * i, h * j, h * k;
+    }
+  }
+  m.tets.resize(6 * nx * ny * nz, 4);
+  static constexpr std::array<std::array<int, 3>, 6> kPerms = {
+      {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}}};
+  int t = 0;
+  for (int k = 0; k < nz; ++k) {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        for (const auto& p : kPerms) {
+          std::array<int, 3> c = {i, j, k};
+          std::array<int32_t, 4> tet{};
+          tet[0] = id(c[0], c[1], c[2]);
+          for (size_t s = 0; s < 3; ++s) {
+            ++c[static_cast<size_t>(p[s])];
+            tet[s + 1] = id(c[0], c[1], c[2]);
+          }
+          m.tets.row(t) << tet[0], tet[1], tet[2], tet[3];
+          if (mesh::SignedVolume(m, t) < 0) std::swap(m.tets(t, 2), m.tets(t, 3));
+          ++t;
+        }
+      }
+    }
+  }
+  return m;
+}
+
+// ~1k, 10k, 100k, 1M tets.
+constexpr std::array<std::array<int, 3>, 4> kSizes = {
+    {{6, 6, 5}, {12, 12, 12}, {26, 26, 25}, {55, 55, 55}}};
+
+template <typename T>
+struct Fixture {
+  std::unique_ptr<Model<T>> model_damped, model_plain;
+  std::unique_ptr<State<T>> state;
+};
+
+template <typename T>
+Fixture<T>& GetFixture(int size_index) {
+  static std::map<int, Fixture<T>> cache;
+  auto it = cache.find(size_index);
+  if (it != cache.end()) return it->second;
+  const auto& s = kSizes[static_cast<size_t>(size_index)];
+  const mesh::TetMesh mesh = MakeBox(s[0], s[1], s[2], 1e-3);
+  const Material damped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
+  Material plain = damped;
+  plain.psi = plain.phi = 0;
+  Fixture<T> f;
+  const ModelOptions mo{.gravity = Eigen::Vector3d(0, 0, -9.81)};
+  f.model_damped = std::make_unique<Model<T>>(mesh, std::span(&damped, 1), mo);
+  f.model_plain = std::make_unique<Model<T>>(mesh, std::span(&plain, 1), mo);
+  for (int n = 0; n < (s[0] + 1) * (s[1] + 1); ++n) {  // bottom face fixed
+    f.model_damped->SetFixed(n, true);
+    f.model_plain->SetFixed(n, true);
+  }
+  f.state = std::make_unique<State<T>>(*f.model_damped);
+  // A small deformation so no branch sees the trivial rest state.
+  for (size_t i = 0; i < f.state->x.size(); ++i) {
+    f.state->x[i] *= T(1) + T(1e-3) * static_cast<T>(i % 7);
+    f.state->v[i] = T(1e-3) * static_cast<T>(i % 5);
+  }
+  return cache.emplace(size_index, std::move(f)).first->second;
+}
+
+template <typename T>
+double BytesPerTet(bool damped) {
+  // Dm⁻¹ (9) + vol + λ + μ (+ ψ + φ) + element force write + read (24),
+  // plus 4 tet indices and 4 incidence slots (int32).
+  return static_cast<double>(sizeof(T)) * (9 + 3 + (damped ? 2 : 0) + 24) + 8 * 4;
+}
+
+template <typename T>
+void BM_Force(benchmark::State& st) {
+  const int size_index = static_cast<int>(st.range(0));
+  const int threads = static_cast<int>(st.range(1));
+  const bool damped = st.range(2) != 0;
+  Fixture<T>& f = GetFixture<T>(size_index);
+  const Model<T>& model = damped ? *f.model_damped : *f.model_plain;
+  std::vector<T> out(f.state->x.size());
+  const ForceMode mode = damped ? ForceMode::kElasticDamped : ForceMode::kElastic;
+  for (auto _ : st) {
+    ComputeInternalForces(model, *f.state, mode, out.data(), threads);
+    benchmark::DoNotOptimize(out.data());
+    benchmark::ClobberMemory();
+  }
+  const double tets = model.num_tets();
+  st.counters["tets"] = tets;
+  st.counters["nodes"] = model.num_nodes();
+  st.counters["threads"] = threads;
+  st.counters["bytes_per_tet"] = BytesPerTet<T>(damped);
+  st.counters["tet_steps_per_s"] =
+      benchmark::Counter(tets * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
+}
+
+template <typename T>
+void BM_Step(benchmark::State& st) {
+  const int size_index = static_cast<int>(st.range(0));
+  const int threads = static_cast<int>(st.range(1));
+  const bool damped = st.range(2) != 0;
+  Fixture<T>& f = GetFixture<T>(size_index);
+  const Model<T>& model = damped ? *f.model_damped : *f.model_plain;
+  State<T> state(model);  // fresh, allocated outside the timed loop
+  state.x = f.state->x;
+  StepOptions opt;
+  opt.num_threads = threads;
+  RefreshStableStep(model, state, true, threads);
+  const T dt = T(0.5) * StableStepBound(state);
+  for (auto _ : st) {
+    const StepResult r = Step(model, state, dt, opt);
+    if (!r.ok()) {
+      st.SkipWithError("step failed");
+      break;
+    }
+  }
+  const double tets = model.num_tets();
+  st.counters["tets"] = tets;
+  st.counters["nodes"] = model.num_nodes();
+  st.counters["threads"] = threads;
+  st.counters["tet_steps_per_s"] =
+      benchmark::Counter(tets * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
+}
+
+// STREAM triad a = b + s·c, 3 × 32 MiB of doubles (well beyond L3).
+void BM_Triad(benchmark::State& st) {
+  const int threads = static_cast<int>(st.range(0));
+  constexpr size_t kN = size_t{4} << 20;
+  static std::vector<double> a(kN, 1.0), b(kN, 2.0), c(kN, 3.0);
+  const double s = 1.5;
+  const auto n = static_cast<int64_t>(kN);
+  for (auto _ : st) {
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int64_t i = 0; i < n; ++i) a[static_cast<size_t>(i)] = b[static_cast<size_t>(i)] + s * c[static_cast<size_t>(i)];
+    benchmark::DoNotOptimize(a.data());
+    benchmark::ClobberMemory();
+  }
+  // STREAM counts 24 bytes per element (write-allocate traffic not counted).
+  st.counters["bytes_per_s"] = benchmark::Counter(
+      24.0 * static_cast<double>(kN) * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
+  st.counters["threads"] = threads;
+}
+
+void RegisterAll() {
+  for (int t : {1, 2}) {
+    benchmark::RegisterBenchmark("BM_Triad", BM_Triad)->Arg(t)->UseRealTime();
+  }
+  for (int size = 0; size < 4; ++size) {
+    for (int threads : {1, 2}) {
+      for (int damped : {0, 1}) {
+        const std::vector<int64_t> args = {size, threads, damped};
+        benchmark::RegisterBenchmark("BM_Force<double>", BM_Force<double>)->Args(args)->UseRealTime();
+        benchmark::RegisterBenchmark("BM_Force<float>", BM_Force<float>)->Args(args)->UseRealTime();
+        benchmark::RegisterBenchmark("BM_Step<double>", BM_Step<double>)->Args(args)->UseRealTime();
+        benchmark::RegisterBenchmark("BM_Step<float>", BM_Step<float>)->Args(args)->UseRealTime();
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace cutsim::fem
+
+int main(int argc, char** argv) {
+  cutsim::fem::RegisterAll();
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -1,0 +1,76 @@
+#include "common/cutting/criterion.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+
+namespace cutsim::cutting {
+
+Eigen::Vector3d PrincipalStresses(const Eigen::Matrix3d& stress) {
+  const Eigen::Matrix3d sym = 0.5 * (stress + stress.transpose());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(sym, Eigen::EigenvaluesOnly);
+  return solver.eigenvalues();  // ascending
+}
+
+CuttingStressParts CuttingStressDetail(const Eigen::Matrix3d& cauchy, double kappa, double zeta) {
+  CuttingStressParts parts;
+  if (!cauchy.allFinite() || !(kappa > 0.0) || !(zeta > 0.0)) return parts;
+  // Eq. (8): the cutting traction uses σ/κ, so the principal values scale too.
+  const Eigen::Vector3d s = PrincipalStresses(cauchy) / kappa;
+  parts.sigma_max = s[2];
+  // Eq. (9): with ascending eigenvalues the largest |σi − σj| is σ3 − σ1.
+  parts.tau_max = 0.5 * (s[2] - s[0]);
+  // Pure compression (no positive principal stress) never cuts, as in the
+  // seed: min(σ_max, τ_max) ≤ 0 there, and we clamp it to exactly 0 so that
+  // K_I = 0 cannot turn compression into a cut either. A largest principal
+  // value within 1e-10·max|σi| of zero is eigen-solver round-off on a
+  // compressive state with a zero principal value, not tension.
+  if (!(parts.sigma_max > 1e-10 * s.cwiseAbs().maxCoeff())) return parts;
+  parts.sigma_c = std::min(parts.sigma_max, parts.tau_max) / zeta;  // eq. (10)
+  return parts;
+}
+
+double CuttingStress(const Eigen::Matrix3d& cauchy, double kappa, double zeta) {
+  return CuttingStressDetail(cauchy, kappa, zeta).sigma_c;
+}
+
+bool ExceedsCriticalStress(double sigma_c, double critical_stress) {
+  return sigma_c > 0.0 && sigma_c >= critical_stress;  // eq. (11)
+}
+
+CriterionResult EvaluateCriterion(std::span<const int32_t> candidates, const CauchyFn& cauchy,
+                                  const CutParams& params) {
+  CriterionResult result;
+  for (const int32_t t : candidates) {
+    const double sc = CuttingStress(cauchy(t), params.kappa, params.zeta);
+    if (result.tet < 0 || sc > result.sigma_c) {
+      result.sigma_c = sc;
+      result.tet = t;
+    }
+  }
+  result.cut = result.tet >= 0 && ExceedsCriticalStress(result.sigma_c, params.critical_stress);
+  return result;
+}
+
+void ValidateCutParams(const CutParams& p, const SourceRef& source) {
+  auto fail = [&](const char* field, const char* why) {
+    SourceRef s = source;
+    s.field = s.field.empty() ? field : s.field + "." + field;
+    ThrowInputError(s, why);
+  };
+  if (!(std::isfinite(p.alpha) && p.alpha > 0.0)) fail("alpha", "must be a finite number > 0");
+  if (!(std::isfinite(p.kappa) && p.kappa > 0.0)) fail("kappa", "must be a finite number > 0");
+  if (!(std::isfinite(p.zeta) && p.zeta > 0.0 && p.zeta <= 1.0)) fail("zeta", "must be in (0, 1]");
+  if (!(std::isfinite(p.critical_stress) && p.critical_stress >= 0.0))
+    fail("critical_stress", "must be a finite stress >= 0 Pa");
+  if (!(std::isfinite(p.min_quality) && p.min_quality >= 0.0 && p.min_quality < 1.0))
+    fail("min_quality", "must be in [0, 1)");
+  if (p.t0_timeout_frames < 0) fail("t0_timeout_frames", "must be >= 0");
+  if (!(std::isfinite(p.band_fraction) && p.band_fraction > 0.0 && p.band_fraction <= 2.0))
+    fail("band_fraction", "must be in (0, 2]");
+  if (p.max_move_halvings < 0 || p.max_move_halvings > 60) fail("max_move_halvings", "must be in [0, 60]");
+  if (p.max_splits_per_step < 1) fail("max_splits_per_step", "must be >= 1");
+}
+
+}  // namespace cutsim::cutting

@@ -1,0 +1,54 @@
+#pragma once
+/// @file
+/// Physical cut criterion (seed §3.1, eqs. 6–11, as read in DESIGN.md): the
+/// Cauchy stress of the contact elements, scaled by 1/κ, is reduced to its
+/// principal values; σ_max is the largest, τ_max half the largest pairwise
+/// difference (eq. 9), σ_c = min(σ_max, τ_max)/ζ (eq. 10), and the tissue
+/// cuts iff σ_c ≥ K_I (eq. 11). Pure compression (σ_max ≤ 0) never cuts.
+
+#include <cstdint>
+#include <functional>
+#include <span>
+
+#include <Eigen/Core>
+
+#include "common/cutting/cut_params.h"
+
+namespace cutsim::cutting {
+
+/// Principal values of the symmetric part of `stress`, ascending, Pa.
+Eigen::Vector3d PrincipalStresses(const Eigen::Matrix3d& stress);
+
+/// Parts of eq. (10) for one stress tensor (already scaled by 1/κ).
+struct CuttingStressParts {
+  double sigma_max = 0.0;  ///< Largest principal stress, Pa.
+  double tau_max = 0.0;    ///< Largest principal half-difference (eq. 9), Pa.
+  double sigma_c = 0.0;    ///< Cutting stress (eq. 10), Pa; 0 under pure compression.
+};
+
+/// Eqs. (8)–(10) for a Cauchy stress `cauchy` (Pa), sharpness κ > 0, damage
+/// ζ > 0. Non-finite input gives σ_c = 0 (never cuts).
+CuttingStressParts CuttingStressDetail(const Eigen::Matrix3d& cauchy, double kappa, double zeta);
+
+/// σ_c of eq. (10), Pa.
+double CuttingStress(const Eigen::Matrix3d& cauchy, double kappa, double zeta);
+
+/// Eq. (11): σ_c > 0 and σ_c ≥ K_I.
+bool ExceedsCriticalStress(double sigma_c, double critical_stress);
+
+/// Cauchy stress of tet `t`, Pa, supplied by the FEM side.
+using CauchyFn = std::function<Eigen::Matrix3d(int32_t t)>;
+
+struct CriterionResult {
+  bool cut = false;       ///< Eq. (11) holds for the most stressed candidate.
+  double sigma_c = 0.0;   ///< Largest σ_c over the candidates, Pa.
+  int32_t tet = -1;       ///< Candidate that gave it (−1 if none).
+};
+
+/// Evaluates the criterion over the contact elements only (the tets
+/// incident to the contact facet / v_c; see CutMesh::ContactElements): the
+/// maximum σ_c decides. Ties keep the first candidate (deterministic).
+CriterionResult EvaluateCriterion(std::span<const int32_t> candidates, const CauchyFn& cauchy,
+                                  const CutParams& params);
+
+}  // namespace cutsim::cutting

@@ -1,0 +1,475 @@
+#include "common/cutting/cut_mesh.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <string>
+
+#include "common/core/error.h"
+#include "common/mesh/surface.h"
+
+namespace cutsim::cutting {
+namespace {
+
+// Union–find over 0..n−1 with path halving; small and allocation-light.
+struct DisjointSets {
+  std::vector<int32_t> parent;
+  explicit DisjointSets(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
+  int32_t Find(int32_t i) {
+    while (parent[static_cast<size_t>(i)] != i) {
+      auto& p = parent[static_cast<size_t>(i)];
+      p = parent[static_cast<size_t>(p)];
+      i = p;
+    }
+    return i;
+  }
+  void Union(int32_t a, int32_t b) {
+    a = Find(a);
+    b = Find(b);
+    if (a == b) return;
+    if (a < b) std::swap(a, b);
+    parent[static_cast<size_t>(a)] = b;  // the smaller index is the root
+  }
+};
+
+// Labels 0, 1, … in order of first appearance; returns the count.
+int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
+  const size_t n = ds.parent.size();
+  labels.assign(n, -1);
+  std::vector<int32_t> root_label(n, -1);
+  int32_t count = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto r = static_cast<size_t>(ds.Find(static_cast<int32_t>(i)));
+    if (root_label[r] < 0) root_label[r] = count++;
+    labels[i] = root_label[r];
+  }
+  return count;
+}
+
+}  // namespace
+
+size_t CutMesh::KeyHash::operator()(const Key& k) const noexcept {
+  uint64_t h = static_cast<uint32_t>(k[0]);
+  h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
+  h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
+  h ^= h >> 31;
+  h *= 0x94D049BB133111EBULL;
+  h ^= h >> 29;
+  return static_cast<size_t>(h);
+}
+
+CutMesh::Key CutMesh::SortedKey(int32_t a, int32_t b, int32_t c) {
+  if (a > b) std::swap(a, b);
+  if (b > c) std::swap(b, c);
+  if (a > b) std::swap(a, b);
+  return {a, b, c};
+}
+
+CutMesh::Key CutMesh::FaceKeyOf(int32_t t, int f) const {
+  const auto& n = tets_[Idx(t)];
+  const auto lf = mesh::LocalTetFace(f);
+  return SortedKey(n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]);
+}
+
+int CutMesh::LocalFaceOf(int32_t t, const Key& key) const {
+  const auto& n = tets_[Idx(t)];
+  for (int f = 0; f < 4; ++f) {
+    if (n[Idx(f)] != key[0] && n[Idx(f)] != key[1] && n[Idx(f)] != key[2]) return f;
+  }
+  CUTSIM_CHECK(false, "face key is not a face of the tet");
+}
+
+CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
+  const int32_t n = mesh.num_nodes();
+  const int32_t cap = std::max(n, node_capacity > 0 ? node_capacity : 2 * n);
+  rest_.reserve(Idx(cap));
+  node_tets_.reserve(Idx(cap));
+  origin_.reserve(Idx(cap));
+  for (int32_t i = 0; i < n; ++i) {
+    rest_.emplace_back(mesh.nodes.row(i).transpose());
+    origin_.push_back(i);
+  }
+  node_tets_.resize(Idx(n));
+  tets_.resize(Idx(mesh.num_tets()));
+  faces_.reserve(Idx(mesh.num_tets()) * 3);
+  for (int32_t t = 0; t < mesh.num_tets(); ++t) {
+    for (int c = 0; c < 4; ++c) {
+      const int32_t v = mesh.tets(t, c);
+      CUTSIM_CHECK(v >= 0 && v < n, "tet node out of range (validate the mesh first)");
+      tets_[Idx(t)][Idx(c)] = v;
+      node_tets_[Idx(v)].push_back(t);  // ascending since t ascends
+    }
+  }
+  // Faces: first pass pairs tets, second assigns surface slots in tet order
+  // (deterministic, like mesh::ExtractSurface).
+  for (int32_t t = 0; t < num_tets(); ++t) {
+    for (int f = 0; f < 4; ++f) {
+      FaceRec& rec = faces_[FaceKeyOf(t, f)];
+      CUTSIM_CHECK(rec.tets[1] < 0, "face shared by more than two tets");
+      rec.tets[rec.tets[0] < 0 ? 0 : 1] = t;
+    }
+  }
+  for (int32_t t = 0; t < num_tets(); ++t) {
+    for (int f = 0; f < 4; ++f) {
+      FaceRec& rec = faces_.at(FaceKeyOf(t, f));
+      if (rec.tets[1] < 0) rec.slot = NewSlot(t, f, false);
+    }
+  }
+}
+
+std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const {
+  const auto it = faces_.find(SortedKey(a, b, c));
+  return it == faces_.end() ? std::array<int32_t, 2>{-1, -1} : it->second.tets;
+}
+
+mesh::Tets CutMesh::TetsMatrix() const {
+  mesh::Tets T(num_tets(), 4);
+  for (int32_t t = 0; t < num_tets(); ++t)
+    for (int c = 0; c < 4; ++c) T(t, c) = tets_[Idx(t)][Idx(c)];
+  return T;
+}
+
+mesh::TetMesh CutMesh::RestMesh() const {
+  mesh::TetMesh m;
+  m.nodes.resize(num_nodes(), 3);
+  for (int32_t i = 0; i < num_nodes(); ++i) m.nodes.row(i) = rest_[Idx(i)].transpose();
+  m.tets = TetsMatrix();
+  return m;
+}
+
+mesh::Triangles CutMesh::SurfaceTriangles(std::vector<uint8_t>* opened) const {
+  mesh::Triangles tris(num_surface_, 3);
+  if (opened) opened->clear();
+  int32_t row = 0;
+  for (const SurfaceFace& s : surface_) {
+    if (!s.alive) continue;
+    const auto lf = mesh::LocalTetFace(s.local_face);
+    const auto& n = tets_[Idx(s.tet)];
+    tris.row(row++) << n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])];
+    if (opened) opened->push_back(s.opened ? 1 : 0);
+  }
+  return tris;
+}
+
+std::vector<int32_t> CutMesh::ContactElements(int32_t node, int32_t facet_tet) const {
+  std::vector<int32_t> out;
+  if (node >= 0 && node < num_nodes()) out = node_tets_[Idx(node)];
+  if (facet_tet >= 0 && facet_tet < num_tets() && !std::binary_search(out.begin(), out.end(), facet_tet)) {
+    out.insert(std::lower_bound(out.begin(), out.end(), facet_tet), facet_tet);
+  }
+  return out;
+}
+
+std::vector<int32_t> CutMesh::Twins(int32_t node, const WorldAccess& world) const {
+  // Copies of one original vertex that still coincide (split but not moved
+  // apart) move together, so a crack stays closed where the tool passed.
+  std::vector<int32_t> out;
+  const int32_t o = origin_[Idx(node)];
+  const Eigen::Vector3d x = world.Get(node);
+  auto consider = [&](int32_t k) {
+    if (rest_[Idx(k)] == rest_[Idx(node)] && world.Get(k) == x) out.push_back(k);
+  };
+  consider(o);
+  if (const auto it = copies_.find(o); it != copies_.end())
+    for (const int32_t k : it->second) consider(k);
+  return out;  // ascending: the original first, copies in creation order
+}
+
+int32_t CutMesh::NewSlot(int32_t t, int f, bool opened) {
+  int32_t slot;
+  if (!free_slots_.empty()) {
+    slot = free_slots_.back();
+    free_slots_.pop_back();
+  } else {
+    slot = static_cast<int32_t>(surface_.size());
+    surface_.emplace_back();
+  }
+  surface_[Idx(slot)] = SurfaceFace{t, static_cast<int8_t>(f), opened, true};
+  ++num_surface_;
+  return slot;
+}
+
+void CutMesh::FreeSlot(int32_t slot) {
+  surface_[Idx(slot)].alive = false;
+  free_slots_.push_back(slot);
+  --num_surface_;
+}
+
+bool CutMesh::RemoveFaceTet(const Key& key, int32_t t) {
+  auto it = faces_.find(key);
+  CUTSIM_CHECK(it != faces_.end(), "face missing from the complex");
+  FaceRec& rec = it->second;
+  if (rec.tets[1] < 0) {  // a surface face: it travels with its tet
+    CUTSIM_CHECK(rec.tets[0] == t, "face owner mismatch");
+    const bool opened = surface_[Idx(rec.slot)].opened;
+    FreeSlot(rec.slot);
+    faces_.erase(it);
+    return opened;
+  }
+  // Interior face: the other tet is exposed, as a face opened by the cut.
+  const int32_t other = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+  CUTSIM_CHECK(rec.tets[0] == t || rec.tets[1] == t, "face owner mismatch");
+  rec.tets = {other, -1};
+  rec.slot = NewSlot(other, LocalFaceOf(other, key), true);
+  return true;
+}
+
+void CutMesh::AddFaceTet(const Key& key, int32_t t, int f, bool opened_if_boundary) {
+  auto [it, inserted] = faces_.try_emplace(key);
+  FaceRec& rec = it->second;
+  if (inserted) {
+    rec.tets = {t, -1};
+    rec.slot = NewSlot(t, f, opened_if_boundary);
+    return;
+  }
+  // Two tets sharing a face both hold copies only moved together (see the
+  // proof sketch in SplitNode), so a third user is a bug.
+  CUTSIM_CHECK(rec.tets[1] < 0, "face would be shared by more than two tets");
+  rec.tets[1] = t;
+  FreeSlot(rec.slot);
+  rec.slot = -1;
+}
+
+int32_t CutMesh::AddNodeCopy(int32_t node) {
+  const Eigen::Vector3d r = rest_[Idx(node)];
+  const int32_t o = origin_[Idx(node)];
+  rest_.push_back(r);
+  origin_.push_back(o);
+  node_tets_.emplace_back();
+  copies_[o].push_back(num_nodes() - 1);
+  return num_nodes() - 1;
+}
+
+void CutMesh::RemoveLastNode() {
+  CUTSIM_CHECK(node_tets_.back().empty(), "removing a node still in use");
+  auto& copies = copies_.at(origin_.back());
+  copies.pop_back();
+  if (copies.empty()) copies_.erase(origin_.back());
+  rest_.pop_back();
+  origin_.pop_back();
+  node_tets_.pop_back();
+}
+
+void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
+  auto& n = tets_[Idx(t)];
+  int corner = -1;
+  for (int c = 0; c < 4; ++c)
+    if (n[Idx(c)] == from) corner = c;
+  CUTSIM_CHECK(corner >= 0, "retargeted tet does not use the node");
+  // The three faces through the corner change key; the opposite face does not.
+  std::array<bool, 4> opened{};
+  for (int f = 0; f < 4; ++f)
+    if (f != corner) opened[Idx(f)] = RemoveFaceTet(FaceKeyOf(t, f), t);
+  auto& from_tets = node_tets_[Idx(from)];
+  from_tets.erase(std::lower_bound(from_tets.begin(), from_tets.end(), t));
+  n[Idx(corner)] = to;
+  auto& to_tets = node_tets_[Idx(to)];
+  to_tets.insert(std::upper_bound(to_tets.begin(), to_tets.end(), t), t);
+  for (int f = 0; f < 4; ++f)
+    if (f != corner) AddFaceTet(FaceKeyOf(t, f), t, f, opened[Idx(f)]);
+  if (journaling_) journal_.push_back(Op{t, from, to});
+}
+
+void CutMesh::Rollback(size_t journal_mark, int32_t node_mark) {
+  const bool was = journaling_;
+  journaling_ = false;
+  while (journal_.size() > journal_mark) {
+    const Op op = journal_.back();
+    journal_.pop_back();
+    RetargetTet(op.tet, op.to, op.from);
+  }
+  while (num_nodes() > node_mark) RemoveLastNode();
+  journaling_ = was;
+}
+
+int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event) {
+  // Why no face can get a third tet: the copy only ever receives tets that
+  // used `node`, so two tets sharing a face with the copy shared the same
+  // face with `node` before, and that face had at most two tets.
+  const int32_t copy = AddNodeCopy(node);
+  Split split;
+  split.node = node;
+  split.new_node = copy;
+  split.tets.assign(moved.begin(), moved.end());
+  for (const int32_t t : moved) RetargetTet(t, node, copy);
+  if (event) event->splits.push_back(std::move(split));
+  return copy;
+}
+
+std::vector<std::vector<int32_t>> CutMesh::StarGroups(int32_t node) const {
+  const auto& star = node_tets_[Idx(node)];
+  DisjointSets ds(star.size());
+  for (size_t i = 0; i < star.size(); ++i) {
+    const int32_t t = star[i];
+    const auto& n = tets_[Idx(t)];
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
+      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
+      const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+      if (u < 0) continue;
+      const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
+      ds.Union(static_cast<int32_t>(i), static_cast<int32_t>(j));
+    }
+  }
+  std::vector<int32_t> labels;
+  const int32_t k = Relabel(ds, labels);
+  std::vector<std::vector<int32_t>> groups(Idx(k));
+  for (size_t i = 0; i < star.size(); ++i) groups[Idx(labels[i])].push_back(star[i]);
+  return groups;
+}
+
+int CutMesh::EdgeGroupCount(int32_t a, int32_t b) const {
+  const auto& sa = node_tets_[Idx(a)];
+  const auto& sb = node_tets_[Idx(b)];
+  std::vector<int32_t> around;
+  std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around));
+  if (around.size() <= 1) return static_cast<int>(around.size());
+  DisjointSets ds(around.size());
+  for (size_t i = 0; i < around.size(); ++i) {
+    const int32_t t = around[i];
+    const auto& n = tets_[Idx(t)];
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
+      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
+      const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+      if (u < 0) continue;
+      const auto j = std::lower_bound(around.begin(), around.end(), u) - around.begin();
+      ds.Union(static_cast<int32_t>(i), static_cast<int32_t>(j));
+    }
+  }
+  std::vector<int32_t> labels;
+  return Relabel(ds, labels);
+}
+
+bool CutMesh::SurfaceManifoldAt(int32_t node) const {
+  // Link of the node in the surface: each surface triangle (node, p, q)
+  // contributes the directed link edge p → q. A closed, oriented manifold
+  // fan is exactly one cycle: every link vertex has one out- and one in-edge.
+  std::vector<std::pair<int32_t, int32_t>> link;
+  for (const int32_t t : node_tets_[Idx(node)]) {
+    const auto& n = tets_[Idx(t)];
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == node) continue;
+      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
+      if (rec.tets[1] >= 0) continue;
+      const auto lf = mesh::LocalTetFace(f);
+      std::array<int32_t, 3> tri{n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]};
+      while (tri[0] != node) std::rotate(tri.begin(), tri.begin() + 1, tri.end());
+      link.emplace_back(tri[1], tri[2]);
+    }
+  }
+  if (link.empty()) return true;  // interior vertex
+  std::sort(link.begin(), link.end());
+  for (size_t i = 1; i < link.size(); ++i)
+    if (link[i].first == link[i - 1].first) return false;  // two out-edges
+  std::vector<int32_t> heads;
+  heads.reserve(link.size());
+  for (const auto& e : link) heads.push_back(e.second);
+  std::sort(heads.begin(), heads.end());
+  if (std::adjacent_find(heads.begin(), heads.end()) != heads.end()) return false;  // two in-edges
+  for (size_t i = 0; i < link.size(); ++i)
+    if (heads[i] != link[i].first) return false;  // a link vertex without in- or out-edge
+  // One cycle through all link edges.
+  int32_t v = link[0].first;
+  for (size_t steps = 1;; ++steps) {
+    const auto it = std::lower_bound(link.begin(), link.end(), std::make_pair(v, INT32_MIN));
+    v = it->second;
+    if (v == link[0].first) return steps == link.size();
+    if (steps > link.size()) return false;
+  }
+}
+
+std::vector<int32_t> CutMesh::ConnectedComponents(int32_t* count) const {
+  DisjointSets ds(tets_.size());
+  for (const auto& [key, rec] : faces_)
+    if (rec.tets[1] >= 0) ds.Union(rec.tets[0], rec.tets[1]);
+  std::vector<int32_t> labels;
+  const int32_t k = Relabel(ds, labels);
+  if (count) *count = k;
+  return labels;
+}
+
+std::vector<int32_t> ConnectedComponents(const mesh::Tets& tets, int32_t* count) {
+  struct Hash {
+    size_t operator()(const std::array<int32_t, 3>& k) const noexcept {
+      uint64_t h = static_cast<uint32_t>(k[0]);
+      h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
+      h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
+      return static_cast<size_t>(h ^ (h >> 29));
+    }
+  };
+  std::unordered_map<std::array<int32_t, 3>, int32_t, Hash> first;
+  first.reserve(static_cast<size_t>(tets.rows()) * 3);
+  DisjointSets ds(static_cast<size_t>(tets.rows()));
+  for (int32_t t = 0; t < tets.rows(); ++t) {
+    for (int f = 0; f < 4; ++f) {
+      std::array<int32_t, 3> k{};
+      int j = 0;
+      for (int c = 0; c < 4; ++c)
+        if (c != f) k[static_cast<size_t>(j++)] = tets(t, c);
+      std::sort(k.begin(), k.end());
+      const auto [it, inserted] = first.try_emplace(k, t);
+      if (!inserted) ds.Union(it->second, t);
+    }
+  }
+  std::vector<int32_t> labels;
+  const int32_t k = Relabel(ds, labels);
+  if (count) *count = k;
+  return labels;
+}
+
+void CutMesh::ApplyEvent(const TopologyEvent& event) {
+  auto fail = [](const std::string& field, const std::string& why) {
+    ThrowInputError(SourceRef{.field = field}, why);
+  };
+  if (event.version != version_ + 1) {
+    fail("event.version", "expected version " + std::to_string(version_ + 1) + ", got " +
+                              std::to_string(event.version));
+  }
+  for (size_t i = 0; i < event.moves.size(); ++i) {
+    const Move& m = event.moves[i];
+    if (!m.rest.allFinite() || !m.world.allFinite()) fail("event.moves[" + std::to_string(i) + "]", "non-finite position");
+  }
+  const size_t journal_mark = journal_.size();
+  const int32_t node_mark = num_nodes();
+  journaling_ = true;
+  std::string error_field, error_why;
+  for (size_t i = 0; i < event.splits.size() && error_field.empty(); ++i) {
+    const Split& s = event.splits[i];
+    if (s.node < 0 || s.node >= num_nodes() || s.new_node != num_nodes()) {
+      error_field = "event.splits[" + std::to_string(i) + "]";
+      error_why = "node ids do not follow the mesh (node " + std::to_string(s.node) + ", new node " +
+                  std::to_string(s.new_node) + ", expected new node " + std::to_string(num_nodes()) + ")";
+      break;
+    }
+    AddNodeCopy(s.node);
+    for (const int32_t t : s.tets) {
+      const bool uses = t >= 0 && t < num_tets() &&
+                        std::find(tets_[Idx(t)].begin(), tets_[Idx(t)].end(), s.node) != tets_[Idx(t)].end();
+      if (!uses) {
+        error_field = "event.splits[" + std::to_string(i) + "].tets";
+        error_why = "tet " + std::to_string(t) + " does not use node " + std::to_string(s.node);
+        break;
+      }
+      RetargetTet(t, s.node, s.new_node);
+    }
+  }
+  for (size_t i = 0; i < event.moves.size() && error_field.empty(); ++i) {
+    if (event.moves[i].node < 0 || event.moves[i].node >= num_nodes()) {
+      error_field = "event.moves[" + std::to_string(i) + "].node";
+      error_why = "node out of range";
+    }
+  }
+  if (!error_field.empty()) {
+    Rollback(journal_mark, node_mark);
+    journaling_ = false;
+    journal_.resize(journal_mark);
+    fail(error_field, error_why);
+  }
+  journaling_ = false;
+  journal_.resize(journal_mark);
+  for (const Move& m : event.moves) rest_[Idx(m.node)] = m.rest;
+  version_ = event.version;
+}
+
+}  // namespace cutsim::cutting

@@ -1,0 +1,228 @@
+#pragma once
+/// @file
+/// The cut topology: rest positions, tets, the abstract simplicial complex
+/// (node → incident tets, face → tets) and the boundary surface with a
+/// per-face "opened by a cut" flag, all maintained incrementally by the
+/// three primitives a cut uses (copy a node, retarget a tet corner, move a
+/// rest position). World positions belong to the FEM and are read through
+/// `WorldAccess`.
+///
+/// Cut step (seed §3.2–3.3), `ExecuteCut`:
+/// 1. Plane P through x(v1) spanned by the facet normal n and s1 = x(v1) −
+///    x(v0) (world); its unit normal is m = s1 × n / |s1 × n|.
+/// 2. Split set S = {v1} plus, if a blade is given, every vertex inside the
+///    blade's swept slab: |m·(x − x(v1))| ≤ band (band = band_fraction × the
+///    mean edge length around v1, "half an element"), 0 < ŝ1·(x − x(v0)) ≤
+///    |s1| + band (between the previous and the current blade position), and
+///    0 ≤ (x − tip)·d ≤ blade length (between the tip and the handle end
+///    along the blade direction d). Splitting a vertex opens the faces of its
+///    star, so the crack reaches up to one element below the deepest split
+///    vertex. A blade longer than the thickness hence cuts through; a
+///    shallower one leaves a slit.
+/// 3. Every tet around S gets a side: the sign of the signed distance to P of
+///    its vertex farthest from P (crossed tets go with their farthest vertex;
+///    exact ties keep the first vertex in tet order; all-zero goes to the
+///    positive side). Each w in S whose star holds tets of both sides is split:
+///    the negative side moves to the new copy.
+/// 4. Singularities, on the complex, over every vertex of a retargeted tet
+///    until none is left: (vertex rule) a vertex whose incident tets fall
+///    into k > 1 face-connected groups gets k − 1 copies, one per group (the
+///    group holding the lowest tet id keeps the vertex); (edge rule) an edge
+///    whose tets fall into more than one face-connected group around it has
+///    an endpoint that is not yet plane-split split by the plane sides (then
+///    the vertex rule applies again), preferring the endpoint nearer to P. A
+///    step that still leaves a non-manifold vertex or edge on the surface, or
+///    needs more than max_splits_per_step copies, is rolled back entirely
+///    (status kRejected, nothing changes, no event).
+/// 5. Remeshing: the twins of v0 (coincident copies of the same original
+///    vertex) move to C_p(t0) and those of v1 to C_p(t): world to C_p, rest to
+///    the barycentric preimage of C_p in the world tet around the vertex
+///    that contains it best (largest smallest barycentric coordinate; affine
+///    extrapolation if C_p lies slightly outside). A move is accepted if every
+///    tet around the moved twins keeps positive volume and mean-ratio quality
+///    ≥ min(min_quality, its quality before the move), in rest and in world;
+///    otherwise the displacement is halved (up to max_move_halvings times)
+///    and the move is skipped if no fraction passes.
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "common/cutting/cut_params.h"
+#include "common/cutting/topology_event.h"
+#include "common/cutting/world_access.h"
+#include "common/mesh/tet_mesh.h"
+
+namespace cutsim::cutting {
+
+/// The blade below the contact point, world.
+struct Blade {
+  Eigen::Vector3d tip = Eigen::Vector3d::Zero();             ///< m
+  Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();      ///< unit, tip → handle
+  double length = 0.0;                                       ///< m
+};
+
+/// One cut step's geometric input (from a `CutAttempt` plus the tool).
+struct CutStep {
+  int32_t v0 = -1;                                    ///< v_c(t0)
+  int32_t v1 = -1;                                    ///< v_c(t)
+  Eigen::Vector3d cp0 = Eigen::Vector3d::Zero();      ///< C_p(t0), world, m
+  Eigen::Vector3d cp = Eigen::Vector3d::Zero();       ///< C_p(t), world, m
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  ///< Outward facet normal, world
+  std::optional<Blade> blade;  ///< None: split v1 only (the seed's surface cut).
+  bool remesh = true;          ///< Move v0, v1 to the cut points (§3.3).
+};
+
+enum class CutStatus {
+  kExecuted,      ///< Event applied (it may hold no split if P separated nothing).
+  kRejected,      ///< A singularity could not be removed; rolled back, nothing changed.
+  kInvalidInput,  ///< Bad node ids, v0 = v1, non-finite input, or s1 ∥ n.
+};
+
+struct CutOutcome {
+  CutStatus status = CutStatus::kInvalidInput;
+  TopologyEvent event;      ///< Empty unless kExecuted.
+  int32_t v2 = -1;          ///< Eq. (12): next cut-line vertex (−1 if none).
+  int32_t moves_limited = 0;  ///< Moves shortened by the quality rule.
+  int32_t moves_skipped = 0;  ///< Moves dropped by it.
+};
+
+/// Surface face: local face `local_face` (opposite that corner) of `tet`.
+struct SurfaceFace {
+  int32_t tet = -1;
+  int8_t local_face = -1;
+  bool opened = false;  ///< Exposed by a cut (was interior in the uncut mesh).
+  bool alive = false;   ///< Slot in use.
+};
+
+class CutMesh {
+ public:
+  /// Builds the complex and surface of `mesh` (positively oriented tets, as
+  /// after ValidateTetMesh). `node_capacity` reserves room for copies
+  /// (0: 2·N). O(N + T).
+  explicit CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity = 0);
+
+  [[nodiscard]] int32_t num_nodes() const { return static_cast<int32_t>(rest_.size()); }
+  [[nodiscard]] int32_t num_tets() const { return static_cast<int32_t>(tets_.size()); }
+  /// Topology version: number of events applied (0 for the uncut mesh).
+  [[nodiscard]] uint64_t version() const { return version_; }
+  [[nodiscard]] const Eigen::Vector3d& rest(int32_t node) const { return rest_[Idx(node)]; }
+  [[nodiscard]] const std::array<int32_t, 4>& tet(int32_t t) const { return tets_[Idx(t)]; }
+  /// Tets using `node`, ascending.
+  [[nodiscard]] const std::vector<int32_t>& node_tets(int32_t node) const { return node_tets_[Idx(node)]; }
+  /// The uncut-mesh node this one descends from (itself for original nodes).
+  [[nodiscard]] int32_t origin(int32_t node) const { return origin_[Idx(node)]; }
+  /// Tets sharing the face {a, b, c}: {t0, t1} with −1 for none.
+  [[nodiscard]] std::array<int32_t, 2> FaceTets(int32_t a, int32_t b, int32_t c) const;
+
+  /// Rest mesh (copies out).
+  [[nodiscard]] mesh::TetMesh RestMesh() const;
+  [[nodiscard]] mesh::Tets TetsMatrix() const;
+
+  /// Surface slots (some dead); iterate and skip !alive. Stable ids for
+  /// renderers while a face lives.
+  [[nodiscard]] const std::vector<SurfaceFace>& surface_slots() const { return surface_; }
+  [[nodiscard]] int32_t num_surface_faces() const { return num_surface_; }
+  /// Live surface triangles, outward (counter-clockwise seen from outside),
+  /// in slot order; `opened` (optional) receives the per-triangle flag.
+  [[nodiscard]] mesh::Triangles SurfaceTriangles(std::vector<uint8_t>* opened = nullptr) const;
+
+  /// Contact elements for the stress criterion: the tets around `node`
+  /// (v_c) plus `facet_tet` if given. Sorted, unique.
+  [[nodiscard]] std::vector<int32_t> ContactElements(int32_t node, int32_t facet_tet = -1) const;
+
+  /// Coincident copies of `node` (same origin, same rest and world position),
+  /// including `node`, ascending.
+  [[nodiscard]] std::vector<int32_t> Twins(int32_t node, const WorldAccess& world) const;
+
+  /// Eq. (12): among the surface neighbours of v1 (other than v0 and twins),
+  /// the vertex whose direction from C_p, projected on the facet plane, makes
+  /// the smallest angle with s1 = x(v1) − x(v0). −1 if none.
+  [[nodiscard]] int32_t SelectV2(int32_t v0, int32_t v1, const Eigen::Vector3d& cp,
+                                 const Eigen::Vector3d& normal, const WorldAccess& world) const;
+
+  /// One cut step (see the file comment). On kExecuted the event is applied
+  /// here already and its version is version(); the caller applies it to the
+  /// FEM. `world` is only read: new nodes and moves reach the FEM through
+  /// the event.
+  CutOutcome ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params);
+
+  /// Replays a recorded event (splits, then rest moves). Throws InputError
+  /// (field "event…") and changes nothing if it does not fit this mesh.
+  void ApplyEvent(const TopologyEvent& event);
+
+  /// Checks the surface around `node` is a single closed, consistently
+  /// oriented fan with every edge on exactly two surface faces (or that the
+  /// node is interior). O(star).
+  [[nodiscard]] bool SurfaceManifoldAt(int32_t node) const;
+
+  /// Face-connected components of the tets: label per tet (0, 1, … in order
+  /// of the lowest tet id) and their number.
+  [[nodiscard]] std::vector<int32_t> ConnectedComponents(int32_t* count = nullptr) const;
+  [[nodiscard]] int32_t NumConnectedComponents() const {
+    int32_t k = 0;
+    (void)ConnectedComponents(&k);
+    return k;
+  }
+
+ private:
+  using Key = std::array<int32_t, 3>;
+  struct KeyHash {
+    size_t operator()(const Key& k) const noexcept;
+  };
+  struct FaceRec {
+    std::array<int32_t, 2> tets{-1, -1};
+    int32_t slot = -1;  ///< Surface slot while exactly one tet uses the face.
+  };
+  struct Op {  ///< Journal entry for rollback.
+    int32_t tet, from, to;
+  };
+
+  static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
+  static Key SortedKey(int32_t a, int32_t b, int32_t c);
+  [[nodiscard]] Key FaceKeyOf(int32_t t, int f) const;
+  [[nodiscard]] int LocalFaceOf(int32_t t, const Key& key) const;
+
+  int32_t AddNodeCopy(int32_t node);
+  void RemoveLastNode();
+  void RetargetTet(int32_t t, int32_t from, int32_t to);
+  void AddFaceTet(const Key& key, int32_t t, int f, bool opened_if_boundary);
+  /// Removes t from the face; returns the opened flag the face had if it
+  /// was a surface face, or true if it was interior (a cut opens it).
+  bool RemoveFaceTet(const Key& key, int32_t t);
+  int32_t NewSlot(int32_t t, int f, bool opened);
+  void FreeSlot(int32_t slot);
+
+  /// Splits `node` so that `moved` (subset of its tets) use a new copy.
+  int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);
+  /// Face-connected groups of the star of `node` (sorted by lowest tet).
+  [[nodiscard]] std::vector<std::vector<int32_t>> StarGroups(int32_t node) const;
+  /// Number of face-connected groups of the tets around edge (a, b).
+  [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b) const;
+  void Rollback(size_t journal_mark, int32_t node_mark);
+
+  std::vector<Eigen::Vector3d> rest_;            // #N, m
+  std::vector<std::array<int32_t, 4>> tets_;     // #T
+  std::vector<std::vector<int32_t>> node_tets_;  // #N, ascending tet ids
+  std::vector<int32_t> origin_;                  // #N
+  std::unordered_map<int32_t, std::vector<int32_t>> copies_;  // origin → its copies, ascending
+  std::unordered_map<Key, FaceRec, KeyHash> faces_;
+  std::vector<SurfaceFace> surface_;
+  std::vector<int32_t> free_slots_;
+  int32_t num_surface_ = 0;
+  uint64_t version_ = 0;
+  std::vector<Op> journal_;
+  bool journaling_ = false;
+};
+
+/// Face-connected components of any tet list (two tets are connected when
+/// they share a face): label per tet, 0, 1, … in order of the lowest tet id.
+/// O(T) with a hash of sorted face keys.
+std::vector<int32_t> ConnectedComponents(const mesh::Tets& tets, int32_t* count = nullptr);
+
+}  // namespace cutsim::cutting

@@ -1,0 +1,364 @@
+// CutMesh::ExecuteCut: one cut step (seed §3.2–3.3). The rules are stated in
+// cut_mesh.h; comments here say why.
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <Eigen/LU>
+
+#include "common/cutting/cut_mesh.h"
+#include "common/mesh/quality.h"
+
+namespace cutsim::cutting {
+namespace {
+
+using Eigen::Vector3d;
+
+// World positions during a step: the FEM's for nodes that existed before,
+// the source's for copies made in this step (AddNodeCopy copies x), and
+// staged moves. Nothing is written to the FEM: the event carries it.
+class StepWorld final : public WorldAccess {
+ public:
+  StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event)
+      : base_(base), base_nodes_(base_nodes), event_(event) {}
+  [[nodiscard]] Vector3d Get(int32_t node) const override {
+    if (const auto it = moved_.find(node); it != moved_.end()) return it->second;
+    while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
+    if (const auto it = moved_.find(node); it != moved_.end()) return it->second;
+    return base_.Get(node);
+  }
+  void Set(int32_t node, const Vector3d& x) override { moved_[node] = x; }
+
+ private:
+  const WorldAccess& base_;
+  int32_t base_nodes_;
+  const TopologyEvent& event_;
+  std::unordered_map<int32_t, Vector3d> moved_;
+};
+
+}  // namespace
+
+int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vector3d& normal,
+                          const WorldAccess& world) const {
+  const Vector3d n = normal.normalized();
+  auto tangential = [&](const Vector3d& a) { return Vector3d(a - n.dot(a) * n); };
+  const Vector3d s1 = tangential(world.Get(v1) - world.Get(v0));
+  if (!(s1.norm() > 0.0)) return -1;
+  int32_t best = -1;
+  double best_cos = -2.0;
+  for (const int32_t t : node_tets_[Idx(v1)]) {
+    const auto& tn = tets_[Idx(t)];
+    for (int f = 0; f < 4; ++f) {
+      if (tn[Idx(f)] == v1 || faces_.at(FaceKeyOf(t, f)).tets[1] >= 0) continue;  // surface faces through v1
+      for (int c = 0; c < 4; ++c) {
+        const int32_t vi = tn[Idx(c)];
+        if (c == f || vi == v1 || origin_[Idx(vi)] == origin_[Idx(v0)] || origin_[Idx(vi)] == origin_[Idx(v1)])
+          continue;
+        const Vector3d si = tangential(world.Get(vi) - cp);  // eq. (12): s_i from C_p(t)
+        if (!(si.norm() > 0.0)) continue;
+        const double c_angle = s1.dot(si) / (s1.norm() * si.norm());
+        if (c_angle > best_cos || (c_angle == best_cos && vi < best)) {
+          best_cos = c_angle;
+          best = vi;
+        }
+      }
+    }
+  }
+  return best;
+}
+
+CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params) {
+  CutOutcome out;
+  const int32_t n0 = num_nodes();
+  const bool ids_ok = step.v0 >= 0 && step.v0 < n0 && step.v1 >= 0 && step.v1 < n0 && step.v0 != step.v1;
+  const bool blade_ok = !step.blade || (step.blade->tip.allFinite() && step.blade->direction.allFinite() &&
+                                        step.blade->direction.norm() > 0.0 && std::isfinite(step.blade->length) &&
+                                        step.blade->length >= 0.0);
+  if (!ids_ok || !blade_ok || !step.cp0.allFinite() || !step.cp.allFinite() || !step.normal.allFinite() ||
+      !(step.normal.norm() > 0.0)) {
+    return out;
+  }
+  TopologyEvent ev;
+  StepWorld W(world, n0, ev);
+  const Vector3d x0 = W.Get(step.v0);
+  const Vector3d x1 = W.Get(step.v1);
+  const Vector3d n = step.normal.normalized();
+  Vector3d s1 = x1 - x0;
+  if (!(s1.norm() > 0.0)) s1 = step.cp - step.cp0;  // twins: fall back to the tool's motion
+  Vector3d m = s1.cross(n);  // normal of the plane P spanned by n and s1
+  if (!(m.norm() > 1e-9 * s1.norm()) || !m.allFinite()) return out;
+  m.normalize();
+
+  // Local element size: mean world edge length around v1.
+  double h = 0.0;
+  int edges = 0;
+  for (const int32_t t : node_tets_[Idx(step.v1)]) {
+    for (const int32_t a : tets_[Idx(t)]) {
+      if (a == step.v1) continue;
+      h += (W.Get(a) - x1).norm();
+      ++edges;
+    }
+  }
+  if (edges == 0 || !(h > 0.0)) return out;
+  h /= edges;
+  const double band = params.band_fraction * h;
+  out.v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
+  auto plane_dist = [&](const Vector3d& x) { return m.dot(x - x1); };
+
+  // ---- 2. split set S -------------------------------------------------------
+  std::vector<int32_t> S{step.v1};
+  if (step.blade) {
+    const Vector3d d = step.blade->direction.normalized();
+    const double s1_len = s1.norm();
+    const Vector3d s1_hat = s1 / s1_len;
+    // In the swept slab (k = 1: split) or a wider one to walk through
+    // (k = 2). No band below the tip: splitting a vertex opens the faces of
+    // its star, so the crack already reaches up to an element below the
+    // deepest split vertex.
+    auto in_slab = [&](const Vector3d& x, double k) {
+      const double along = s1_hat.dot(x - x0);
+      const double depth = d.dot(x - step.blade->tip);
+      return std::abs(plane_dist(x)) <= k * band && along > (k > 1.0 ? -band : 0.0) &&
+             along <= s1_len + k * band && depth >= (k > 1.0 ? -band : 0.0) && depth <= step.blade->length;
+    };
+    std::unordered_set<int32_t> seen{step.v1};
+    std::deque<int32_t> queue{step.v1};
+    while (!queue.empty()) {
+      const int32_t u = queue.front();
+      queue.pop_front();
+      for (const int32_t t : node_tets_[Idx(u)]) {
+        for (const int32_t w : tets_[Idx(t)]) {
+          if (!seen.insert(w).second) continue;
+          const Vector3d xw = W.Get(w);
+          if (!in_slab(xw, 2.0)) continue;
+          queue.push_back(w);
+          if (in_slab(xw, 1.0)) S.push_back(w);
+        }
+      }
+    }
+    std::sort(S.begin(), S.end());
+  }
+
+  // ---- 3. sides: the farthest vertex from P decides --------------------------
+  std::unordered_map<int32_t, int8_t> side_cache;
+  auto side = [&](int32_t t) -> int8_t {
+    if (const auto it = side_cache.find(t); it != side_cache.end()) return it->second;
+    double far = 0.0;
+    for (const int32_t a : tets_[Idx(t)]) {
+      const double da = plane_dist(W.Get(a));
+      if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
+    }
+    const int8_t s = far < 0.0 ? int8_t{-1} : int8_t{1};
+    side_cache.emplace(t, s);
+    return s;
+  };
+
+  const size_t journal_mark = journal_.size();
+  journaling_ = true;
+  std::deque<int32_t> work;
+  std::unordered_set<int32_t> queued;
+  auto enqueue_tets = [&](std::span<const int32_t> tets) {
+    for (const int32_t t : tets)
+      for (const int32_t a : tets_[Idx(t)])
+        if (queued.insert(a).second) work.push_back(a);
+  };
+  std::unordered_set<int32_t> plane_done;
+  auto plane_split = [&](int32_t w) -> bool {
+    plane_done.insert(w);
+    std::vector<int32_t> negative;
+    bool has_positive = false;
+    for (const int32_t t : node_tets_[Idx(w)]) {
+      if (side(t) < 0) {
+        negative.push_back(t);
+      } else {
+        has_positive = true;
+      }
+    }
+    if (negative.empty() || !has_positive) return false;
+    SplitNode(w, negative, &ev);
+    enqueue_tets(negative);
+    enqueue_tets(node_tets_[Idx(w)]);
+    return true;
+  };
+  for (const int32_t w : S) plane_split(w);
+
+  // ---- 4. singularities ------------------------------------------------------
+  bool rejected = false;
+  while (!work.empty() && !rejected) {
+    const int32_t v = work.front();
+    work.pop_front();
+    queued.erase(v);
+    if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) {
+      rejected = true;
+      break;
+    }
+    // Vertex rule: parts of the star joined only through v.
+    auto groups = StarGroups(v);
+    if (groups.size() > 1) {
+      for (size_t g = 1; g < groups.size(); ++g) {
+        SplitNode(v, groups[g], &ev);
+        enqueue_tets(groups[g]);
+      }
+      enqueue_tets(node_tets_[Idx(v)]);
+      continue;
+    }
+    // Edge rule: parts around an edge joined only through the edge. The
+    // star of each endpoint is connected (checked above), so no vertex copy
+    // alone separates them; splitting an endpoint by the plane sides extends
+    // the cut by one vertex, after which the vertex rule applies again.
+    std::vector<int32_t> nbrs;
+    for (const int32_t t : node_tets_[Idx(v)])
+      for (const int32_t a : tets_[Idx(t)])
+        if (a != v) nbrs.push_back(a);
+    std::sort(nbrs.begin(), nbrs.end());
+    nbrs.erase(std::unique(nbrs.begin(), nbrs.end()), nbrs.end());
+    for (const int32_t u : nbrs) {
+      if (EdgeGroupCount(v, u) <= 1) continue;
+      std::array<int32_t, 2> cand{v, u};
+      if (std::abs(plane_dist(W.Get(u))) < std::abs(plane_dist(W.Get(v)))) std::swap(cand[0], cand[1]);
+      bool fixed = false;
+      for (const int32_t c : cand) {
+        if (!plane_done.contains(c) && plane_split(c)) {
+          fixed = true;
+          break;
+        }
+      }
+      if (fixed) {
+        if (queued.insert(v).second) work.push_back(v);
+        break;
+      }
+      // Otherwise the final check below decides (and rejects if needed).
+    }
+  }
+  if (!rejected) {
+    std::vector<int32_t> check;
+    // Faces changed only on retargeted tets and on their neighbours across
+    // the old faces, whose vertices are the split node and the other corners.
+    for (const Split& s : ev.splits) {
+      check.push_back(s.node);
+      for (const int32_t t : s.tets)
+        for (const int32_t a : tets_[Idx(t)]) check.push_back(a);
+    }
+    std::sort(check.begin(), check.end());
+    check.erase(std::unique(check.begin(), check.end()), check.end());
+    for (const int32_t a : check) {
+      if (!SurfaceManifoldAt(a)) {
+        rejected = true;
+        break;
+      }
+    }
+  }
+  if (rejected) {
+    Rollback(journal_mark, n0);
+    journaling_ = false;
+    journal_.resize(journal_mark);
+    out.status = CutStatus::kRejected;
+    return out;
+  }
+  journaling_ = false;
+  journal_.resize(journal_mark);
+
+  // ---- 5. local remeshing -----------------------------------------------------
+  auto move_group = [&](int32_t node, const Vector3d& target) {
+    const std::vector<int32_t> group = Twins(node, W);
+    const Vector3d x_old = W.Get(node);
+    const Vector3d u_old = rest_[Idx(node)];
+    if (!((target - x_old).norm() > 1e-12 * h)) return;
+    std::vector<int32_t> star;
+    for (const int32_t g : group) star.insert(star.end(), node_tets_[Idx(g)].begin(), node_tets_[Idx(g)].end());
+    std::sort(star.begin(), star.end());
+    star.erase(std::unique(star.begin(), star.end()), star.end());
+    // Rest preimage of the target: barycentric coordinates in the world tet
+    // (star and its neighbours) that contains it best, mapped to rest.
+    std::vector<int32_t> search = star;
+    for (const int32_t t : star)
+      for (const int32_t a : tets_[Idx(t)]) search.insert(search.end(), node_tets_[Idx(a)].begin(), node_tets_[Idx(a)].end());
+    std::sort(search.begin(), search.end());
+    search.erase(std::unique(search.begin(), search.end()), search.end());
+    double best_score = -1e300;
+    Vector3d u_target = u_old;
+    for (const int32_t t : search) {
+      const auto& tn = tets_[Idx(t)];
+      const Vector3d p0 = W.Get(tn[0]);
+      Eigen::Matrix3d D;
+      D << W.Get(tn[1]) - p0, W.Get(tn[2]) - p0, W.Get(tn[3]) - p0;
+      const double det = D.determinant();
+      if (!(std::abs(det) > 1e-30)) continue;
+      const Vector3d lam = D.inverse() * (target - p0);
+      const double b0 = 1.0 - lam.sum();
+      const double score = std::min(b0, lam.minCoeff());
+      if (score > best_score) {
+        best_score = score;
+        u_target = b0 * rest_[Idx(tn[0])] + lam[0] * rest_[Idx(tn[1])] + lam[1] * rest_[Idx(tn[2])] +
+                   lam[2] * rest_[Idx(tn[3])];
+      }
+    }
+    if (!u_target.allFinite()) return;
+    auto in_group = [&](int32_t a) { return std::find(group.begin(), group.end(), a) != group.end(); };
+    auto corners = [&](int32_t t, bool rest_config, const Vector3d* moved) {
+      std::array<Vector3d, 4> p;
+      for (int c = 0; c < 4; ++c) {
+        const int32_t a = tets_[Idx(t)][Idx(c)];
+        if (moved && in_group(a)) {
+          p[Idx(c)] = *moved;
+        } else {
+          p[Idx(c)] = rest_config ? rest_[Idx(a)] : W.Get(a);
+        }
+      }
+      return p;
+    };
+    auto quality = [](const std::array<Vector3d, 4>& p) { return mesh::MeanRatio(p[0], p[1], p[2], p[3]); };
+    std::vector<double> q_rest, q_world;
+    for (const int32_t t : star) {
+      q_rest.push_back(quality(corners(t, true, nullptr)));
+      q_world.push_back(quality(corners(t, false, nullptr)));
+    }
+    double f = 1.0;
+    for (int k = 0; k <= params.max_move_halvings; ++k, f *= 0.5) {
+      const Vector3d xn = x_old + f * (target - x_old);
+      const Vector3d un = u_old + f * (u_target - u_old);
+      bool ok = true;
+      for (size_t i = 0; i < star.size() && ok; ++i) {
+        const double qr = quality(corners(star[i], true, &un));
+        const double qw = quality(corners(star[i], false, &xn));
+        ok = qr > 0.0 && qw > 0.0 && qr >= std::min(params.min_quality, q_rest[i]) &&
+             qw >= std::min(params.min_quality, q_world[i]);
+      }
+      if (!ok) continue;
+      for (const int32_t g : group) {
+        rest_[Idx(g)] = un;
+        W.Set(g, xn);
+        ev.moves.push_back(Move{g, un, xn});
+      }
+      if (k > 0) ++out.moves_limited;
+      return;
+    }
+    ++out.moves_skipped;
+  };
+  if (step.remesh) {
+    move_group(step.v0, step.cp0);
+    move_group(step.v1, step.cp);
+  }
+
+  // ---- event -------------------------------------------------------------------
+  out.status = CutStatus::kExecuted;
+  if (ev.empty()) return out;
+  for (const Split& s : ev.splits) {
+    ev.touched_tets.insert(ev.touched_tets.end(), s.tets.begin(), s.tets.end());
+    ev.touched_nodes.push_back(s.node);
+    ev.touched_nodes.push_back(s.new_node);
+  }
+  for (const Move& mv : ev.moves)
+    ev.touched_tets.insert(ev.touched_tets.end(), node_tets_[Idx(mv.node)].begin(), node_tets_[Idx(mv.node)].end());
+  for (auto* v : {&ev.touched_tets, &ev.touched_nodes}) {
+    std::sort(v->begin(), v->end());
+    v->erase(std::unique(v->begin(), v->end()), v->end());
+  }
+  ev.version = ++version_;
+  out.event = std::move(ev);
+  return out;
+}
+
+}  // namespace cutsim::cutting

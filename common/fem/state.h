@@ -1,0 +1,47 @@
+#pragma once
+/// @file
+/// `fem::State<T>`: everything that changes during a step (MuJoCo's mjData
+/// role): positions, velocities, forces, the caller's external force, and all
+/// scratch, preallocated from the model's node capacity so Step never
+/// allocates.
+
+#include <cstdint>
+#include <vector>
+
+#include "common/fem/model.h"
+
+namespace cutsim::fem {
+
+template <typename T>
+struct State {
+  /// Sized for `model.node_capacity()`; x = rest positions, v = 0.
+  explicit State(const Model<T>& model);
+
+  std::vector<T> x;      ///< World positions, m.  // #N_cap×3
+  std::vector<T> v;      ///< Velocities, m/s.  // #N_cap×3
+  std::vector<T> f;      ///< Total nodal force of the last step, N.  // #N_cap×3
+  /// External force, N (tool contact): the caller writes it before each
+  /// step; the integrator only reads it.  // #N_cap×3
+  std::vector<T> f_ext;
+  double time = 0;       ///< Simulated time, s.
+  int64_t step = 0;      ///< Steps taken.
+
+  // ---- scratch (owned by the integrator; contents are undefined) ----------
+  std::vector<T> element_force;  ///< Per-element nodal forces.  // #T_pad×12
+  std::vector<T> v_star;         ///< Implicit viscous: explicit predictor.  // #N_cap×3
+  std::vector<T> cg_r, cg_p, cg_q;  ///< Implicit viscous CG vectors.  // #N_cap×3
+
+  // ---- stable time step ----------------------------------------------------
+  /// Unscaled stable step bound per element (stable_dt.h), s.  // #T_pad
+  std::vector<T> element_dt;
+  /// Min tree over element_dt: leaves at [leaves, 2·leaves), root at 1.
+  std::vector<T> dt_tree;
+  int32_t dt_leaves = 0;
+  int64_t dt_refreshed_step = -1;  ///< Step of the last full refresh.
+  uint64_t dt_topology_version = 0;
+};
+
+extern template struct State<float>;
+extern template struct State<double>;
+
+}  // namespace cutsim::fem

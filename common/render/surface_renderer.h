@@ -1,0 +1,90 @@
+#pragma once
+/// @file
+/// Draws a boundary surface (positions + triangles) offscreen: flat-shaded,
+/// two-sided lit tissue, faces opened by cuts in their own colour, optional
+/// per-vertex stress colouring and the cutting tool. Independent of how the
+/// surface was extracted: it takes plain arrays.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "common/mesh/tet_mesh.h"
+#include "common/render/camera.h"
+#include "common/render/image.h"
+
+namespace cutsim::render {
+
+class OsMesaContext;
+
+/// The surface to draw. Non-owning: the arrays must outlive the `Render` call.
+struct SurfaceInput {
+  const mesh::Positions& positions;  ///< #N×3 vertex positions, world frame, m.
+  const mesh::Triangles& triangles;  ///< #F×3 vertex indices (any winding: lighting is two-sided).
+  /// #F flags or empty; non-zero marks a face opened by a cut.
+  std::span<const uint8_t> opened = {};
+  /// #N per-vertex scalar (e.g. von Mises stress, Pa) or empty.
+  std::span<const double> vertex_scalar = {};
+};
+
+/// The cutting tool, drawn as a steel cylinder from `base` to `tip`.
+struct ToolSegment {
+  Eigen::Vector3d base;  ///< Handle end, world frame, m.
+  Eigen::Vector3d tip;   ///< Blade tip, world frame, m.
+  double radius = 0.0;   ///< Cylinder radius, m; ≤ 0 picks 3% of the scene's bounding radius.
+};
+
+/// Closed range of the scalar mapped onto the stress colour map.
+struct ScalarRange {
+  double min = 0.0;  ///< Maps to the blue end.
+  double max = 1.0;  ///< Maps to the red end.
+};
+
+/// How to draw.
+struct RenderOptions {
+  /// Colour intact faces by `vertex_scalar` (ignored when it is empty).
+  bool colour_by_scalar = true;
+  /// Scalar range for the colour map; unset = the data's finite min..max.
+  std::optional<ScalarRange> scalar_range;
+  /// The tool, when it should appear.
+  std::optional<ToolSegment> tool;
+};
+
+/// Renders surfaces with OSMesa. Owns its context, recreated when the camera's
+/// image size changes. Not thread-safe; one renderer per thread.
+///
+/// Shading: flat per-face normals (a cut's new faces read as crisp facets),
+/// white ambient + two diffuse lights fixed to the camera, two-sided so faces
+/// seen from behind (e.g. the inside of an opened cut) are lit too. Opened
+/// faces are always `kCutFaceRgb`, also when stress colouring is on.
+class SurfaceRenderer {
+ public:
+  SurfaceRenderer();
+  ~SurfaceRenderer();
+  SurfaceRenderer(const SurfaceRenderer&) = delete;
+  SurfaceRenderer& operator=(const SurfaceRenderer&) = delete;
+
+  /// Draws `surface` seen by `camera` and returns the top-down image
+  /// (camera.width × camera.height). Throws `InputError` naming the field for
+  /// an invalid camera, an out-of-range triangle index, or `opened` /
+  /// `vertex_scalar` of the wrong length; `std::runtime_error` if OSMesa fails.
+  [[nodiscard]] Image Render(const Camera& camera, const SurfaceInput& surface,
+                             const RenderOptions& options = {});
+
+ private:
+  void EnsureContext(int width, int height);
+  void BuildVertexArrays(const SurfaceInput& surface, const RenderOptions& options,
+                         const Eigen::Vector3d& origin);
+  void DrawTool(const ToolSegment& tool, double scene_radius);
+
+  std::unique_ptr<OsMesaContext> context_;
+  // Unindexed vertex arrays, 3 vertices per triangle, reused across frames.
+  std::vector<float> vertices_;   // (3·#F)×3, m
+  std::vector<float> normals_;    // (3·#F)×3, unit face normals
+  std::vector<uint8_t> colours_;  // (3·#F)×4, RGBA
+};
+
+}  // namespace cutsim::render

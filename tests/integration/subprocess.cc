@@ -1,0 +1,126 @@
+#include "tests/integration/subprocess.h"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+namespace cutsim::testing {
+namespace {
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string MakeTempName(const std::string& prefix) {
+  static std::atomic<int> counter{0};
+  return (std::filesystem::temp_directory_path() /
+          (prefix + "-" + std::to_string(::getpid()) + "-" + std::to_string(counter++)))
+      .string();
+}
+
+}  // namespace
+
+Subprocess::Subprocess(std::vector<std::string> argv, std::map<std::string, std::string> env) {
+  const std::string base = MakeTempName("cutsim-proc");
+  out_path_ = base + ".out";
+  err_path_ = base + ".err";
+  std::vector<char*> args;
+  for (auto& a : argv) args.push_back(a.data());
+  args.push_back(nullptr);
+  pid_ = ::fork();
+  if (pid_ < 0) throw std::runtime_error("fork failed");
+  if (pid_ == 0) {
+    const int out = ::open(out_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    const int err = ::open(err_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ::dup2(out, 1);
+    ::dup2(err, 2);
+    const int null_in = ::open("/dev/null", O_RDONLY);
+    ::dup2(null_in, 0);
+    for (const auto& [k, v] : env) ::setenv(k.c_str(), v.c_str(), 1);
+    ::execv(args[0], args.data());
+    ::_exit(127);
+  }
+}
+
+Subprocess::~Subprocess() {
+  Kill();
+  std::error_code ec;
+  std::filesystem::remove(out_path_, ec);
+  std::filesystem::remove(err_path_, ec);
+}
+
+std::optional<int> Subprocess::Wait(std::chrono::milliseconds timeout) {
+  if (exit_code_) return exit_code_;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (true) {
+    int status = 0;
+    const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+    if (r == pid_) {
+      exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      return exit_code_;
+    }
+    if (std::chrono::steady_clock::now() >= deadline) return std::nullopt;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+}
+
+void Subprocess::Signal(int sig) {
+  if (!exit_code_ && pid_ > 0) ::kill(pid_, sig);
+}
+
+void Subprocess::Kill() {
+  if (exit_code_ || pid_ <= 0) return;
+  ::kill(pid_, SIGKILL);
+  int status = 0;
+  ::waitpid(pid_, &status, 0);
+  exit_code_ = 128 + SIGKILL;
+}
+
+bool Subprocess::running() { return !Wait(std::chrono::milliseconds(0)).has_value(); }
+
+std::string Subprocess::Stdout() const { return ReadFile(out_path_); }
+std::string Subprocess::Stderr() const { return ReadFile(err_path_); }
+
+RunResult RunProcess(std::vector<std::string> argv, std::chrono::milliseconds timeout,
+              std::map<std::string, std::string> env) {
+  Subprocess p(std::move(argv), std::move(env));
+  RunResult r;
+  const auto code = p.Wait(timeout);
+  if (!code) p.Kill();
+  r.exit_code = code.value_or(-1);
+  r.out = p.Stdout();
+  r.err = p.Stderr();
+  return r;
+}
+
+std::string BinPath(const std::string& name) {
+  return std::string(CUTSIM_BIN_DIR) + "/" + name;
+}
+
+TempDir::TempDir(const std::string& prefix) : path_(MakeTempName(prefix)) {
+  std::filesystem::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ec;
+  std::filesystem::remove_all(path_, ec);
+}
+
+int UniqueTestIndex() {
+  // pid-derived, so parallel ctest processes differ; kept in a small range.
+  return static_cast<int>(::getpid() % 200) + 20;
+}
+
+}  // namespace cutsim::testing

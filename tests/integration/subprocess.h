@@ -1,0 +1,75 @@
+#pragma once
+/// @file
+/// Starts real processes for integration tests: argv in, exit code and
+/// captured stdout/stderr out, with a hard timeout so a hung process fails the
+/// test instead of hanging CI. RAII: a still-running child is killed when its
+/// Subprocess goes out of scope.
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace cutsim::testing {
+
+class Subprocess {
+ public:
+  /// Starts `argv[0]` with `argv`, extra environment variables `env`,
+  /// stdout/stderr captured to files under a temporary directory.
+  Subprocess(std::vector<std::string> argv, std::map<std::string, std::string> env = {});
+  ~Subprocess();
+  Subprocess(const Subprocess&) = delete;
+  Subprocess& operator=(const Subprocess&) = delete;
+
+  /// Waits up to `timeout`; returns the exit code, or nullopt on timeout
+  /// (the process is then left running; the destructor kills it).
+  std::optional<int> Wait(std::chrono::milliseconds timeout);
+  /// Sends `signal` (default SIGTERM) if still running.
+  void Signal(int signal);
+  /// Kills and reaps.
+  void Kill();
+  [[nodiscard]] bool running();
+  [[nodiscard]] pid_t pid() const { return pid_; }
+
+  [[nodiscard]] std::string Stdout() const;
+  [[nodiscard]] std::string Stderr() const;
+
+ private:
+  pid_t pid_ = -1;
+  std::optional<int> exit_code_;
+  std::string out_path_;
+  std::string err_path_;
+};
+
+/// Runs to completion (or timeout → failure recorded as exit code -1).
+struct RunResult {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+RunResult RunProcess(std::vector<std::string> argv, std::chrono::milliseconds timeout,
+              std::map<std::string, std::string> env = {});
+
+/// Path to an executable in <build>/bin.
+std::string BinPath(const std::string& name);
+
+/// A temporary directory removed on destruction.
+class TempDir {
+ public:
+  explicit TempDir(const std::string& prefix = "cutsim");
+  ~TempDir();
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  [[nodiscard]] const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+/// A number unique to this test process for DDS domain ids / LCM ports.
+int UniqueTestIndex();
+
+}  // namespace cutsim::testing

@@ -1,0 +1,226 @@
+// CutMesh: complex and surface bookkeeping, the straight cut through a box,
+// singularity removal, event replay.
+#include <gtest/gtest.h>
+
+#include "common/core/error.h"
+#include "common/cutting/cut_mesh.h"
+#include "tests/unit/cutting/cut_driver.h"
+#include "tests/unit/cutting/test_util.h"
+
+namespace cutsim::cutting {
+namespace {
+
+using Eigen::Vector3d;
+using testing::ExpectInvariants;
+using testing::KuhnBox;
+using testing::Reference;
+using testing::WorldFromRest;
+
+constexpr double kH = 0.01;  // cell size, m
+
+mesh::TetMesh Box() { return KuhnBox(Vector3d::Zero(), Vector3d(4 * kH, 3 * kH, 2 * kH), 4, 3, 2); }
+
+TEST(CutMesh, UncutMeshHasTheExtractedSurfaceAndNoOpenedFace) {
+  const mesh::TetMesh m = Box();
+  ASSERT_NO_THROW(mesh::ValidateTetMesh(m, "box"));
+  const CutMesh cm(m);
+  const VectorWorld w = WorldFromRest(m);
+  EXPECT_EQ(cm.version(), 0u);
+  EXPECT_EQ(cm.num_surface_faces(), mesh::ExtractSurface(m.tets).tris.rows());
+  ExpectInvariants(cm, w, Reference(m), "uncut");
+  EXPECT_EQ(cm.NumConnectedComponents(), 1);
+  for (int32_t v = 0; v < cm.num_nodes(); ++v) EXPECT_TRUE(cm.SurfaceManifoldAt(v));
+}
+
+TEST(CutMesh, ContactElementsAreTheStarOfTheClosestVertexPlusTheFacetTet) {
+  const mesh::TetMesh m = Box();
+  const CutMesh cm(m);
+  const int32_t v = 0;
+  std::vector<int32_t> expect = cm.node_tets(v);
+  EXPECT_EQ(cm.ContactElements(v), expect);
+  const int32_t other = cm.num_tets() - 1;
+  expect.push_back(other);
+  EXPECT_EQ(cm.ContactElements(v, other), expect);
+}
+
+TEST(CutMesh, InvalidStepChangesNothing) {
+  const mesh::TetMesh m = Box();
+  CutMesh cm(m);
+  const VectorWorld w = WorldFromRest(m);
+  CutStep step;
+  step.v0 = 0;
+  step.v1 = 0;
+  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  step.v1 = 1;  // s1 along x, normal along x: no plane
+  step.normal = Vector3d::UnitX();
+  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  step.normal = Vector3d::UnitZ();
+  step.v1 = cm.num_nodes();
+  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  EXPECT_EQ(cm.version(), 0u);
+  EXPECT_EQ(cm.num_nodes(), m.num_nodes());
+}
+
+// Drives a straight cut along the top face at y = 1.2 h with a blade longer
+// than the thickness. World = rest.
+struct StraightCut {
+  mesh::TetMesh m = Box();
+  CutMesh cm{m};
+  VectorWorld world = WorldFromRest(m);
+  Reference ref{m};
+  std::vector<TopologyEvent> events;
+  testing::DriveStats stats;
+  int components_before_last = 0;
+
+  void Run(double y = 1.2 * kH) {
+    CutParams params;
+    params.alpha = 0.5;
+    const double top = 2 * kH;
+    const auto path = testing::Segment(Vector3d(0, y, top), Vector3d(4 * kH, y, top), 80);
+    stats = testing::DrivePath(cm, world, path, /*depth=*/top + 0.005, params, &events, [&](int step) {
+      ExpectInvariants(cm, world, ref, "straight cut step " + std::to_string(step));
+    });
+  }
+};
+
+TEST(CutMesh, StraightCutWithALongBladeSeparatesTheBoxIntoTwo) {
+  StraightCut sc;
+  sc.Run();
+  EXPECT_EQ(sc.stats.rejected, 0);
+  EXPECT_GE(sc.stats.executed, 4) << "one step per top vertex along the line";
+  int32_t k = 0;
+  const std::vector<int32_t> labels = sc.cm.ConnectedComponents(&k);
+  EXPECT_EQ(k, 2);
+  int32_t k2 = 0;
+  EXPECT_EQ(ConnectedComponents(sc.cm.TetsMatrix(), &k2), labels);
+  // The two parts lie on either side of the cut: check by tet centroids (rest).
+  const mesh::TetMesh rest = sc.cm.RestMesh();
+  for (int32_t t = 0; t < rest.num_tets(); ++t) {
+    Vector3d c = Vector3d::Zero();
+    for (int i = 0; i < 4; ++i) c += rest.nodes.row(rest.tets(t, i)).transpose() / 4.0;
+    EXPECT_EQ(labels[static_cast<size_t>(t)], labels[0] == 0 ? (c.y() < 1.2 * kH ? 0 : 1) : (c.y() < 1.2 * kH ? 1 : 0))
+        << "tet " << t << " at y = " << c.y();
+  }
+  EXPECT_EQ(sc.cm.num_tets(), sc.m.num_tets());
+  EXPECT_EQ(sc.cm.version(), sc.events.size());
+}
+
+TEST(CutMesh, ShallowBladeDoesNotSeparate) {
+  // A blade reaching half the thickness opens a slit but the bottom holds.
+  const mesh::TetMesh m = Box();
+  CutMesh cm(m);
+  VectorWorld world = WorldFromRest(m);
+  const Reference ref(m);
+  CutParams params;
+  const double top = 2 * kH;
+  const auto path = testing::Segment(Vector3d(0.5 * kH, 1.2 * kH, top), Vector3d(3.5 * kH, 1.2 * kH, top), 60);
+  const auto stats = testing::DrivePath(cm, world, path, 0.6 * kH, params, nullptr, [&](int step) {
+    ExpectInvariants(cm, world, ref, "shallow step " + std::to_string(step));
+  });
+  EXPECT_GE(stats.executed, 2);
+  EXPECT_GT(stats.splits, 0);
+  EXPECT_EQ(cm.NumConnectedComponents(), 1);
+  std::vector<uint8_t> opened;
+  (void)cm.SurfaceTriangles(&opened);
+  EXPECT_GT(std::count(opened.begin(), opened.end(), 1), 0) << "the slit's faces are flagged opened";
+}
+
+TEST(CutMesh, ReplayingRecordedEventsReproducesTheTopologyBitExactly) {
+  StraightCut sc;
+  sc.Run();
+  ASSERT_FALSE(sc.events.empty());
+  CutMesh replay(sc.m);
+  VectorWorld world = WorldFromRest(sc.m);
+  for (const TopologyEvent& e : sc.events) {
+    replay.ApplyEvent(e);
+    world.ApplyEvent(e);
+  }
+  EXPECT_EQ(replay.version(), sc.cm.version());
+  ASSERT_EQ(replay.num_nodes(), sc.cm.num_nodes());
+  EXPECT_TRUE(replay.TetsMatrix() == sc.cm.TetsMatrix());
+  for (int32_t v = 0; v < replay.num_nodes(); ++v) {
+    // Bit-exact: compare the doubles with ==, not a tolerance.
+    EXPECT_TRUE(replay.rest(v) == sc.cm.rest(v)) << "node " << v;
+    EXPECT_TRUE(world.Get(v) == sc.world.Get(v)) << "node " << v;
+  }
+  std::vector<uint8_t> fa, fb;
+  const auto ta = replay.SurfaceTriangles(&fa), tb = sc.cm.SurfaceTriangles(&fb);
+  EXPECT_EQ(testing::OrientedSet(ta), testing::OrientedSet(tb));
+  EXPECT_EQ(std::count(fa.begin(), fa.end(), 1), std::count(fb.begin(), fb.end(), 1));
+  ExpectInvariants(replay, world, sc.ref, "replayed");
+}
+
+TEST(CutMesh, BadEventThrowsAndChangesNothing) {
+  StraightCut sc;
+  sc.Run();
+  ASSERT_GE(sc.events.size(), 2u);
+  CutMesh replay(sc.m);
+  replay.ApplyEvent(sc.events[0]);
+  const mesh::Tets before = replay.TetsMatrix();
+  const int32_t nodes_before = replay.num_nodes();
+  EXPECT_THROW(replay.ApplyEvent(sc.events[0]), InputError) << "version out of order";
+  TopologyEvent bad = sc.events[1];
+  ASSERT_FALSE(bad.splits.empty());
+  bad.splits.back().tets.push_back(bad.splits.back().tets.front());  // already retargeted
+  try {
+    replay.ApplyEvent(bad);
+    FAIL() << "expected InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(e.source().field.find("event.splits"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(replay.TetsMatrix() == before);
+  EXPECT_EQ(replay.num_nodes(), nodes_before);
+  EXPECT_EQ(replay.version(), 1u);
+  replay.ApplyEvent(sc.events[1]);  // the good one still applies
+  EXPECT_EQ(replay.version(), 2u);
+}
+
+TEST(CutMesh, PartsJoinedOnlyByAVertexAreSeparated) {
+  // Four tets around the edge c0–c1, ring r0..r3 in the plane z = 0.5. The
+  // plane y = 0 (spanned by n = x̂ and s1 = c1 − c0) puts the tets at r1 on
+  // one side and those at r3 on the other. Splitting c1 alone leaves the two
+  // halves joined only through c0, r0 and r2 (vertex singularities); they
+  // must be split too, leaving two separate two-tet parts.
+  mesh::TetMesh m;
+  m.nodes.resize(6, 3);
+  m.nodes << 0, 0, 0,  //
+      0, 0, 1,         //
+      1, 0, 0.5,       //
+      0, 1, 0.5,       //
+      -1, 0, 0.5,      //
+      0, -1, 0.5;
+  m.tets.resize(4, 4);
+  for (int i = 0; i < 4; ++i) {
+    m.tets.row(i) << 0, 1, 2 + i, 2 + (i + 1) % 4;
+    if (mesh::SignedVolume(m, i) < 0) std::swap(m.tets(i, 2), m.tets(i, 3));
+  }
+  ASSERT_NO_THROW(mesh::ValidateTetMesh(m, "fan"));
+  CutMesh cm(m);
+  const VectorWorld w = WorldFromRest(m);
+  const Reference ref(m);
+  CutStep step;
+  step.v0 = 0;
+  step.v1 = 1;
+  step.normal = Vector3d::UnitX();
+  step.remesh = false;
+  const CutOutcome out = cm.ExecuteCut(step, w, CutParams{});
+  ASSERT_EQ(out.status, CutStatus::kExecuted);
+  // c1 by the plane, then c0, r0 and r2 by the vertex rule.
+  ASSERT_EQ(out.event.splits.size(), 4u);
+  EXPECT_EQ(out.event.splits[0].node, 1);
+  std::vector<int32_t> split_nodes;
+  for (const Split& s : out.event.splits) split_nodes.push_back(s.node);
+  std::sort(split_nodes.begin(), split_nodes.end());
+  EXPECT_EQ(split_nodes, (std::vector<int32_t>{0, 1, 2, 4}));
+  VectorWorld w2 = w;
+  w2.ApplyEvent(out.event);
+  ExpectInvariants(cm, w2, ref, "fan");
+  EXPECT_EQ(cm.NumConnectedComponents(), 2);
+  int32_t k = 0;
+  (void)ConnectedComponents(cm.TetsMatrix(), &k);
+  EXPECT_EQ(k, 2);
+  EXPECT_EQ(out.event.touched_nodes.size(), 8u);
+}
+
+}  // namespace
+}  // namespace cutsim::cutting

@@ -1,0 +1,138 @@
+#include "common/mesh/bvh.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "common/mesh/generators.h"
+#include "common/mesh/surface.h"
+
+namespace cutsim::mesh {
+namespace {
+
+using Eigen::Vector3d;
+
+// Random triangle soup plus the surface of a cylinder: both shapes of input.
+struct Scene {
+  Positions x;
+  Triangles tris;
+};
+
+Scene RandomSoup(std::mt19937& rng, int n) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0), small(-0.2, 0.2);
+  Scene s;
+  s.x.resize(3 * n, 3);
+  s.tris.resize(n, 3);
+  for (int f = 0; f < n; ++f) {
+    const Vector3d c(u(rng), u(rng), u(rng));
+    for (int k = 0; k < 3; ++k) s.x.row(3 * f + k) = (c + Vector3d(small(rng), small(rng), small(rng))).transpose();
+    s.tris.row(f) << 3 * f, 3 * f + 1, 3 * f + 2;
+  }
+  return s;
+}
+
+void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937& rng) {
+  std::uniform_real_distribution<double> u(-1.3, 1.3);
+  auto corner = [&](Eigen::Index f, int k) -> Vector3d { return s.x.row(s.tris(f, k)).transpose(); };
+  std::vector<SegmentHit> hits;
+  std::vector<int32_t> boxed;
+  for (int q = 0; q < 100; ++q) {
+    const Vector3d p(u(rng), u(rng), u(rng));
+    const double radius = 0.3;
+    double best = radius;
+    int32_t best_f = -1;
+    for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      const double d = ClosestPointOnTriangle(p, corner(f, 0), corner(f, 1), corner(f, 2)).distance;
+      if (d <= best) {
+        best = d;
+        best_f = static_cast<int32_t>(f);
+      }
+    }
+    const auto hit = bvh.ClosestPoint(p, radius);
+    ASSERT_EQ(hit.has_value(), best_f >= 0);
+    if (hit) {
+      EXPECT_NEAR(hit->distance, best, 1e-12);
+      const Vector3d rebuilt = hit->bary[0] * corner(hit->tri, 0) + hit->bary[1] * corner(hit->tri, 1) +
+                               hit->bary[2] * corner(hit->tri, 2);
+      EXPECT_NEAR((rebuilt - hit->point).norm(), 0.0, 1e-12);
+      EXPECT_NEAR(hit->bary.sum(), 1.0, 1e-12);
+      EXPECT_GE(hit->bary.minCoeff(), -1e-12);
+    }
+    // Segments.
+    const Vector3d a(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng));
+    std::vector<int32_t> brute;
+    double first_t = 2.0;
+    for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      if (auto h = IntersectSegmentTriangle(a, b, corner(f, 0), corner(f, 1), corner(f, 2))) {
+        brute.push_back(static_cast<int32_t>(f));
+        first_t = std::min(first_t, h->t);
+      }
+    }
+    bvh.AllHits(a, b, hits);
+    std::vector<int32_t> got;
+    for (const auto& h : hits) got.push_back(h.tri);
+    std::sort(got.begin(), got.end());
+    EXPECT_EQ(got, brute);
+    const auto first = bvh.FirstHit(a, b);
+    ASSERT_EQ(first.has_value(), !brute.empty());
+    if (first) {
+      EXPECT_DOUBLE_EQ(first->t, first_t);
+    }
+    // Boxes.
+    const Vector3d lo = p - Vector3d::Constant(0.2), hi = p + Vector3d::Constant(0.25);
+    std::vector<int32_t> brute_box;
+    for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      const Vector3d tl = corner(f, 0).cwiseMin(corner(f, 1)).cwiseMin(corner(f, 2));
+      const Vector3d th = corner(f, 0).cwiseMax(corner(f, 1)).cwiseMax(corner(f, 2));
+      if ((tl.array() <= hi.array()).all() && (lo.array() <= th.array()).all()) brute_box.push_back(static_cast<int32_t>(f));
+    }
+    bvh.QueryBox(lo, hi, boxed);
+    std::sort(boxed.begin(), boxed.end());
+    EXPECT_EQ(boxed, brute_box);
+  }
+}
+
+TEST(TriangleBvh, MatchesBruteForceOnRandomSoup) {
+  std::mt19937 rng(42);
+  const Scene s = RandomSoup(rng, 300);
+  const TriangleBvh bvh(s.x, s.tris);
+  CheckAgainstBruteForce(s, bvh, rng);
+}
+
+TEST(TriangleBvh, RefitTracksMovedNodes) {
+  std::mt19937 rng(7);
+  const TetMesh cyl = MakeCylinder(0.8, 2.0, 16, 2, 6);
+  Scene s{cyl.nodes, ExtractSurface(cyl.tets).tris};
+  s.x.col(0).array() -= 1.0;
+  TriangleBvh bvh(s.x, s.tris);
+  CheckAgainstBruteForce(s, bvh, rng);
+  // Twist and squash the surface, refit, and compare again.
+  for (Eigen::Index i = 0; i < s.x.rows(); ++i) {
+    const double a = 0.4 * s.x(i, 0);
+    const double y = s.x(i, 1), z = s.x(i, 2);
+    s.x(i, 1) = std::cos(a) * y - std::sin(a) * z;
+    s.x(i, 2) = 0.7 * (std::sin(a) * y + std::cos(a) * z);
+  }
+  const int32_t nodes_before = bvh.num_nodes();
+  bvh.Refit(s.x);
+  EXPECT_EQ(bvh.num_nodes(), nodes_before);
+  CheckAgainstBruteForce(s, bvh, rng);
+}
+
+TEST(ClosestPointOnTriangle, RegionsAndDegenerate) {
+  const Vector3d p0(0, 0, 0), p1(1, 0, 0), p2(0, 1, 0);
+  auto h = ClosestPointOnTriangle(Vector3d(0.2, 0.2, 1.0), p0, p1, p2);
+  EXPECT_NEAR(h.distance, 1.0, 1e-15);
+  EXPECT_TRUE(h.bary.isApprox(Vector3d(0.6, 0.2, 0.2)));
+  h = ClosestPointOnTriangle(Vector3d(2, -1, 0), p0, p1, p2);
+  EXPECT_TRUE(h.point.isApprox(p1));
+  h = ClosestPointOnTriangle(Vector3d(1, 1, 0), p0, p1, p2);
+  EXPECT_TRUE(h.point.isApprox(Vector3d(0.5, 0.5, 0)));
+  // Degenerate (collinear) triangle: finite answer, no NaN.
+  h = ClosestPointOnTriangle(Vector3d(0.5, 1, 0), p0, p1, Vector3d(2, 0, 0));
+  EXPECT_TRUE(h.point.allFinite());
+  EXPECT_NEAR(h.distance, 1.0, 1e-12);
+}
+
+}  // namespace
+}  // namespace cutsim::mesh
