@@ -1,4 +1,4 @@
-#include "common/sim/tool_path.h"
+#include "common/haptics/tool_path.h"
 
 #include <filesystem>
 #include <string>
@@ -8,7 +8,7 @@
 
 #include "common/core/error.h"
 
-namespace cutsim::sim {
+namespace cutsim::haptics {
 namespace {
 
 const char* kPath = R"(# a path
@@ -76,4 +76,4 @@ TEST(ToolPathTest, WriteReadRoundTrip) {
 }
 
 }  // namespace
-}  // namespace cutsim::sim
+}  // namespace cutsim::haptics

@@ -1,4 +1,4 @@
-#include "common/sim/tool_path.h"
+#include "common/haptics/tool_path.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 
 #include "common/core/error.h"
 
-namespace cutsim::sim {
+namespace cutsim::haptics {
 
 ToolPath::ToolPath(std::vector<ToolKeyframe> keyframes, const std::string& source_name)
     : keyframes_(std::move(keyframes)) {
@@ -113,4 +113,4 @@ ToolKeyframe ToolPath::Sample(double t, PathTiming timing) const {
   return out;
 }
 
-}  // namespace cutsim::sim
+}  // namespace cutsim::haptics

@@ -20,7 +20,7 @@
 
 #include <Eigen/Core>
 
-namespace cutsim::sim {
+namespace cutsim::haptics {
 
 struct ToolKeyframe {
   double t = 0.0;                     ///< s
@@ -56,4 +56,4 @@ class ToolPath {
   std::vector<ToolKeyframe> keyframes_;
 };
 
-}  // namespace cutsim::sim
+}  // namespace cutsim::haptics
