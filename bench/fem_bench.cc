@@ -157,6 +157,48 @@ void BM_Step(benchmark::State& st) {
       benchmark::Counter(tets * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
 }
 
+// The skip table of issue 3/8 at ~100k tets, 1 thread: each skip against
+// the same scene with the work forced on.
+//   case 0: damping (ψ = φ = 0): force pass kElastic (skipped) vs kElasticDamped
+//           evaluated with zero coefficients (forced on).
+//   case 1: gravity off (skipped) vs gravity on, full step.
+//   case 2: fixed nodes: bottom layer fixed (not integrated) vs no node fixed,
+//           full step (the same force work; the difference is the integration).
+void BM_Skip(benchmark::State& st) {
+  const int which = static_cast<int>(st.range(0));
+  const bool work_on = st.range(1) != 0;
+  const auto& s = kSizes[2];
+  static const mesh::TetMesh mesh = MakeBox(s[0], s[1], s[2], 1e-3);
+  const Material plain{.lambda = 140000, .mu = 11000, .psi = 0, .phi = 0, .density = 1000};
+  ModelOptions mo;
+  if (which == 1 && work_on) mo.gravity = Eigen::Vector3d(0, 0, -9.81);
+  Model<double> model(mesh, std::span(&plain, 1), mo);
+  const int fixed_layers = which == 2 ? (work_on ? 0 : s[2] / 2) : 1;
+  for (int n = 0; n < (s[0] + 1) * (s[1] + 1) * fixed_layers; ++n) model.SetFixed(n, true);
+  State<double> state(model);
+  for (size_t i = 0; i < state.x.size(); ++i) state.x[i] *= 1.0 + 1e-3 * static_cast<double>(i % 7);
+  std::vector<double> out(state.x.size());
+  StepOptions opt;
+  opt.num_threads = 1;
+  RefreshStableStep(model, state, true, 1);
+  const double dt = 0.5 * StableStepBound(state);
+  for (auto _ : st) {
+    if (which == 0) {
+      ComputeInternalForces(model, state, work_on ? ForceMode::kElasticDamped : ForceMode::kElastic, out.data(), 1);
+      benchmark::DoNotOptimize(out.data());
+    } else {
+      const StepResult r = Step(model, state, dt, opt);
+      benchmark::DoNotOptimize(r);
+    }
+    benchmark::ClobberMemory();
+  }
+  st.counters["tets"] = model.num_tets();
+  st.counters["case"] = which;
+  st.counters["work_on"] = work_on ? 1 : 0;
+  st.counters["tet_steps_per_s"] =
+      benchmark::Counter(model.num_tets() * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
+}
+
 // STREAM triad a = b + s·c, 3 × 32 MiB of doubles (well beyond L3).
 void BM_Triad(benchmark::State& st) {
   const int threads = static_cast<int>(st.range(0));
@@ -179,6 +221,11 @@ void BM_Triad(benchmark::State& st) {
 void RegisterAll() {
   for (int t : {1, 2}) {
     benchmark::RegisterBenchmark("BM_Triad", BM_Triad)->Arg(t)->UseRealTime();
+  }
+  for (int which = 0; which < 3; ++which) {
+    for (int on : {0, 1}) {
+      benchmark::RegisterBenchmark("BM_Skip", BM_Skip)->Args({which, on})->UseRealTime();
+    }
   }
   for (int size = 0; size < 4; ++size) {
     for (int threads : {1, 2}) {

@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <csignal>
@@ -28,11 +29,16 @@ std::string SummaryJson(const sim::SimulationSummary& s) {
       "\"stable_dt\": {:.9g}, \"sim_time\": {:.9g}, \"wall_time\": {:.6g}, "
       "\"tet_steps_per_s\": {:.6g}, \"realtime_factor\": {:.6g}, \"kinetic_energy\": {:.9g}, "
       "\"strain_energy\": {:.9g}, \"residual_force\": {:.9g}, \"max_displacement\": {:.9g}, "
-      "\"at_rest\": {}, \"status\": \"{}\", \"diagnosis\": \"{}\"}}",
+      "\"at_rest\": {}, \"status\": \"{}\", \"diagnosis\": \"{}\", \"cuts\": {}, "
+      "\"cut_attempts\": {}, \"cuts_rejected\": {}, \"topology_version\": {}, \"components\": {}, "
+      "\"opened_faces\": {}, \"min_rest_volume\": {:.9g}, \"total_mass\": {:.12g}, "
+      "\"cut_wall_time\": {:.6g}}}",
       s.scene, s.precision, s.num_nodes, s.num_tets, s.num_free_nodes, s.threads, s.steps,
       s.frames, s.dt, s.stable_dt, s.sim_time, s.wall_time, s.tet_steps_per_s, s.realtime_factor,
       s.kinetic_energy, s.strain_energy, s.residual_force, s.max_displacement,
-      s.at_rest ? "true" : "false", s.status, s.diagnosis);
+      s.at_rest ? "true" : "false", s.status, s.diagnosis, s.cuts, s.cut_attempts, s.cuts_rejected,
+      s.topology_version, s.components, s.opened_faces, s.min_rest_volume, s.total_mass,
+      s.cut_wall_time);
 }
 
 }  // namespace
@@ -68,10 +74,6 @@ int ServerApp::ParseArgs(int argc, char** argv) {
                  "run with --headless\n");
     return 2;
   }
-  if (!options_.duration && !options_.until_rest) {
-    std::fprintf(stderr, "cutsim-server: --headless needs --duration and/or --until-rest\n");
-    return 2;
-  }
   return -1;
 }
 
@@ -86,14 +88,25 @@ int ServerApp::RunHeadless() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision});
-  const double end_time = options_.duration.value_or(options_.max_time);
+  // The run ends at --duration, else when the tool path ends, else (with
+  // --until-rest) at rest or --max-time.
+  double end_time = options_.max_time;
+  if (options_.duration) {
+    end_time = *options_.duration;
+  } else if (simulation->path_end_time() > 0 && !options_.until_rest) {
+    end_time = simulation->path_end_time();
+  } else if (!options_.until_rest) {
+    ThrowInputError({.field = "--duration"},
+                    "the scene has no tool path: give --duration and/or --until-rest");
+  }
   const bool tty = options_.progress && ::isatty(STDERR_FILENO);
   Stopwatch since_report;
   int exit_code = 0;
   while (!g_stop) {
     if (simulation->sim_time() >= end_time - 1e-12) break;
     if (options_.until_rest && simulation->AtRest()) break;
-    const sim::SimStatus status = simulation->AdvanceFrame();
+    const double frame = std::min(simulation->frame_dt(), end_time - simulation->sim_time());
+    const sim::SimStatus status = simulation->AdvanceFrame(frame);
     if (status != sim::SimStatus::kOk) {
       Log().error("simulation stopped: {}", simulation->Summary().diagnosis);
       exit_code = 3;

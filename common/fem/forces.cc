@@ -216,6 +216,8 @@ void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T
   const T* mass = model.node_masses();
   const T* pf = model.prescribed_forces();
   const Vec3<T> g = model.gravity();
+  // Skip the gravity work when gravity is off (issue 3's skip list).
+  const bool gravity = add_loads && g.squaredNorm() > T(0);
   const int32_t n_nodes = model.num_nodes();
 #pragma omp for schedule(static)
   for (int32_t n = 0; n < n_nodes; ++n) {
@@ -227,9 +229,14 @@ void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T
       f2 += e[2];
     }
     if (add_loads) {
-      f0 += pf[3 * n] + mass[n] * g(0);
-      f1 += pf[3 * n + 1] + mass[n] * g(1);
-      f2 += pf[3 * n + 2] + mass[n] * g(2);
+      f0 += pf[3 * n];
+      f1 += pf[3 * n + 1];
+      f2 += pf[3 * n + 2];
+      if (gravity) {
+        f0 += mass[n] * g(0);
+        f1 += mass[n] * g(1);
+        f2 += mass[n] * g(2);
+      }
       if (f_ext != nullptr) {
         f0 += f_ext[3 * n];
         f1 += f_ext[3 * n + 1];

@@ -119,6 +119,9 @@ StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions&
   T* f = state.f.data();
   T* ef = state.element_force.data();
   const T max_v2 = static_cast<T>(options.max_speed * options.max_speed);
+  // Rayleigh α (mass-proportional) damping, backward Euler: v ← v/(1 + α·dt).
+  const bool mass_damped = options.mass_damping > 0;
+  const T mass_damp_scale = static_cast<T>(1.0 / (1.0 + options.mass_damping * static_cast<double>(dt)));
 
   int32_t bad_tet = INT32_MAX;
   int runaway = 0;
@@ -145,6 +148,9 @@ StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions&
         if (fixed[n] != 0 || !(mass[n] > T(0))) continue;
         const T h = dt / mass[n];
         for (int d = 0; d < 3; ++d) v[3 * n + d] += h * f[3 * n + d];
+        if (mass_damped) {
+          for (int d = 0; d < 3; ++d) v[3 * n + d] *= mass_damp_scale;
+        }
         if (!implicit_visc) {
           for (int d = 0; d < 3; ++d) x[3 * n + d] += dt * v[3 * n + d];
         }
@@ -195,12 +201,44 @@ StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions&
 
 template <typename T>
 T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& options) {
-  const bool explicit_visc = options.viscous == ViscousTreatment::kExplicit;
+  const bool explicit_visc = options.viscous == ViscousTreatment::kExplicit || !model.damped();
+  if (options.spectral_iterations <= 0) {
+    state.dt_ratio = 1.0;
+  } else if (state.dt_spectral_step >= 0 && state.dt_spectral_topology_version != model.topology_version()) {
+    // A cut changed the mesh: fall back to the provably safe bound at once
+    // (no Lanczos cost inside the cut frame) and re-estimate soon.
+    state.dt_ratio = 1.0;
+    state.dt_spectral_topology_version = model.topology_version();
+    state.dt_spectral_step =
+        std::min(state.dt_spectral_step,
+                 state.step - options.spectral_refresh_interval + std::min(options.spectral_refresh_interval, 100));
+  } else if (state.dt_spectral_step < 0 ||
+             state.step - state.dt_spectral_step >= options.spectral_refresh_interval) {
+    RefreshSpectralRatio(model, state, explicit_visc, options.spectral_iterations, options.num_threads);
+  }
   if (state.dt_refreshed_step < 0 || state.step - state.dt_refreshed_step >= options.dt_refresh_interval ||
       state.dt_topology_version != model.topology_version()) {
+    const bool had = state.dt_refreshed_step >= 0 && state.dt_topology_version == model.topology_version();
+    const double before = had ? static_cast<double>(StableStepBound(state)) : 0.0;
     RefreshStableStep(model, state, explicit_visc, options.num_threads);
+    const double after = static_cast<double>(StableStepBound(state));
+    const bool calm = had && std::abs(after / before - 1.0) <= 0.02;
+    state.dt_calm_refreshes = calm ? state.dt_calm_refreshes + 1 : 0;
   }
-  return std::min(static_cast<T>(options.safety_factor) * StableStepBound(state),
+  // The Lanczos ratio is used only in a calm state close to where it was
+  // measured (stable_dt.h); otherwise the transient factor of the bound.
+  const double bound = static_cast<double>(StableStepBound(state));
+  state.dt_trusted = options.spectral_iterations > 0 && state.dt_ratio > 1.0 && state.dt_calm_refreshes >= 10 &&
+                     std::abs(bound / state.dt_bound_at_spectral - 1.0) <= 0.1;
+  if (options.spectral_iterations > 0 && !state.dt_trusted && state.dt_calm_refreshes >= 10 &&
+      state.dt_spectral_step >= 0 && state.step - state.dt_spectral_step >= options.spectral_refresh_interval / 10) {
+    // Calm again far from the last estimate: re-estimate now.
+    RefreshSpectralRatio(model, state, explicit_visc, options.spectral_iterations, options.num_threads);
+    state.dt_trusted = state.dt_ratio > 1.0;
+  }
+  const double factor = state.dt_trusted ? options.safety_factor * state.dt_ratio
+                                         : std::min(options.safety_factor, options.transient_safety_factor);
+  return std::min(static_cast<T>(factor * static_cast<double>(StableStepBound(state))),
                   static_cast<T>(options.max_dt));
 }
 

@@ -307,6 +307,11 @@ State<T>::State(const Model<T>& model) {
   cg_r.assign(NC, T(0));
   cg_p.assign(NC, T(0));
   cg_q.assign(NC, T(0));
+  lanczos_prev.assign(NC, T(0));
+  lanczos_q.assign(NC, T(0));
+  lanczos_w.assign(NC, T(0));
+  lanczos_x.assign(NC, T(0));
+  lanczos_f0.assign(NC, T(0));
   element_force.assign(12 * static_cast<size_t>(model.padded_tets()), T(0));
   element_dt.assign(static_cast<size_t>(model.padded_tets()), std::numeric_limits<T>::infinity());
   dt_leaves = 1;

@@ -25,6 +25,36 @@
 ///    dt_visc ≈ 2/c = ρ·h_e²/(2a·(3φ+2ψ)σ_max²) (a ≈ 4–8 for good tets).
 /// The bound is an upper bound of the true global eigenvalues, so the
 /// resulting step is conservative; the tests measure by how much.
+///
+/// Global (Lanczos) estimate — how far the bound is from the truth:
+///  * The per-element bound loses twice: max_e λ(M_e⁻¹K_e) uses the element's
+///    quarter masses while a node's lumped mass collects the quarters of all
+///    its ~20 elements, and Gershgorin/|dF|² inequalities are not tight.
+///    Measured: the true limit 2/ω_max of the assembled M⁻¹K is 1.6–2.0× the
+///    bound (box 2.0×, organ after cleanup 1.9×, tests below).
+///  * EstimateStableStep runs k Lanczos steps (k = 30 by default) on the
+///    symmetric A = M^-½ K M^-½ over the free DOFs, K·z by a one-sided finite
+///    difference of the real internal force (so it sees the current
+///    deformation, the ITF branch and fixed nodes), and C·z (damping) exactly
+///    (linear in v). The largest Ritz value of the tridiagonal Lanczos matrix
+///    (Sturm bisection) is a lower bound of λ_max that converges from below
+///    much faster than power iteration (Kaniel–Paige); measured against the
+///    exact eigenvalue of small meshes it is within 1–3% after 30 steps.
+///    Damping and stiffness use h ≤ 4/(c + √(c² + 4ω²)) with the two maxima
+///    (possibly from different modes: conservative).
+///  * The estimate costs ~k force evaluations, so it is refreshed rarely
+///    (StepOptions::spectral_refresh_interval) and stored as the ratio
+///    r = dt_Lanczos / dt_bound (clamped to [1, kMaxSpectralRatio]). In
+///    between, the per-element bound (cheap, refreshed every few steps)
+///    tracks stiffening under deformation and the step is
+///    safety · r · dt_bound. A failed estimate (non-finite) falls back to
+///    r = 1, the provably safe bound.
+///  * Safety factor 0.85 (StepOptions): covers the Lanczos under-estimate
+///    (≤ 3% measured, i.e. ≤ 1.5% in dt), the drift of r between refreshes,
+///    and the nonlinearity (symplectic Euler's linear limit is exact only for
+///    the tangent). The stress tests (dynamics_test: stretch ×3, compression
+///    to ~10% volume, random deformations, thousands of steps) run at 1.0 of
+///    the Lanczos limit without blow-up and at 0.85 with bounded energy.
 
 #include <cstdint>
 #include <span>
@@ -54,6 +84,36 @@ void UpdateStableStep(const Model<T>& model, State<T>& state, std::span<const in
 template <typename T>
 T StableStepBound(const State<T>& state) {
   return state.dt_tree[1];
+}
+
+/// Upper clamp of the Lanczos/bound ratio (the bound is never trusted to be
+/// more than this far from the truth; measured ratios are 1.6–2.0).
+inline constexpr double kMaxSpectralRatio = 2.0;
+
+/// A global estimate of the stable step (see the file comment).
+struct SpectralEstimate {
+  double omega2_max = 0;   ///< λ_max(M⁻¹K) (Ritz value, from below), 1/s².
+  double damping_max = 0;  ///< λ_max(M⁻¹C), 1/s (0 unless explicit viscous).
+  double dt = 0;           ///< 4/(c + √(c² + 4ω²)), unscaled, s (∞: nothing moves).
+  int iterations = 0;      ///< Operator applications (force evaluations).
+};
+
+/// Lanczos estimate of the true stable step at state.x. Uses the state's
+/// lanczos_* and element_force scratch; allocation-free. `iterations` ≤ 128.
+template <typename T>
+SpectralEstimate EstimateStableStep(const Model<T>& model, State<T>& state, bool explicit_viscous,
+                                    int iterations = 30, int num_threads = 0);
+
+/// Refreshes the per-element bound and the ratio state.dt_ratio =
+/// clamp(Lanczos dt / bound, 1, kMaxSpectralRatio).
+template <typename T>
+void RefreshSpectralRatio(const Model<T>& model, State<T>& state, bool explicit_viscous,
+                          int iterations = 30, int num_threads = 0);
+
+/// The current estimate of the true limit: bound × ratio (unscaled), s.
+template <typename T>
+double EffectiveStableStep(const State<T>& state) {
+  return static_cast<double>(state.dt_tree[1]) * state.dt_ratio;
 }
 
 /// The element that currently limits the step, or −1.

@@ -39,6 +39,19 @@ struct State {
   int32_t dt_leaves = 0;
   int64_t dt_refreshed_step = -1;  ///< Step of the last full refresh.
   uint64_t dt_topology_version = 0;
+
+  // ---- global (Lanczos) stable-step estimate, stable_dt.h ------------------
+  /// Lanczos vectors and the perturbed positions of the finite-difference
+  /// tangent.  // #N_cap×3 each
+  std::vector<T> lanczos_prev, lanczos_q, lanczos_w, lanczos_x, lanczos_f0;
+  /// Lanczos estimate of the true limit over the per-element bound, both at
+  /// the last spectral refresh (≥ 1; 1 until the first refresh).
+  double dt_ratio = 1.0;
+  int64_t dt_spectral_step = -1;  ///< Step of the last spectral refresh.
+  double dt_bound_at_spectral = 0;  ///< Per-element bound at that refresh, s.
+  int dt_calm_refreshes = 0;  ///< Consecutive bound refreshes that changed it ≤ 2%.
+  bool dt_trusted = false;    ///< Whether the last CurrentTimeStep used the ratio.
+  uint64_t dt_spectral_topology_version = 0;
 };
 
 extern template struct State<float>;

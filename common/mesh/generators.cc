@@ -193,7 +193,7 @@ TetMesh MakeOrgan(const OrganOptions& options) {
   Positions positions;
   Triangles tris;
   MakeOrganSurface(options, positions, tris);
-  return TetrahedralizeSurface(positions, tris, options.edge_length, "<organ>");
+  return TetrahedralizeSurface(positions, tris, options.edge_length, "<organ>", options.fill);
 }
 
 }  // namespace cutsim::mesh

@@ -17,6 +17,7 @@
 #include "common/core/log.h"
 #include "common/mesh/generators.h"
 #include "common/mesh/mesh_io.h"
+#include "common/mesh/mesh_validation.h"
 #include "common/mesh/text_io.h"
 
 namespace cutsim::mesh {
@@ -217,7 +218,7 @@ void WriteMsh(const std::string& path, const TetMesh& mesh, MshFormat format) {
 namespace {
 
 // Fills the closed surface(s) already in the current model with tets.
-TetMesh FillSurfaces(const std::string& source, double max_edge_length) {
+TetMesh FillSurfaces(const std::string& source, double max_edge_length, const TetrahedralizeOptions& options) {
   if (!(max_edge_length > 0.0)) ThrowFileError(source, "max_edge_length must be positive");
   GmshCall(source, "tetrahedralization", [&] {
     gmsh::vectorpair surfaces;
@@ -235,9 +236,16 @@ TetMesh FillSurfaces(const std::string& source, double max_edge_length) {
     // but different meshes from run to run, which breaks reproducible scenes).
     gmsh::option::setNumber("Mesh.Algorithm3D", 1);
     gmsh::option::setNumber("Mesh.Optimize", 1);
+    gmsh::option::setNumber("Mesh.OptimizeThreshold", options.gmsh_optimize_threshold);
     gmsh::model::mesh::generate(3);
   });
-  return ExtractTetsFromModel(source);
+  TetMesh mesh = ExtractTetsFromModel(source);
+  if (options.cleanup) {
+    const CleanupReport r = CleanupMesh(mesh, options.cleanup_options);
+    if (options.report != nullptr) *options.report = r;
+    ValidateTetMesh(mesh, source);
+  }
+  return mesh;
 }
 
 std::vector<std::string> SplitWhitespace(const std::string& line) {
@@ -294,6 +302,11 @@ void ReadObj(const std::string& path, Positions& positions, Triangles& tris) {
 
 TetMesh TetrahedralizeSurface(const Positions& positions, const Triangles& tris, double max_edge_length,
                               const std::string& source_name) {
+  return TetrahedralizeSurface(positions, tris, max_edge_length, source_name, TetrahedralizeOptions{});
+}
+
+TetMesh TetrahedralizeSurface(const Positions& positions, const Triangles& tris, double max_edge_length,
+                              const std::string& source_name, const TetrahedralizeOptions& options) {
   GmshSession session;
   GmshCall(source_name, "surface import", [&] {
     gmsh::model::add("surface");
@@ -312,10 +325,15 @@ TetMesh TetrahedralizeSurface(const Positions& positions, const Triangles& tris,
     }
     gmsh::model::mesh::addElementsByType(surf, 2, {}, tri_nodes);  // type 2: 3-node triangle
   });
-  return FillSurfaces(source_name, max_edge_length);
+  return FillSurfaces(source_name, max_edge_length, options);
 }
 
 TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length) {
+  return TetrahedralizeSurface(path, max_edge_length, TetrahedralizeOptions{});
+}
+
+TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length,
+                              const TetrahedralizeOptions& options) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) ThrowFileError(path, "cannot open surface file: no such file");
   std::string ext = std::filesystem::path(path).extension().string();
@@ -324,12 +342,12 @@ TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length) {
     Positions positions;
     Triangles tris;
     ReadObj(path, positions, tris);
-    return TetrahedralizeSurface(positions, tris, max_edge_length, path);
+    return TetrahedralizeSurface(positions, tris, max_edge_length, path, options);
   }
   if (ext != ".stl") ThrowFileError(path, fmt::format("unsupported surface format '{}' (expected .stl or .obj)", ext));
   GmshSession session;
   GmshCall(path, "merge", [&] { gmsh::merge(path); });
-  return FillSurfaces(path, max_edge_length);
+  return FillSurfaces(path, max_edge_length, options);
 }
 
 }  // namespace cutsim::mesh

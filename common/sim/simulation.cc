@@ -5,13 +5,24 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 
 #include <Eigen/Eigenvalues>
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
+#include "common/cutting/criterion.h"
+#include "common/cutting/cut_attempt.h"
+#include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_params.h"
+#include "common/cutting/topology_event.h"
+#include "common/cutting/world_access.h"
+#include "common/haptics/tool_path.h"
+#include "common/mesh/bvh.h"
+#include "common/mesh/surface.h"
 #include "common/core/error.h"
 #include "common/core/log.h"
+#include "common/core/units.h"
 #include "common/fem/forces.h"
 #include "common/fem/integrator.h"
 #include "common/fem/model.h"
@@ -20,6 +31,7 @@
 #include "common/mesh/mesh_io.h"
 #include "common/mesh/quality.h"
 #include "common/sim/scene_mesh.h"
+#include "common/sim/tool_contact.h"
 
 namespace cutsim::sim {
 namespace {
@@ -119,6 +131,30 @@ std::vector<int32_t> SelectNodes(const BoundaryCondition& bc, const SceneMesh& s
   return out;
 }
 
+/// World positions of the FEM state (float or double) for the cut code.
+template <typename T>
+class StateWorld final : public cutting::WorldAccess {
+ public:
+  explicit StateWorld(std::vector<T>& x) : x_(x) {}
+  [[nodiscard]] Eigen::Vector3d Get(int32_t n) const override {
+    const size_t i = 3 * static_cast<size_t>(n);
+    return {static_cast<double>(x_[i]), static_cast<double>(x_[i + 1]), static_cast<double>(x_[i + 2])};
+  }
+  void Set(int32_t n, const Eigen::Vector3d& p) override {
+    const size_t i = 3 * static_cast<size_t>(n);
+    for (int k = 0; k < 3; ++k) x_[i + static_cast<size_t>(k)] = static_cast<T>(p[k]);
+  }
+
+ private:
+  std::vector<T>& x_;
+};
+
+/// Node capacity: a cut copies nodes (seed §3.2), so reserve room for them.
+int32_t NodeCapacity(const v1::Scene& scene, int32_t num_nodes) {
+  const bool cutting = scene.has_tool() && scene.has_cutting() && scene.cutting().enabled();
+  return cutting ? 3 * num_nodes + 1024 : num_nodes;
+}
+
 template <typename T>
 class Engine final : public Simulation {
  public:
@@ -126,8 +162,9 @@ class Engine final : public Simulation {
       : scene_(scene),
         mesh_(std::move(scene_mesh)),
         model_(mesh_.mesh, MaterialsPerTet(scene.scene, mesh_.mesh, scene.path.string()),
-               MakeModelOptions(scene)),
-        state_(model_) {
+               MakeModelOptions(scene, mesh_.mesh.num_nodes())),
+        state_(model_),
+        world_access_(state_.x) {
     const auto& s = scene.scene;
     const std::string source = scene.path.string();
     for (int i = 0; i < s.boundary_size(); ++i) {
@@ -167,25 +204,100 @@ class Engine final : public Simulation {
       step_options_.safety_factor = 1.0;
     }
     SetRestTolerances();
+    if (s.has_tool()) SetUpTool(scene);
     Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}",
                s.name(), model_.num_nodes(), model_.num_tets(), num_free_, precision_name(),
                threads_, step_options_.viscous == fem::ViscousTreatment::kImplicit ? "implicit" : "explicit");
   }
 
-  SimStatus AdvanceFrame() override {
+  SimStatus AdvanceFrame(double frame_time) override {
     if (status_ != SimStatus::kOk) return status_;
+    if (frame_time <= 0) frame_time = scene_.scene.time_step().frame_dt();
     Stopwatch watch;
-    const fem::StepResult r =
-        fem::Advance(model_, state_, scene_.scene.time_step().frame_dt(), step_options_);
-    wall_time_ += watch.ElapsedSeconds();
-    last_dt_ = r.dt;
+    report_.cut_this_frame = false;
+    const ToolPose start = pose_;
+    if (has_tool_) {
+      pose_ = external_pose_ ? *external_pose_ : SamplePath(state_.time + frame_time);
+      FindContact();
+    }
+    const Eigen::Vector3d tool_velocity = (pose_.tip - start.tip) / frame_time;
+
+    // Substeps as fem::Advance takes them (equal steps under the stable
+    // bound), with the penalty force refreshed before each one.
+    fem::StepResult r;
+    double remaining = frame_time;
+    double elapsed = 0;
+    while (remaining > 0) {
+      const double dt_max = static_cast<double>(fem::CurrentTimeStep(model_, state_, step_options_));
+      const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
+      const double dt = remaining / std::max(1.0, n);
+      if (facet_.touching) {
+        const double s = (elapsed + dt) / frame_time;
+        ApplyContactForce(start.tip + s * (pose_.tip - start.tip), tool_velocity);
+      }
+      r = fem::Step(model_, state_, static_cast<T>(dt), step_options_);
+      if (!r.ok()) break;
+      last_dt_ = r.dt > 0 ? r.dt : dt;
+      remaining -= dt;
+      elapsed += dt;
+      if (n <= 1) break;
+    }
+    ClearContactForce();
     ++frames_;
     if (!r.ok()) {
       status_ = r.status == fem::StepStatus::kRunaway ? SimStatus::kEnergyRunaway : SimStatus::kNonFinite;
       diagnosis_ = fmt::format("step {}: {} = {:.6g} at element {} / node {}", r.step, r.quantity,
                                r.value, r.element, r.node);
+    } else if (cut_) {
+      Stopwatch cut_watch;
+      TryCut();
+      cut_wall_time_ += cut_watch.ElapsedSeconds();
     }
+    wall_time_ += watch.ElapsedSeconds();
     return status_;
+  }
+
+  bool has_tool() const override { return has_tool_; }
+  double path_end_time() const override { return path_.empty() ? 0.0 : path_.end_time(); }
+  void SetToolPose(const ToolPose& pose) override { external_pose_ = pose; }
+  ToolReport Tool() const override { return report_; }
+  uint64_t topology_version() const override { return model_.topology_version(); }
+
+  Eigen::Matrix3d ContactStiffness() const override {
+    if (!facet_.touching) return Eigen::Matrix3d::Zero();
+    // Local tissue stiffness along n: Σ bᵢ nᵀKᵢᵢn, Kᵢᵢ = −∂fᵢ/∂xᵢ from central
+    // differences of the incident element forces (current state, StVK).
+    const Eigen::Vector3d n = facet_.normal;
+    double k_tissue = 0;
+    for (int i = 0; i < 3; ++i) {
+      const int32_t node = facet_.nodes[static_cast<size_t>(i)];
+      k_tissue += facet_.bary[i] * NodeNormalStiffness(node, n);
+    }
+    k_tissue = std::max(k_tissue, 0.0);
+    const double k = contact_stiffness_;
+    const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
+    return k_eff * n * n.transpose();
+  }
+
+  void FillMeshView(MeshView& view) const override {
+    const int32_t N = model_.num_nodes();
+    view.world.resize(N, 3);
+    view.rest.resize(N, 3);
+    for (int32_t i = 0; i < N; ++i) {
+      for (int k = 0; k < 3; ++k) {
+        view.world(i, k) = static_cast<double>(state_.x[3 * static_cast<size_t>(i) + static_cast<size_t>(k)]);
+        view.rest(i, k) = static_cast<double>(model_.rest_positions()[3 * i + k]);
+      }
+    }
+    view.tets.resize(model_.num_tets(), 4);
+    for (int32_t t = 0; t < model_.num_tets(); ++t) {
+      for (int c = 0; c < 4; ++c) view.tets(t, c) = model_.tet_node(t, c);
+    }
+    if (surface_.rows() == 0) {
+      const_cast<Engine*>(this)->RebuildSurface();
+    }
+    view.surface = surface_;
+    view.opened = opened_;
   }
 
   bool AtRest() const override {
@@ -219,6 +331,21 @@ class Engine final : public Simulation {
     s.at_rest = AtRest();
     s.status = status_ == SimStatus::kOk ? "ok" : (status_ == SimStatus::kNonFinite ? "non_finite" : "runaway");
     s.diagnosis = diagnosis_;
+    s.cuts = cuts_;
+    s.cut_attempts = cut_attempts_;
+    s.cuts_rejected = cuts_rejected_;
+    s.topology_version = model_.topology_version();
+    s.cut_wall_time = cut_wall_time_;
+    s.total_mass = model_.TotalMass();
+    int32_t components = 1;
+    (void)cutting::ConnectedComponents(TetsMatrix(), &components);
+    s.components = components;
+    s.opened_faces = static_cast<int>(std::count(opened_.begin(), opened_.end(), uint8_t{1}));
+    double min_volume = std::numeric_limits<double>::infinity();
+    for (int32_t t = 0; t < model_.num_tets(); ++t) {
+      min_volume = std::min(min_volume, static_cast<double>(model_.rest_volume(t)));
+    }
+    s.min_rest_volume = min_volume;
     return s;
   }
 
@@ -262,14 +389,22 @@ class Engine final : public Simulation {
                                              (p[2] - p[0]) * (p[2] - p[0])));
       quality.values[t] = q.mean_ratio[static_cast<size_t>(t)];
     }
+    // Per tet, how many of its faces a cut opened (ParaView: Threshold > 0).
+    mesh::VtkField cut_faces{"cut_faces", 1, std::vector<double>(static_cast<size_t>(Tn), 0.0)};
+    if (cut_) {
+      for (const cutting::SurfaceFace& face : cut_->surface_slots()) {
+        if (face.alive && face.opened) cut_faces.values[static_cast<size_t>(face.tet)] += 1.0;
+      }
+    }
     const mesh::VtkField point_fields[] = {displacement, velocity, fixed};
-    const mesh::VtkField cell_fields[] = {von_mises, principal, quality};
+    const mesh::VtkField cell_fields[] = {von_mises, principal, quality, cut_faces};
     mesh::WriteVtu(path.string(), world, point_fields, cell_fields);
   }
 
  private:
-  static fem::ModelOptions MakeModelOptions(const LoadedScene& scene) {
+  static fem::ModelOptions MakeModelOptions(const LoadedScene& scene, int32_t num_nodes) {
     fem::ModelOptions o;
+    o.node_capacity = NodeCapacity(scene.scene, num_nodes);
     o.gravity = ToEigen(scene.scene.gravity());
     o.source = scene.path.string();
     return o;
@@ -343,6 +478,264 @@ class Engine final : public Simulation {
     return std::sqrt(worst);
   }
 
+  // ---- tool and cutting -------------------------------------------------
+
+  void SetUpTool(const LoadedScene& scene) {
+    const auto& tool = scene.scene.tool();
+    has_tool_ = true;
+    if (!tool.path_file().empty()) {
+      const std::filesystem::path p(tool.path_file());
+      path_ = haptics::ToolPath::Read(p.is_absolute() ? p : scene.base_dir / p);
+    } else if (tool.keyframes_size() > 0) {
+      std::vector<haptics::ToolKeyframe> frames;
+      for (const auto& k : tool.keyframes()) {
+        frames.push_back({k.t(), ToEigen(k.tip()), ToEigen(k.blade_dir())});
+      }
+      path_ = haptics::ToolPath(std::move(frames), scene.path.string() + ": tool.keyframes");
+    }
+    blade_length_ = tool.blade_length();
+    // Defaults tied to the tissue: a penalty spring as stiff as one element
+    // of the first material (E·h̄), an indentation limit of one mean edge.
+    mean_edge_ = MeanSurfaceEdge();
+    const double E = units::YoungFromLame({static_cast<double>(model_.lambdas()[0]),
+                                           static_cast<double>(model_.mus()[0])});
+    contact_stiffness_ = tool.contact_stiffness() > 0 ? tool.contact_stiffness() : E * mean_edge_;
+    contact_damping_ = tool.contact_damping();
+    indent_limit_ = 0.5 * mean_edge_;
+    if (blade_length_ <= 0) blade_length_ = 2.0 * mean_edge_;
+    report_.present = true;
+    pose_ = SamplePath(0.0);
+    report_.pose = pose_;
+    if (scene.scene.has_cutting() && scene.scene.cutting().enabled()) {
+      const auto& c = scene.scene.cutting();
+      params_.alpha = c.alpha();
+      params_.kappa = c.kappa();
+      params_.zeta = c.zeta();
+      params_.critical_stress = c.critical_stress();
+      params_.min_quality = c.min_quality();
+      cutting::ValidateCutParams(params_, {.file = scene.path.string(), .field = "cutting"});
+      cut_.emplace(mesh_.mesh, model_.node_capacity());
+      tracker_.emplace(params_);
+    }
+    RebuildSurface();
+    Log().info("tool: blade {:.3g} m, contact k = {:.3g} N/m, indent limit {:.3g} m, cutting {}",
+               blade_length_, contact_stiffness_, indent_limit_, cut_ ? "on" : "off");
+  }
+
+  ToolPose SamplePath(double t) const {
+    if (path_.empty()) return pose_;
+    const haptics::ToolKeyframe k = path_.Sample(t);
+    return {k.tip, k.blade_dir};
+  }
+
+  double MeanSurfaceEdge() const {
+    const mesh::Surface surf = mesh::ExtractSurface(mesh_.mesh.tets);
+    double sum = 0;
+    int64_t count = 0;
+    for (int32_t f = 0; f < surf.tris.rows(); ++f) {
+      for (int k = 0; k < 3; ++k) {
+        sum += (mesh_.mesh.nodes.row(surf.tris(f, k)) - mesh_.mesh.nodes.row(surf.tris(f, (k + 1) % 3))).norm();
+        ++count;
+      }
+    }
+    return count > 0 ? sum / static_cast<double>(count) : 1e-3;
+  }
+
+  /// Surface triangles (from the cut complex when cutting, else extracted)
+  /// and the BVH over them; after every topology change.
+  void RebuildSurface() {
+    surface_tet_.clear();
+    if (cut_) {
+      surface_ = cut_->SurfaceTriangles(&opened_);
+      for (const cutting::SurfaceFace& face : cut_->surface_slots()) {
+        if (face.alive) surface_tet_.push_back(face.tet);
+      }
+    } else {
+      mesh::Surface surf = mesh::ExtractSurface(TetsMatrix());
+      surface_ = std::move(surf.tris);
+      surface_tet_ = std::move(surf.tet);
+      opened_.assign(static_cast<size_t>(surface_.rows()), 0);
+    }
+    CUTSIM_CHECK(surface_tet_.size() == static_cast<size_t>(surface_.rows()), "surface/tet map size");
+    CopyWorld();
+    bvh_ = mesh::TriangleBvh(world_, surface_);
+  }
+
+  mesh::Tets TetsMatrix() const {
+    mesh::Tets tets(model_.num_tets(), 4);
+    for (int32_t t = 0; t < model_.num_tets(); ++t) {
+      for (int c = 0; c < 4; ++c) tets(t, c) = model_.tet_node(t, c);
+    }
+    return tets;
+  }
+
+  void CopyWorld() {
+    const int32_t N = model_.num_nodes();
+    if (world_.rows() != N) world_.resize(N, 3);
+    for (int32_t i = 0; i < N; ++i) {
+      for (int k = 0; k < 3; ++k) world_(i, k) = static_cast<double>(state_.x[3 * static_cast<size_t>(i) + static_cast<size_t>(k)]);
+    }
+  }
+
+  void FindContact() {
+    CopyWorld();
+    bvh_.Refit(world_);
+    facet_ = FindContactFacet(bvh_, world_, surface_, pose_.tip, pose_.blade_dir, blade_length_,
+                              mean_edge_, hits_scratch_, box_scratch_);
+    if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
+    report_.touching = facet_.touching;
+    report_.pose = pose_;
+    report_.point = facet_.point;
+    report_.normal = facet_.normal;
+    report_.depth = facet_.depth;
+    if (!facet_.touching) report_.force_on_tool.setZero();
+  }
+
+  Eigen::Vector3d NodeX(int32_t n) const {
+    const size_t i = 3 * static_cast<size_t>(n);
+    return {static_cast<double>(state_.x[i]), static_cast<double>(state_.x[i + 1]),
+            static_cast<double>(state_.x[i + 2])};
+  }
+
+  void ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity) {
+    const auto& nd = facet_.nodes;
+    const Eigen::Vector3d F = PenaltyForce(facet_, NodeX(nd[0]), NodeX(nd[1]), NodeX(nd[2]), tip,
+                                           tool_velocity, contact_stiffness_, contact_damping_, indent_limit_);
+    for (int i = 0; i < 3; ++i) {
+      const size_t b = 3 * static_cast<size_t>(nd[static_cast<size_t>(i)]);
+      for (int k = 0; k < 3; ++k) state_.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(facet_.bary[i] * F[k]);
+    }
+    report_.force_on_tool = -F;
+    report_.depth = facet_.depth;
+    report_.point = facet_.point;
+    report_.normal = facet_.normal;
+  }
+
+  void ClearContactForce() {
+    if (!facet_.touching) return;
+    for (const int32_t n : facet_.nodes) {
+      for (int k = 0; k < 3; ++k) state_.f_ext[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] = T(0);
+    }
+  }
+
+  /// nᵀKᵢᵢn for one node: central differences of its incident element forces.
+  double NodeNormalStiffness(int32_t node, const Eigen::Vector3d& n) const {
+    const int32_t* off = model_.incidence_offsets();
+    const int32_t* slots = model_.incidence_slots();
+    double k = 0;
+    for (int32_t s = off[node]; s < off[node + 1]; ++s) {
+      const int32_t t = slots[s] / 12;
+      const int corner = (slots[s] % 12) / 3;
+      fem::Mat34<double> x;
+      for (int c = 0; c < 4; ++c) x.col(c) = NodeX(model_.tet_node(t, c));
+      const double h = 1e-6 * std::cbrt(std::max(static_cast<double>(model_.rest_volume(t)), 1e-30)) + 1e-12;
+      const Eigen::Matrix3d dm_inv = model_.DmInv(t).template cast<double>();
+      const double vol = static_cast<double>(model_.rest_volume(t));
+      const double lambda = static_cast<double>(model_.lambdas()[t]);
+      const double mu = static_cast<double>(model_.mus()[t]);
+      fem::Mat34<double> xp = x, xm = x;
+      xp.col(corner) += h * n;
+      xm.col(corner) -= h * n;
+      const fem::Vec12<double> fp = fem::StvkElementForce<double>(xp, dm_inv, vol, lambda, mu);
+      const fem::Vec12<double> fm = fem::StvkElementForce<double>(xm, dm_inv, vol, lambda, mu);
+      k -= n.dot((fp - fm).template segment<3>(3 * corner)) / (2 * h);
+    }
+    return k;
+  }
+
+  /// Seed §3: cut attempt (geometric), criterion (stress), then separation
+  /// and remeshing, applied to the FEM as a topology event.
+  void TryCut() {
+    cutting::Contact contact;
+    contact.touching = facet_.touching;
+    if (facet_.touching) {
+      contact.point = facet_.point;
+      contact.normal = facet_.normal;
+      contact.closest_node = facet_.closest_node;
+      contact.facet_tet = SurfaceTriTet(facet_.surface_tri);
+    }
+    const int32_t anchor_before = tracker_->anchor_node();
+    const cutting::CutAttempt attempt = tracker_->Update(contact, world_access_);
+    if (tracker_->anchor_node() != anchor_before) anchor_tip_ = pose_.tip;
+    if (!attempt.attempt) return;
+    // The seed's attempt reads the closest vertex only; a tool pressing
+    // straight down also changes it as the surface deforms under the blade.
+    // A cut needs the tool itself to have moved along the surface since t0,
+    // by at least half the cut segment d_v (choice documented in scenes/README.md).
+    const Eigen::Vector3d moved = pose_.tip - anchor_tip_;
+    const Eigen::Vector3d tangential = moved - moved.dot(attempt.normal) * attempt.normal;
+    const double d_v = (world_access_.Get(attempt.v1) - world_access_.Get(attempt.v0)).norm();
+    if (tangential.norm() < 0.5 * d_v) return;
+    ++cut_attempts_;
+    const std::vector<int32_t> candidates = cut_->ContactElements(attempt.v1, attempt.facet_tet);
+    const cutting::CriterionResult crit = cutting::EvaluateCriterion(
+        candidates,
+        [this](int32_t t) {
+          return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
+        },
+        params_);
+    report_.sigma_c = crit.sigma_c;
+    if (!crit.cut) return;
+    const int32_t room = model_.node_capacity() - model_.num_nodes();
+    if (room < 64) {
+      if (!warned_capacity_) Log().warn("node capacity exhausted: no more cuts");
+      warned_capacity_ = true;
+      return;
+    }
+    params_.max_splits_per_step = std::min(4096, room);
+    cutting::CutStep step;
+    step.v0 = attempt.v0;
+    step.v1 = attempt.v1;
+    step.cp0 = attempt.cp0;
+    step.cp = attempt.cp;
+    step.normal = attempt.normal;
+    step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_};
+    cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_);
+    if (outcome.status != cutting::CutStatus::kExecuted) {
+      ++cuts_rejected_;
+      return;
+    }
+    tracker_->OnCutExecuted();
+    Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
+                cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
+                outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
+    if (!outcome.event.empty()) ApplyEvent(outcome.event);
+    ++cuts_;
+    report_.cuts = cuts_;
+    report_.cut_this_frame = true;
+  }
+
+  int32_t SurfaceTriTet(int32_t tri) const {
+    if (tri < 0 || static_cast<size_t>(tri) >= surface_tet_.size()) return -1;
+    return surface_tet_[static_cast<size_t>(tri)];
+  }
+
+  /// Applies a cut's topology event to the FEM in the order the cut code
+  /// documents (topology_event.h), then refreshes what depends on topology.
+  void ApplyEvent(const cutting::TopologyEvent& event) {
+    for (const cutting::Split& split : event.splits) {
+      const int32_t copy = model_.AddNodeCopy(split.node, state_);
+      CUTSIM_CHECK(copy == split.new_node, "FEM and cut complex disagree on new node ids");
+      for (const int32_t t : split.tets) {
+        int corner = 0;
+        while (corner < 4 && model_.tet_node(t, corner) != split.node) ++corner;
+        CUTSIM_CHECK(corner < 4, "retargeted tet does not use the split node");
+        model_.RetargetTet(t, corner, copy);
+      }
+    }
+    for (const cutting::Move& move : event.moves) {
+      model_.SetRestPosition(move.node, move.rest.template cast<T>());
+      world_access_.Set(move.node, move.world);
+    }
+    model_.RecomputeElements(event.touched_tets);
+    model_.RecomputeNodeMasses(event.touched_nodes);
+    model_.CommitTopology();
+    fem::UpdateStableStep(model_, state_, event.touched_tets,
+                          step_options_.viscous == fem::ViscousTreatment::kExplicit);
+    events_.push_back(event);
+    RebuildSurface();
+  }
+
   LoadedScene scene_;
   SceneMesh mesh_;
   fem::Model<T> model_;
@@ -357,6 +750,39 @@ class Engine final : public Simulation {
   double rest_residual_force_ = 0;
   SimStatus status_ = SimStatus::kOk;
   std::string diagnosis_;
+  StateWorld<T> world_access_;
+
+  // Tool (absent: none of this is used).
+  bool has_tool_ = false;
+  haptics::ToolPath path_;
+  std::optional<ToolPose> external_pose_;
+  ToolPose pose_;
+  double blade_length_ = 0;        // m
+  double contact_stiffness_ = 0;   // N/m
+  double contact_damping_ = 0;     // N·s/m
+  double indent_limit_ = 0;        // m
+  double mean_edge_ = 0;           // m
+  mesh::Positions world_;          // #N×3 double copy for the BVH
+  mesh::Triangles surface_;        // #F×3
+  std::vector<uint8_t> opened_;    // #F
+  std::vector<int32_t> surface_tet_;  // #F owning tet
+  mesh::TriangleBvh bvh_;
+  std::vector<mesh::SegmentHit> hits_scratch_;
+  std::vector<int32_t> box_scratch_;
+  ContactFacet facet_;
+  ToolReport report_;
+
+  // Cutting (absent without `cutting.enabled`).
+  cutting::CutParams params_;
+  std::optional<cutting::CutMesh> cut_;
+  std::optional<cutting::CutAttemptTracker> tracker_;
+  std::vector<cutting::TopologyEvent> events_;
+  Eigen::Vector3d anchor_tip_ = Eigen::Vector3d::Zero();  // tool tip when t0 was set
+  uint64_t cuts_ = 0;
+  uint64_t cut_attempts_ = 0;
+  uint64_t cuts_rejected_ = 0;
+  double cut_wall_time_ = 0;
+  bool warned_capacity_ = false;
 };
 
 }  // namespace

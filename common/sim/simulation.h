@@ -10,6 +10,8 @@
 #include <memory>
 #include <string>
 
+#include <Eigen/Core>
+
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/scene_loader.h"
 
@@ -51,6 +53,46 @@ struct SimulationSummary {
   bool at_rest = false;
   std::string status = "ok";
   std::string diagnosis;
+  // Tool and cutting (zero without a tool).
+  uint64_t cuts = 0;             ///< executed cut steps
+  uint64_t cut_attempts = 0;     ///< geometric attempts (seed §3.1)
+  uint64_t cuts_rejected = 0;    ///< attempts that passed the stress test but were rolled back
+  uint64_t topology_version = 0;
+  int components = 1;            ///< face-connected parts of the mesh
+  int opened_faces = 0;          ///< surface faces opened by cuts
+  double min_rest_volume = 0.0;  ///< m³, smallest tet rest volume
+  double total_mass = 0.0;       ///< kg
+  double cut_wall_time = 0.0;    ///< s spent in cut steps (criterion + split + FEM update)
+};
+
+/// A tool pose: blade tip and unit direction from the tip toward the handle.
+struct ToolPose {
+  Eigen::Vector3d tip = Eigen::Vector3d::Zero();       ///< m, world
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< unit
+};
+
+/// What the tool did in the last frame: the haptic local model's inputs.
+struct ToolReport {
+  bool present = false;          ///< the scene has a tool
+  bool touching = false;
+  ToolPose pose;
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();   ///< C_p, m
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ(); ///< outward facet normal
+  Eigen::Vector3d force_on_tool = Eigen::Vector3d::Zero();  ///< N
+  double depth = 0.0;            ///< indentation, m
+  uint64_t cuts = 0;             ///< cut steps so far
+  bool cut_this_frame = false;
+  double sigma_c = 0.0;          ///< last evaluated cutting stress (eq. 10), Pa
+};
+
+/// The observable mesh (for viewers): world positions, tets, boundary
+/// surface and which of its faces a cut opened.
+struct MeshView {
+  mesh::Positions world;      // #N×3, m
+  mesh::Positions rest;       // #N×3, m
+  mesh::Tets tets;            // #T×4
+  mesh::Triangles surface;    // #F×3
+  std::vector<uint8_t> opened;  // #F
 };
 
 class Simulation {
@@ -60,8 +102,24 @@ class Simulation {
                                             const SimulationOptions& options = {});
   virtual ~Simulation() = default;
 
-  /// Advances one frame (scene time_step.frame_dt) in stable substeps.
-  virtual SimStatus AdvanceFrame() = 0;
+  /// Advances one frame of `frame_time` seconds (0: the scene's
+  /// time_step.frame_dt) in stable substeps: tool contact, then dynamics,
+  /// then the cut test of seed §3.
+  virtual SimStatus AdvanceFrame(double frame_time = 0.0) = 0;
+
+  /// Whether the scene has a tool, and when its scripted path ends (0: none).
+  [[nodiscard]] virtual bool has_tool() const = 0;
+  [[nodiscard]] virtual double path_end_time() const = 0;
+  /// Drives the tool from outside (haptic link) instead of the scene's path,
+  /// from the next frame on.
+  virtual void SetToolPose(const ToolPose& pose) = 0;
+  [[nodiscard]] virtual ToolReport Tool() const = 0;
+  /// K = −∂f_tool/∂x_tool at the current contact (see tool_contact.h), N/m;
+  /// zero without contact. Computed on demand (only a haptic client needs it).
+  [[nodiscard]] virtual Eigen::Matrix3d ContactStiffness() const = 0;
+  [[nodiscard]] virtual uint64_t topology_version() const = 0;
+  /// Copies the observable mesh into `view` (reusing its storage).
+  virtual void FillMeshView(MeshView& view) const = 0;
 
   /// Rest: kinetic energy and the largest residual free-node force below the
   /// scene's `rest` tolerances.
@@ -75,7 +133,8 @@ class Simulation {
   [[nodiscard]] virtual mesh::TetMesh WorldMesh() const = 0;
 
   /// Writes the state to .vtu (displacement, velocity, von Mises, principal
-  /// stress, element quality, fixed-node and opened-face markers).
+  /// stress, element quality, fixed-node markers, and per tet the number of
+  /// its faces opened by cuts, `cut_faces`, so ParaView can show the cut).
   virtual void WriteVtu(const std::filesystem::path& path) const = 0;
 };
 

@@ -152,11 +152,17 @@ TEST(FfmpegVideoWriterTest, EncodesAnOrbitOfTheCube) {
 TEST(FfmpegVideoWriterTest, FailedEncodeNeverReplacesAGoodVideo) {
   if (!FfmpegVideoWriter::Available()) GTEST_SKIP() << "no ffmpeg executable on PATH";
   const fs::path dir = TestDir("failed");
-  const fs::path path = dir / "keep.mp4";
+  // ffmpeg has no muxer for this extension, so the encode fails at Close.
+  const fs::path path = dir / "keep.nosuchformat";
   { std::ofstream(path) << "previous good video"; }
   {
     FfmpegVideoWriter writer(path, 64, 64, 25.0);
-    EXPECT_THROW(writer.Close(), InputError);  // zero frames: ffmpeg fails
+    try {
+      writer.WriteFrame(Image{64, 64, std::vector<uint8_t>(64 * 64 * 4, 128)});
+    } catch (const InputError&) {
+      // ffmpeg may already have exited: the failure shows here or at Close.
+    }
+    EXPECT_THROW(writer.Close(), InputError);
   }
   EXPECT_EQ(fs::file_size(path), std::string("previous good video").size());
   fs::remove_all(dir);

@@ -1,0 +1,93 @@
+#include "common/sim/tool_contact.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace cutsim::sim {
+namespace {
+
+constexpr double kFacingCosine = 0.2;  // n·d above this: the facet faces the handle
+
+struct Facet {
+  Eigen::Vector3d p0, p1, p2, n;
+  bool ok = false;
+};
+
+Facet LoadFacet(const mesh::Positions& world, const mesh::Triangles& surface, int32_t f) {
+  Facet out;
+  out.p0 = world.row(surface(f, 0)).transpose();
+  out.p1 = world.row(surface(f, 1)).transpose();
+  out.p2 = world.row(surface(f, 2)).transpose();
+  const Eigen::Vector3d cross = (out.p1 - out.p0).cross(out.p2 - out.p0);
+  const double area2 = cross.norm();
+  out.ok = area2 > 0.0;
+  if (out.ok) out.n = cross / area2;
+  return out;
+}
+
+void Fill(ContactFacet& c, const mesh::Triangles& surface, int32_t f, const Facet& facet,
+          const Eigen::Vector3d& point, const Eigen::Vector3d& bary, const Eigen::Vector3d& tip) {
+  c.touching = true;
+  c.surface_tri = f;
+  c.nodes = {surface(f, 0), surface(f, 1), surface(f, 2)};
+  c.bary = bary;
+  c.point = point;
+  c.normal = facet.n;
+  c.depth = std::max(0.0, (point - tip).dot(facet.n));
+  int k = 0;
+  bary.maxCoeff(&k);  // the vertex nearest C_p has the largest barycentric
+  c.closest_node = c.nodes[static_cast<size_t>(k)];
+}
+
+}  // namespace
+
+ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
+                              const mesh::Triangles& surface, const Eigen::Vector3d& tip,
+                              const Eigen::Vector3d& blade_dir, double blade_length,
+                              double near_radius, std::vector<mesh::SegmentHit>& hits,
+                              std::vector<int32_t>& boxes) {
+  ContactFacet best;
+  // 1. Where the blade enters: crossing nearest the handle, facing it.
+  const Eigen::Vector3d handle = tip + blade_length * blade_dir;
+  bvh.AllHits(handle, tip, hits);
+  double best_t = std::numeric_limits<double>::infinity();
+  for (const mesh::SegmentHit& h : hits) {
+    const Facet facet = LoadFacet(world, surface, h.tri);
+    if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine || h.t >= best_t) continue;
+    best_t = h.t;
+    Fill(best, surface, h.tri, facet, h.point, h.bary, tip);
+  }
+  if (best.touching) return best;
+  // 2. The tip just under a facing facet (no crossing, e.g. pressed flat).
+  const Eigen::Vector3d r = Eigen::Vector3d::Constant(near_radius);
+  bvh.QueryBox(tip - r, tip + r, boxes);
+  double best_distance = std::numeric_limits<double>::infinity();
+  for (const int32_t f : boxes) {
+    const Facet facet = LoadFacet(world, surface, f);
+    if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine) continue;
+    const mesh::ClosestPointHit hit = mesh::ClosestPointOnTriangle(tip, facet.p0, facet.p1, facet.p2);
+    if (hit.distance > near_radius || hit.distance >= best_distance) continue;
+    if ((hit.point - tip).dot(facet.n) <= 0.0) continue;  // tip above this facet
+    best_distance = hit.distance;
+    Fill(best, surface, f, facet, hit.point, hit.bary, tip);
+  }
+  return best;
+}
+
+Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                             const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
+                             const Eigen::Vector3d& approach_velocity, double stiffness, double damping,
+                             double indent_limit) {
+  const Eigen::Vector3d cross = (x1 - x0).cross(x2 - x0);
+  const double area2 = cross.norm();
+  if (area2 > 0.0) facet.normal = cross / area2;
+  facet.point = facet.bary[0] * x0 + facet.bary[1] * x1 + facet.bary[2] * x2;
+  facet.depth = std::clamp((facet.point - tip).dot(facet.normal), 0.0, indent_limit);
+  if (facet.depth <= 0.0) return Eigen::Vector3d::Zero();
+  const double vn = approach_velocity.dot(facet.normal);  // < 0: tool moving inward
+  const double push = stiffness * facet.depth + damping * std::max(0.0, -vn);
+  return -push * facet.normal;
+}
+
+}  // namespace cutsim::sim

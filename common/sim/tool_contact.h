@@ -1,0 +1,73 @@
+#pragma once
+/// @file
+/// Scalpel–tissue contact: where the blade touches the surface, how hard the
+/// tissue is pushed, and the force and stiffness the haptic side renders.
+///
+/// Contact model (penalty on the contact facet):
+/// - The scalpel is a segment from its tip to the handle end, tip + L·d
+///   (d = blade direction, tip → handle; L = blade length). Each physics
+///   frame the surface BVH is refitted and the contact facet is where the
+///   blade enters the tissue: the crossing of the segment handle → tip with
+///   a surface triangle whose outward normal faces the handle (n·d > 0.2),
+///   the one nearest the handle. Side walls opened by a cut (n ⟂ d) and the
+///   far side of the body are therefore never taken for the touched face.
+///   Without a crossing the tip may still be just under a facet (the blade
+///   pressed flat): the facing facet nearest to the tip within one mean
+///   edge length counts too.
+/// - Indentation δ = (C_p − tip)·n, capped at `indent_limit` (one mean edge
+///   length): a blade pushed deeper is inside the tissue (in its own cut),
+///   where the cut, not the surface layer, carries it.
+/// - During the frame's substeps the facet and the barycentrics b of C_p
+///   stay fixed; C_p = Σ bᵢxᵢ and n follow the facet's nodes and the tip is
+///   interpolated over the frame. The tissue receives fᵢ = bᵢ·F with
+///   F = −(k δ + c·max(0, −v·n)) n (a spring along the normal and a damper
+///   that only resists approach, so the contact never pulls); the tool
+///   receives −F. Updating the spring every substep keeps the penalty
+///   stable at any frame rate.
+/// - The haptic stiffness is derived from the FEM, not a constant (see
+///   Simulation::ContactStiffness): the tissue's local stiffness at the
+///   contact k_t = nᵀ(Σ bᵢ Kᵢᵢ)n, Kᵢᵢ the 3×3 diagonal tangent blocks of the
+///   facet nodes at the current state, in series with the penalty spring:
+///   K = k·k_t/(k + k_t) · n nᵀ. It stiffens with deformation, as StVK does.
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "common/mesh/bvh.h"
+#include "common/mesh/tet_mesh.h"
+
+namespace cutsim::sim {
+
+/// The facet the tool touches this frame.
+struct ContactFacet {
+  bool touching = false;
+  int32_t surface_tri = -1;               ///< Row in the surface triangle list.
+  std::array<int32_t, 3> nodes{-1, -1, -1};
+  Eigen::Vector3d bary = Eigen::Vector3d::Zero();
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();   ///< C_p, m
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ(); ///< outward, unit
+  double depth = 0.0;                                 ///< δ ≥ 0, m
+  int32_t closest_node = -1;                          ///< v_c: facet node nearest to C_p
+};
+
+/// Finds the contact facet of the blade (tip, unit direction tip → handle,
+/// length) on a surface (see file comment). `near_radius` is the reach of
+/// the tip-only test; `hits` and `boxes` are scratch.
+ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
+                              const mesh::Triangles& surface, const Eigen::Vector3d& tip,
+                              const Eigen::Vector3d& blade_dir, double blade_length,
+                              double near_radius, std::vector<mesh::SegmentHit>& hits,
+                              std::vector<int32_t>& boxes);
+
+/// Penalty force on the tissue at the facet for the current facet node
+/// positions: returns F (the force on the tissue, N, to be split as bᵢF) and
+/// updates `facet.point`, `facet.normal`, `facet.depth`.
+Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                             const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
+                             const Eigen::Vector3d& approach_velocity, double stiffness, double damping,
+                             double indent_limit);
+
+}  // namespace cutsim::sim

@@ -1,0 +1,280 @@
+#pragma once
+/// @file
+/// The haptic link over LCM: tool poses up (`CUTSIM_<session>_TOOL`, haptic
+/// station → server, up to 1 kHz) and local models down
+/// (`CUTSIM_<session>_MODEL`, one per physics frame).
+///
+/// Every message carries the sender's sequence number (from 1, +1 per
+/// message) and its CLOCK_MONOTONIC stamp. Receivers keep only the newest:
+/// `StreamSequencer` drops duplicates and out-of-order messages, and
+/// recognises a restarted sender (seq back to a small number) so that a
+/// server or client restart is resumed, not ignored for seconds:
+///
+/// * seq above the held one → accepted;
+/// * seq equal → duplicate (dropped);
+/// * seq below, with a *newer* stamp than the held message, or more than
+///   `restart_window` below → the sender restarted (accepted, counted). A
+///   reordered or replayed message carries an older stamp from the same
+///   clock, so it is stale (dropped). Stamps are only compared with stamps of
+///   the same sender, never with our clock.
+///
+/// Messages from another session (the `session` field; channels are per
+/// session already, so this is a misconfigured or hostile sender), garbage
+/// (decode errors, counted by the bus), and tool poses with non-finite or
+/// absurd values are dropped and counted. Models are converted here but
+/// *validated* by the renderer (`haptics::Validate`), which counts NaN and
+/// malformed models; a model whose stiffness is not 3×3 is dropped here.
+///
+/// Threading:
+/// * `HapticServerLink` lives on the server's physics thread, which owns the
+///   bus: `PollTool` handles pending LCM traffic with a 0 ms wait.
+/// * `HapticClientLink` runs the bus on its own LCM thread (`Start`). The
+///   1 kHz loop only touches two wait-free mailboxes (`PublishTool` writes
+///   the newest tool sample, the LCM thread sends it; `TakeModel` reads the
+///   newest model). So the loop never blocks, allocates or makes a system
+///   call for the link, at the cost of up to one LCM-thread period (1 ms) of
+///   extra tool-pose latency.
+///
+/// Access control (issue 7): `ToolAuthenticator` is the hook for the HMAC of
+/// `ToolState.hmac`; with none configured, messages are not authenticated.
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include <Eigen/Core>
+
+#include "common/haptics/local_model.h"
+#include "common/transport/fault_injection.h"
+#include "common/transport/lcm_bus.h"
+#include "common/transport/mailbox.h"
+#include "cutsim/v1/wire.pb.h"
+
+namespace cutsim::transport {
+
+/// One tool pose as it travels up the link.
+struct ToolSample {
+  uint64_t seq = 0;        ///< Sender's sequence number (assigned by `HapticClientLink::PublishTool`).
+  int64_t stamp_ns = 0;    ///< Sender's CLOCK_MONOTONIC when the device was read, ns.
+  int64_t receive_ns = 0;  ///< Receiver's CLOCK_MONOTONIC at acceptance, ns (0 on the sending side).
+  Eigen::Vector3d tip = Eigen::Vector3d::Zero();          ///< m, world.
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ();   ///< unit, tip → handle.
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();     ///< m/s.
+  uint32_t buttons = 0;    ///< bit 0: cutting enabled.
+};
+
+/// Newest-by-sequence filter with restart detection (see the file comment).
+class StreamSequencer {
+ public:
+  enum class Verdict : uint8_t { kAccepted, kRestart, kDuplicate, kStale };
+  static constexpr uint64_t kDefaultRestartWindow = 1000;
+
+  explicit StreamSequencer(uint64_t restart_window = kDefaultRestartWindow)
+      : restart_window_(restart_window) {}
+
+  /// Classifies a message; kAccepted and kRestart make it the held one.
+  Verdict Offer(uint64_t seq, int64_t stamp_ns) noexcept;
+  /// Forgets the held message.
+  void Reset() noexcept { have_ = false; }
+  [[nodiscard]] bool has_value() const { return have_; }
+  [[nodiscard]] uint64_t seq() const { return have_ ? seq_ : 0; }
+
+ private:
+  uint64_t restart_window_;
+  bool have_ = false;
+  uint64_t seq_ = 0;
+  int64_t stamp_ns_ = 0;
+};
+
+/// Hook for authenticating tool messages (issue 7: HMAC in `ToolState.hmac`,
+/// computed over the message with that field empty). Called on the sending
+/// and receiving threads; implementations must not throw or allocate.
+class ToolAuthenticator {
+ public:
+  virtual ~ToolAuthenticator() = default;
+  /// Fills `msg->hmac` (the other fields are final).
+  virtual void Sign(v1::ToolState* msg) noexcept = 0;
+  /// True if `msg.hmac` is valid for the rest of the message.
+  [[nodiscard]] virtual bool Verify(const v1::ToolState& msg) noexcept = 0;
+};
+
+/// Options shared by both ends.
+struct HapticLinkOptions {
+  FaultConfig publish_faults;        ///< Applied to what this end sends.
+  FaultConfig receive_faults;        ///< Applied to what this end receives (before filtering).
+  uint64_t restart_window = StreamSequencer::kDefaultRestartWindow;
+  ToolAuthenticator* authenticator = nullptr;  ///< Not owned; null = no authentication.
+};
+
+/// Server-side counters.
+struct HapticServerLinkStats {
+  uint64_t received = 0;         ///< Tool messages LCM delivered (including superseded ones).
+  uint64_t superseded = 0;       ///< Replaced by a newer arrival before the poll (not an error).
+  uint64_t decode_errors = 0;    ///< Garbage: oversized or not a ToolState.
+  uint64_t accepted = 0;         ///< Valid, newest: returned by `PollTool`.
+  uint64_t foreign_session = 0;  ///< `session` field not ours.
+  uint64_t stale = 0;            ///< Out of order (older than the held one).
+  uint64_t duplicate = 0;        ///< Same seq as the held one.
+  uint64_t invalid = 0;          ///< Non-finite or absurd pose.
+  uint64_t unauthenticated = 0;  ///< Failed `ToolAuthenticator::Verify`.
+  uint64_t restarts = 0;         ///< Client restarts detected (included in accepted).
+  uint64_t models_published = 0;
+  uint64_t models_not_sent = 0;  ///< Over one datagram or LCM refused.
+};
+
+/// The server's end: polls tool poses, publishes local models.
+class HapticServerLink {
+ public:
+  /// Subscribes to `CUTSIM_<session>_TOOL` on `bus`. Throws `InputError`
+  /// (field "--session") on an invalid session name and for invalid fault
+  /// settings. `bus` must outlive the link and belongs to the caller's thread.
+  HapticServerLink(LcmBus& bus, std::string session, HapticLinkOptions options = {});
+  ~HapticServerLink();
+  HapticServerLink(const HapticServerLink&) = delete;
+  HapticServerLink& operator=(const HapticServerLink&) = delete;
+
+  /// Non-blocking: handles pending LCM traffic with a 0 ms wait (this
+  /// dispatches every subscription on the bus) and returns the newest valid
+  /// tool pose accepted since the previous call (also by another dispatch
+  /// of the same bus), or nullopt if none was.
+  /// The last accepted pose stays available as `latest_tool()`. Never throws
+  /// for anything received.
+  std::optional<ToolSample> PollTool();
+
+  /// Publishes `model` on `CUTSIM_<session>_MODEL`. The link numbers the
+  /// stream (seq 1, 2, ... of this link; `model.seq` is ignored) and stamps
+  /// it with CLOCK_MONOTONIC now (`model.stamp_ns` is ignored); `tool_seq`
+  /// is the seq of the tool pose the model was computed from (0 = none), so
+  /// the client can measure pose-to-model latency. Never throws; a model
+  /// over one datagram is not sent and counted (cannot happen: ~400 bytes).
+  void PublishModel(const haptics::LocalModel& model, uint64_t tool_seq);
+
+  [[nodiscard]] HapticServerLinkStats stats() const;
+  [[nodiscard]] const std::optional<ToolSample>& latest_tool() const { return latest_; }
+  [[nodiscard]] uint64_t last_model_seq() const { return model_seq_; }
+  [[nodiscard]] const std::string& session() const { return session_; }
+
+ private:
+  void OnTool(const v1::ToolState& msg);
+  void ProcessTool(const v1::ToolState& msg, int64_t receive_ns);
+
+  LcmBus& bus_;
+  std::string session_;
+  HapticLinkOptions options_;
+  std::string model_channel_;
+  StreamSequencer sequencer_;
+  std::optional<ToolSample> latest_;
+  bool fresh_ = false;
+  uint64_t model_seq_ = 0;
+  v1::HapticModel model_msg_;  // reused
+  v1::ToolState scratch_;      // reused for fault-delayed messages
+  Encoder encoder_;
+  std::unique_ptr<FaultInjector> receive_faults_;  // null when inactive
+  std::unique_ptr<FaultyLcmPublisher> publisher_;
+  HapticServerLinkStats stats_;
+  LcmSubscription subscription_;  // last: unsubscribes first
+};
+
+/// A model as the haptic loop receives it.
+struct ReceivedModel {
+  haptics::LocalModel model;
+  int64_t receive_ns = 0;  ///< Our CLOCK_MONOTONIC when the LCM thread accepted it, ns.
+  uint64_t tool_seq = 0;   ///< Seq of the tool pose the server used (0 = none).
+  uint64_t epoch = 0;      ///< +1 each time the server's stream restarts: reset the renderer.
+};
+
+/// Client-side counters (a consistent-enough snapshot; each is atomic).
+struct HapticClientLinkStats {
+  uint64_t tools_written = 0;     ///< `PublishTool` calls by the loop.
+  uint64_t tools_published = 0;   ///< Sent (or handed to the fault injector).
+  uint64_t tools_coalesced = 0;   ///< Overwritten in the mailbox before the LCM thread sent them.
+  uint64_t tools_not_sent = 0;    ///< LCM refused.
+  uint64_t models_received = 0;   ///< Delivered by LCM (including superseded).
+  uint64_t models_superseded = 0;
+  uint64_t decode_errors = 0;     ///< Garbage.
+  uint64_t foreign_session = 0;
+  uint64_t stale = 0;
+  uint64_t duplicate = 0;
+  uint64_t malformed = 0;         ///< Stiffness not 3×3.
+  uint64_t restarts = 0;          ///< Server restarts detected.
+  uint64_t accepted = 0;          ///< Handed to the mailbox.
+};
+
+/// The haptic station's end.
+class HapticClientLink {
+ public:
+  /// Subscribes to `CUTSIM_<session>_MODEL` on `bus`. After `Start` the bus
+  /// belongs to the link's LCM thread until `Stop`. Throws `InputError` on an
+  /// invalid session name or fault settings.
+  HapticClientLink(LcmBus& bus, std::string session, HapticLinkOptions options = {});
+  ~HapticClientLink();  ///< Stops the thread.
+  HapticClientLink(const HapticClientLink&) = delete;
+  HapticClientLink& operator=(const HapticClientLink&) = delete;
+
+  /// Starts the LCM thread: sends tool samples, receives models, releases
+  /// fault-delayed messages; it waits at most `wait_ms` in LCM per round.
+  void Start(int wait_ms = 1);
+  /// Stops and joins the LCM thread (idempotent).
+  void Stop();
+  /// One round of the LCM thread (send the newest tool sample, wait up to
+  /// `wait_ms` for LCM, release delayed messages). For tests that drive the
+  /// link from their own thread instead of `Start`. Returns models accepted.
+  int RunOnce(int wait_ms);
+
+  // ---- Real-time side (one thread: the haptic loop). Wait-free. ---------
+  /// Hands a tool sample to the LCM thread; assigns and returns its seq
+  /// (`sample.seq` is ignored; `sample.stamp_ns` 0 means now).
+  uint64_t PublishTool(const ToolSample& sample) noexcept;
+  /// If a model newer than the last taken one arrived, copies it to `*out`.
+  bool TakeModel(ReceivedModel* out) noexcept;
+
+  [[nodiscard]] HapticClientLinkStats stats() const;
+  [[nodiscard]] const std::string& session() const { return session_; }
+  /// Counters of the fault injectors (LCM-thread data: read after `Stop`).
+  [[nodiscard]] FaultStats publish_fault_stats() const;
+  [[nodiscard]] FaultStats receive_fault_stats() const;
+
+ private:
+  void OnModel(const v1::HapticModel& msg);
+  void ProcessModel(const v1::HapticModel& msg, int64_t receive_ns);
+  void SendPendingTool(int64_t now_ns);
+
+  LcmBus& bus_;
+  std::string session_;
+  HapticLinkOptions options_;
+  std::string tool_channel_;
+  // LCM-thread state.
+  StreamSequencer sequencer_;
+  uint64_t epoch_ = 0;
+  v1::ToolState tool_msg_;     // reused
+  v1::HapticModel scratch_;    // reused for fault-delayed messages
+  ReceivedModel staging_;
+  Encoder encoder_;
+  std::unique_ptr<FaultInjector> receive_faults_;
+  std::unique_ptr<FaultyLcmPublisher> publisher_;
+  // Shared.
+  Mailbox<ToolSample> tool_box_;
+  Mailbox<ReceivedModel> model_box_;
+  uint64_t next_tool_seq_ = 0;  // RT-thread only
+  struct AtomicStats {
+    std::atomic<uint64_t> tools_written{0}, tools_published{0}, tools_not_sent{0},
+        models_received{0}, models_superseded{0}, decode_errors{0}, foreign_session{0}, stale{0},
+        duplicate{0}, malformed{0}, restarts{0}, accepted{0};
+  } stats_;
+  std::atomic<bool> running_{false};
+  std::thread thread_;
+  LcmSubscription subscription_;  // last: unsubscribes first
+};
+
+/// Conversions between the wire and the haptics types (exposed for tests and
+/// tools). `FromProto` returns false if the stiffness is present but not 9
+/// entries; everything else is left to `haptics::Validate`.
+void ToProto(const haptics::LocalModel& model, v1::HapticModel* msg);
+[[nodiscard]] bool FromProto(const v1::HapticModel& msg, haptics::LocalModel* model) noexcept;
+void ToProto(const ToolSample& sample, v1::ToolState* msg);
+[[nodiscard]] ToolSample FromProto(const v1::ToolState& msg) noexcept;
+
+}  // namespace cutsim::transport

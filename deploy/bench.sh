@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# The one bench command: installs what is missing, builds the `release`
+# preset, runs every benchmark in bench/ with JSON output into out/bench/,
+# and plots them (PNG) with matplotlib. About 5–10 minutes on a 2-core box.
+#
+#   ./deploy/bench.sh                 # everything
+#   BENCH_MIN_TIME=0.1 ./deploy/bench.sh   # quicker, noisier
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+jobs="${JOBS:-$(nproc)}"
+min_time="${BENCH_MIN_TIME:-0.2}"
+reps="${BENCH_REPETITIONS:-3}"
+out=out/bench
+start=$(date +%s)
+
+./deploy/install-deps.sh
+
+echo "== configure (release)"
+cmake --preset release >/dev/null
+echo "== build (release)"
+cmake --build --preset release -j "$jobs"
+bin=build/release/bin
+mkdir -p "$out"
+
+echo "== machine"
+{
+  echo "{"
+  echo "  \"cpu\": \"$(lscpu | sed -n 's/^Model name: *//p' | head -1)\","
+  echo "  \"cores\": $(nproc),"
+  echo "  \"load_average_1min\": $(cut -d' ' -f1 /proc/loadavg),"
+  echo "  \"date\": \"$(date -u +%Y-%m-%dT%H:%M:%SZ)\","
+  echo "  \"commit\": \"$(git rev-parse --short HEAD 2>/dev/null || echo unknown)\""
+  echo "}"
+} > "$out/machine.json"
+cat "$out/machine.json"
+
+echo "== fem_bench (force kernel, full step, skip table, STREAM triad)"
+# Medians of $reps repetitions; the triad runs in the same binary so the
+# kernel numbers can be read as a fraction of the memory roofline.
+"$bin/fem_bench" --benchmark_min_time="$min_time" --benchmark_repetitions="$reps" \
+  --benchmark_report_aggregates_only=true \
+  --benchmark_out="$out/fem_bench.json" --benchmark_out_format=json >/dev/null
+
+echo "== organ_mesh (sliver cleanup and stable step of the organ)"
+"$bin/organ_mesh" > "$out/organ_mesh.json"
+cat "$out/organ_mesh.json"
+
+echo "== organ scene run (real-time factor)"
+if [[ -f scenes/organ.pbtxt ]]; then
+  "$bin/cutsim-server" --headless --scene scenes/organ.pbtxt --duration 0.02 --no-progress \
+    > "$out/organ_run.json" 2>"$out/organ_run.log" || echo "organ run failed (see $out/organ_run.log)"
+else
+  echo "scenes/organ.pbtxt not present yet: skipped"
+fi
+
+echo "== plots"
+/usr/bin/python3 bench/plot.py "$out"
+
+echo "== done in $(( $(date +%s) - start )) s; results in $out/"

@@ -1,0 +1,56 @@
+#pragma once
+/// @file
+/// The haptic device interface, shaped like the common haptics toolkits'
+/// (OpenHaptics HD, CHAI3D's cGenericHapticDevice, Force Dimension DHD):
+/// read position, velocity and buttons once per servo tick, command a force,
+/// and publish the device's limits (max force, max stiffness, workspace) so
+/// the renderer never asks for more than the hardware can do.
+///
+/// A vendor driver implements the same four calls: `Start` may block and
+/// allocate (open the device, calibrate); `Read` and `SetForce` run inside
+/// the 1 kHz loop and must not allocate, block or throw; `Stop` zeroes the
+/// force and releases the device. No force-feedback driver ships in Debian,
+/// so cutsim ships two virtual devices: `ScriptedDevice` (a tool path) and
+/// `ReplayDevice` (a recorded tool stream).
+
+#include <cstdint>
+#include <string>
+
+#include <Eigen/Core>
+
+namespace cutsim::haptic_client {
+
+/// What a device can do.
+struct DeviceInfo {
+  std::string name;
+  double max_force = 8.0;         ///< N, continuous force the device can exert.
+  double max_stiffness = 2000.0;  ///< N/m, stiffest spring it renders stably.
+  double max_damping = 20.0;      ///< N·s/m.
+  Eigen::Vector3d workspace_min{-0.5, -0.5, -0.5};  ///< m, world-frame box the tip can reach.
+  Eigen::Vector3d workspace_max{0.5, 0.5, 0.5};     ///< m.
+};
+
+/// One reading of the device.
+struct DeviceState {
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();    ///< m, tool tip in the world frame.
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();    ///< m/s.
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ();  ///< unit, tip → handle.
+  uint32_t buttons = 0;  ///< bit 0: cutting enabled.
+  bool done = false;     ///< A virtual device's script has ended (a real one: never).
+};
+
+class HapticDevice {
+ public:
+  virtual ~HapticDevice() = default;
+  [[nodiscard]] virtual const DeviceInfo& info() const = 0;
+  /// Before the loop, with the loop's start time (CLOCK_MONOTONIC ns).
+  virtual void Start(int64_t start_ns) = 0;
+  /// Servo tick: the state at `now_ns`. No allocation, blocking or throwing.
+  virtual void Read(int64_t now_ns, DeviceState* state) noexcept = 0;
+  /// Servo tick: the force to exert on the user's hand, N. Same rules as Read.
+  virtual void SetForce(const Eigen::Vector3d& force) noexcept = 0;
+  /// After the loop: zero force, release the device.
+  virtual void Stop() noexcept = 0;
+};
+
+}  // namespace cutsim::haptic_client

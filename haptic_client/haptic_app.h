@@ -1,0 +1,76 @@
+#pragma once
+/// @file
+/// `cutsim-haptic`: the haptic station. A 1 kHz servo loop on absolute
+/// deadlines reads the device, sends the tool pose to the server over LCM,
+/// renders the newest local model (haptics::HapticRenderer: buffer model, cut
+/// decay, watchdog, passivity, force and force-rate limits) and commands the
+/// force.
+///
+/// Real-time design:
+/// * Threads: the servo loop (main thread; SCHED_FIFO when permitted), the
+///   link's LCM thread (HapticClientLink: sends tool poses, receives models)
+///   and a CSV writer thread. The servo loop talks to them only through
+///   wait-free single-slot mailboxes (newest wins) and a preallocated
+///   single-producer ring of CSV rows; it never blocks, allocates, throws,
+///   logs or makes a system call other than clock_gettime and
+///   clock_nanosleep.
+/// * Pacing: deadline k = t0 + k·period, slept to with clock_nanosleep
+///   TIMER_ABSTIME (cutsim::SleepUntilNs), so jitter never accumulates. A tick
+///   that wakes after the *next* deadline counts as a missed deadline and the
+///   schedule skips ahead (no burst of catch-up ticks: a stale force is worse
+///   than one tick of hold).
+/// * Memory: mlockall(MCL_CURRENT|MCL_FUTURE) and prefaulted buffers when
+///   permitted; with neither CAP_SYS_NICE nor an rtprio limit the loop runs
+///   SCHED_OTHER and says so in a warning and in the JSON summary.
+/// * Threads are started before the loop raises its own priority, so the
+///   LCM and CSV threads stay SCHED_OTHER.
+
+#include <cstdint>
+#include <string>
+
+#include "common/transport/fault_injection.h"
+
+namespace cutsim::haptic_client {
+
+struct HapticAppOptions {
+  std::string session = "default";
+  std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
+  std::string device = "scripted";    ///< scripted | replay
+  std::string path;                   ///< --path, tool path for `scripted`
+  std::string log;                    ///< --log, LCM log for `replay`
+  std::string log_channel;            ///< --log-channel, default CUTSIM_<session>_TOOL
+  double rate = 1000.0;               ///< Hz, servo rate
+  double tool_rate = 1000.0;          ///< Hz, tool pose publishing rate (≤ rate)
+  std::string csv = "out/haptic.csv"; ///< "" or "-" = no CSV
+  double duration = 0.0;              ///< s, 0 = until the device is done (or a signal)
+  double max_force = 0.0;             ///< N, 0 = the device's
+  double max_stiffness = 0.0;         ///< N/m, 0 = the device's
+  double max_force_rate = 0.0;        ///< N/s, 0 = renderer default
+  double decay_per_second = 0.0;      ///< ξ, 1/s, used when the model sends 0; 0 = default
+  double watchdog = 0.0;              ///< s, 0 = default (50 ms + 50 ms fade)
+  bool passivity = true;              ///< --no-passivity turns the PC off (observer stays)
+  transport::FaultConfig faults;      ///< --fault-*
+  std::string fault_direction = "both";  ///< both | tool | model
+  bool realtime = true;               ///< --no-rt: do not try SCHED_FIFO / mlockall
+  int rt_priority = 80;
+};
+
+/// Validates the options (throws `InputError` naming the flag).
+void ValidateOptions(const HapticAppOptions& options);
+
+/// Runs the station until the device is done, `duration` passes, or
+/// SIGINT/SIGTERM. Logs the stats and prints one JSON line on stdout.
+/// Returns the process exit code (0 on a normal end).
+int RunHapticApp(const HapticAppOptions& options);
+
+/// Result of `TryEnableRealtime`.
+struct RealtimeStatus {
+  bool fifo = false;
+  bool mlocked = false;
+};
+
+/// Locks memory and switches the calling thread to SCHED_FIFO `priority`,
+/// each when permitted; logs a clear warning for what was not.
+RealtimeStatus TryEnableRealtime(int priority);
+
+}  // namespace cutsim::haptic_client

@@ -1,0 +1,57 @@
+// cutsim-haptic: the haptic station (see haptic_app.h).
+#include <exception>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "common/core/error.h"
+#include "common/core/log.h"
+#include "common/transport/fault_flags.h"
+#include "haptic_client/haptic_app.h"
+
+int main(int argc, char** argv) {
+  using cutsim::haptic_client::HapticAppOptions;
+  HapticAppOptions o;
+  std::string log_level = "info";
+  bool no_rt = false;
+  bool no_passivity = false;
+  CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted or replayed device) over LCM"};
+  app.add_option("--session", o.session, "Session name")->capture_default_str();
+  app.add_option("--lcm-url", o.lcm_url, "LCM URL (ttl=1 to reach another machine)")->capture_default_str();
+  app.add_option("--device", o.device, "scripted | replay")->capture_default_str();
+  app.add_option("--path", o.path, "Tool path file for --device scripted (minimum-jerk timing)");
+  app.add_option("--log", o.log, "LCM log (lcm-logger or server recorder) for --device replay");
+  app.add_option("--log-channel", o.log_channel, "Channel to replay (default CUTSIM_<session>_TOOL)");
+  app.add_option("--rate", o.rate, "Servo loop rate, Hz")->capture_default_str();
+  app.add_option("--tool-rate", o.tool_rate, "Tool pose publishing rate, Hz (≤ --rate)")->capture_default_str();
+  app.add_option("--csv", o.csv, "CSV of force, model age and loop timing (\"-\" = none)")->capture_default_str();
+  app.add_option("--duration", o.duration, "Stop after this many seconds (0 = when the device is done)")
+      ->capture_default_str();
+  app.add_option("--max-force", o.max_force, "Force limit, N (0 = the device's)")->capture_default_str();
+  app.add_option("--max-stiffness", o.max_stiffness, "Stiffness limit, N/m (0 = the device's)")->capture_default_str();
+  app.add_option("--max-force-rate", o.max_force_rate, "Force-rate limit, N/s (0 = default 2000)")->capture_default_str();
+  app.add_option("--decay-per-second", o.decay_per_second,
+                 "Cut-force decay ξ, 1/s, when the model sends none (0 = default 30)")->capture_default_str();
+  app.add_option("--watchdog", o.watchdog, "Seconds without a model before the fade (0 = default 0.05)")
+      ->capture_default_str();
+  app.add_flag("--no-passivity", no_passivity, "Turn the passivity controller off (the observer still reports)");
+  cutsim::transport::AddFaultFlags(app, &o.faults);
+  app.add_option("--fault-direction", o.fault_direction, "Where faults apply: both | tool | model")
+      ->group("Fault injection")->capture_default_str();
+  app.add_flag("--no-rt", no_rt, "Do not try SCHED_FIFO and mlockall");
+  app.add_option("--rt-priority", o.rt_priority, "SCHED_FIFO priority of the servo loop")->capture_default_str();
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  o.realtime = !no_rt;
+  o.passivity = !no_passivity;
+  try {
+    cutsim::InitLogging("cutsim-haptic", log_level);
+    return cutsim::haptic_client::RunHapticApp(o);
+  } catch (const cutsim::InputError& e) {
+    cutsim::Log().error("{}", e.what());
+    return 2;
+  } catch (const std::exception& e) {
+    cutsim::Log().error("fatal: {}", e.what());
+    return 1;
+  }
+}

@@ -1,0 +1,564 @@
+// The observers' mesh stream: snapshot/delta encoding, replica, hash, bad
+// input, and the "no encoding without a reader" rule. DDS runs in-process on a
+// per-process domain with the default (loopback) configuration.
+
+#include "common/transport/mesh_stream.h"
+
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/core/clock.h"
+#include "common/mesh/generators.h"
+#include "common/mesh/surface.h"
+#include "tests/unit/transport/test_util.h"
+
+namespace cutsim::transport {
+namespace {
+
+using namespace std::chrono_literals;
+
+/// A mutable mesh state standing in for the server's simulation.
+struct FakeMesh {
+  uint64_t frame = 0;
+  double sim_time = 0.0;
+  uint64_t version = 1;
+  mesh::Positions rest;
+  mesh::Positions world;
+  mesh::Tets tets;
+  mesh::Triangles surface;
+  std::vector<uint8_t> opened;
+  std::vector<double> stress;
+
+  explicit FakeMesh(int n, double size = 0.1) {
+    const mesh::TetMesh box = mesh::MakeBox({0, 0, 0}, {size, size, size}, n, n, n);
+    rest = box.nodes;
+    world = box.nodes;
+    tets = box.tets;
+    Resurface();
+  }
+  void Resurface() {
+    surface = mesh::ExtractSurface(tets).tris;
+    opened.assign(static_cast<size_t>(surface.rows()), 0);
+  }
+  void Fill(MeshFrame& f) const {
+    f.frame = frame;
+    f.sim_time = sim_time;
+    f.topology_version = version;
+    f.world = world;
+    f.rest = rest;
+    f.tets = tets;
+    f.surface = surface;
+    f.opened = opened;
+    f.stress = stress;
+  }
+  /// Smooth bump of `depth` m pushing nodes within `radius` of `centre` down.
+  void Poke(const Eigen::Vector3d& centre, double radius, double depth) {
+    for (Eigen::Index i = 0; i < world.rows(); ++i) {
+      const double r = (rest.row(i).transpose() - centre).norm();
+      if (r < radius) {
+        const double w = 0.5 * (1 + std::cos(M_PI * r / radius));
+        world(i, 2) = rest(i, 2) - depth * w;
+      }
+    }
+  }
+  /// Vertex split of `node`: a duplicate at the same place takes over the
+  /// tets on the +x side of it (positive orientation kept).
+  void Split(int32_t node, bool resurface = true) {
+    const Eigen::Index n = world.rows();
+    world.conservativeResize(n + 1, 3);
+    rest.conservativeResize(n + 1, 3);
+    world.row(n) = world.row(node);
+    rest.row(n) = rest.row(node);
+    if (!stress.empty()) stress.push_back(stress[static_cast<size_t>(node)]);
+    for (Eigen::Index t = 0; t < tets.rows(); ++t) {
+      bool uses = false;
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) {
+        uses |= tets(t, k) == node;
+        c += rest.row(tets(t, k)).transpose() / 4;
+      }
+      if (!uses || c.x() <= rest(node, 0)) continue;
+      for (int k = 0; k < 4; ++k) {
+        if (tets(t, k) == node) tets(t, k) = static_cast<int32_t>(n);
+      }
+    }
+    ++version;
+    if (resurface) MarkOpened(n);
+  }
+  /// Recomputes the surface; faces touching nodes ≥ `first_new` are opened.
+  void MarkOpened(Eigen::Index first_new) {
+    Resurface();
+    for (Eigen::Index f = 0; f < surface.rows(); ++f) {
+      for (int k = 0; k < 3; ++k) {
+        if (surface(f, k) >= first_new) opened[static_cast<size_t>(f)] = 1;
+      }
+    }
+  }
+  /// A plane cut at x = `x`, from the top down to `z_min`: every node on the
+  /// plane above z_min is split, its duplicate taking the tets on the +x side.
+  void Cut(double x, double z_min) {
+    const Eigen::Index n = rest.rows();
+    std::vector<int32_t> dup(static_cast<size_t>(n), -1);
+    Eigen::Index next = n;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (std::abs(rest(i, 0) - x) < 1e-9 && rest(i, 2) > z_min + 1e-9) {
+        dup[static_cast<size_t>(i)] = static_cast<int32_t>(next++);
+      }
+    }
+    world.conservativeResize(next, 3);
+    rest.conservativeResize(next, 3);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (const int32_t d = dup[static_cast<size_t>(i)]; d >= 0) {
+        world.row(d) = world.row(i);
+        rest.row(d) = rest.row(i);
+        if (!stress.empty()) stress.push_back(stress[static_cast<size_t>(i)]);
+      }
+    }
+    for (Eigen::Index t = 0; t < tets.rows(); ++t) {
+      double cx = 0;
+      for (int k = 0; k < 4; ++k) cx += rest(tets(t, k), 0) / 4;
+      if (cx <= x) continue;
+      for (int k = 0; k < 4; ++k) {
+        if (const int32_t d = dup[static_cast<size_t>(tets(t, k))]; d >= 0) tets(t, k) = d;
+      }
+    }
+    ++version;
+    MarkOpened(n);
+  }
+};
+
+struct Sample {
+  EnvelopeKind kind;
+  uint64_t seq;
+  std::vector<uint8_t> bytes;
+};
+
+/// A publisher plus raw readers that record every payload it sends.
+class StreamHarness {
+ public:
+  explicit StreamHarness(MeshStreamOptions opts = {})
+      : session_(testing::UniqueSession("ms")),
+        participant_(testing::TestDomainId()),
+        pub_(participant_, session_, opts),
+        snap_topic_(participant_, EnvelopeKind::kSnapshot),
+        delta_topic_(participant_, EnvelopeKind::kDelta),
+        snap_reader_(snap_topic_, session_),
+        delta_reader_(delta_topic_, session_),
+        sub_(participant_, session_) {
+    const auto deadline = MonotonicNs() + 5'000'000'000LL;
+    while (!pub_.HasReaders() && MonotonicNs() < deadline) {
+      snap_reader_.Take(10ms, [](const EnvelopeView&) {});
+    }
+  }
+
+  /// Publishes `mesh` and returns what went on the wire for that frame.
+  std::vector<Sample> Publish(const FakeMesh& mesh) {
+    const MeshStreamStats before = pub_.stats();
+    pub_.PublishFrame([&](MeshFrame& f) { mesh.Fill(f); });
+    const MeshStreamStats after = pub_.stats();
+    const size_t want = (after.snapshots - before.snapshots) + (after.deltas - before.deltas);
+    std::vector<Sample> got;
+    const auto deadline = MonotonicNs() + 5'000'000'000LL;
+    auto keep = [&](const EnvelopeView& e) {
+      got.push_back({e.kind, e.seq, {e.payload.begin(), e.payload.end()}});
+    };
+    while (got.size() < want && MonotonicNs() < deadline) {
+      snap_reader_.Take(0ns, keep);
+      delta_reader_.Take(got.size() < want ? 5ms : 0ms, keep);
+    }
+    EXPECT_EQ(got.size(), want);
+    // Snapshot first, as published.
+    std::stable_sort(got.begin(), got.end(),
+                     [](const Sample& a, const Sample& b) { return a.kind < b.kind; });
+    return got;
+  }
+
+  MeshStreamPublisher& pub() { return pub_; }
+  DdsParticipant& participant() { return participant_; }
+  const std::string& session() const { return session_; }
+  MeshStreamSubscriber& sub() { return sub_; }
+
+ private:
+  std::string session_;
+  DdsParticipant participant_;
+  MeshStreamPublisher pub_;
+  DdsTopic snap_topic_;
+  DdsTopic delta_topic_;
+  DdsReader snap_reader_;
+  DdsReader delta_reader_;
+  MeshStreamSubscriber sub_;  // fed by hand (Feed), never polled
+};
+
+/// A subscriber fed by hand (Process); its own readers are never polled.
+void Feed(MeshStreamSubscriber& sub, const std::vector<Sample>& samples, const std::string& session) {
+  for (const Sample& s : samples) sub.Process(s.kind, session, s.seq, s.bytes);
+}
+
+void ExpectReplicaEquals(const MeshReplica& r, const MeshStreamPublisher& pub, const FakeMesh& m) {
+  ASSERT_TRUE(r.synced());
+  EXPECT_EQ(r.hash(), pub.stats().last_hash);
+  EXPECT_EQ(r.seq(), pub.stats().last_seq);
+  EXPECT_EQ(r.hash(), r.ComputeHash());
+  ASSERT_EQ(r.world_q().rows(), m.world.rows());
+  EXPECT_TRUE(r.world_q() == pub.sent_world());
+  EXPECT_TRUE(r.tets() == m.tets);
+  EXPECT_TRUE(r.surface() == m.surface);
+  EXPECT_EQ(r.opened(), m.opened);
+  EXPECT_EQ(r.topology_version(), m.version);
+  // The state as sent is within the move tolerance + half a quantum of the truth.
+  const double q = pub.options().quantum_m;
+  EXPECT_LE((r.world() - m.world).cwiseAbs().maxCoeff(), 1.5 * q + 1e-12);
+  EXPECT_LE((r.Rest() - m.rest).cwiseAbs().maxCoeff(), 0.5 * q + 1e-12);
+}
+
+TEST(MeshStreamTest, QuantiseAndStressCodes) {
+  EXPECT_EQ(Quantise(0.0123456, 1e-5), 1235);
+  EXPECT_EQ(Quantise(-0.0123449, 1e-5), -1234);
+  EXPECT_EQ(Quantise(1e9, 1e-5), kMaxQuantised);
+  EXPECT_EQ(Quantise(std::nan(""), 1e-5), 0);
+  for (const int32_t k : {0, 1, -1, 12345, -kMaxQuantised, kMaxQuantised}) {
+    const auto f = static_cast<float>(1e-5 * k);
+    EXPECT_EQ(Quantise(f, 1e-5), k);  // a float carries k·quantum exactly
+  }
+  EXPECT_EQ(StressCode(0.0), 0);
+  for (const double s : {1.0, 1e3, -2.5e4, 7e6}) {
+    EXPECT_NEAR(StressFromCode(StressCode(s)) / s, 1.0, 0.03);
+  }
+}
+
+TEST(MeshStreamTest, HashSeesEveryPartOfTheState) {
+  FakeMesh m(2);
+  QuantisedPositions q(m.world.rows(), 3);
+  for (Eigen::Index i = 0; i < q.size(); ++i) q.data()[i] = Quantise(m.world.data()[i], 1e-5);
+  const uint64_t h = MeshHash(1, q, m.tets, m.surface, m.opened);
+  EXPECT_EQ(h, MeshHash(1, q, m.tets, m.surface, {}));  // empty opened == all zero
+  EXPECT_NE(h, MeshHash(2, q, m.tets, m.surface, m.opened));
+  QuantisedPositions q2 = q;
+  q2(3, 1) += 1;
+  EXPECT_NE(h, MeshHash(1, q2, m.tets, m.surface, m.opened));
+  mesh::Tets t2 = m.tets;
+  std::swap(t2(0, 0), t2(0, 1));
+  EXPECT_NE(h, MeshHash(1, q, t2, m.surface, m.opened));
+  std::vector<uint8_t> o2 = m.opened;
+  o2.back() = 1;
+  EXPECT_NE(h, MeshHash(1, q, m.tets, m.surface, o2));
+}
+
+TEST(MeshStreamTest, NothingIsEncodedWithoutAReader) {
+  DdsParticipant participant(testing::TestDomainId());
+  const std::string session = testing::UniqueSession("ms");
+  MeshStreamPublisher pub(participant, session);
+  FakeMesh m(3);
+  int fills = 0;
+  for (int i = 0; i < 20; ++i) pub.PublishFrame([&](MeshFrame& f) { ++fills, m.Fill(f); });
+  EXPECT_EQ(fills, 0);
+  EXPECT_FALSE(pub.HasReaders());
+  EXPECT_EQ(pub.stats().skipped_no_reader, 20U);
+  EXPECT_EQ(pub.stats().snapshots + pub.stats().deltas, 0U);
+  EXPECT_EQ(pub.stats().encode_ns, 0);
+
+  MeshStreamSubscriber sub(participant, session);
+  const auto deadline = MonotonicNs() + 5'000'000'000LL;
+  while (!pub.HasReaders() && MonotonicNs() < deadline) sub.Poll(10ms);
+  ASSERT_TRUE(pub.HasReaders());
+  pub.PublishFrame([&](MeshFrame& f) { ++fills, m.Fill(f); });
+  EXPECT_EQ(fills, 1);
+  EXPECT_EQ(pub.stats().snapshots, 1U);
+  while (!sub.replica().synced() && MonotonicNs() < deadline) sub.Poll(10ms);
+  ExpectReplicaEquals(sub.replica(), pub, m);
+}
+
+TEST(MeshStreamTest, RandomDeformationsAndTopologyChangesKeepTheHash) {
+  StreamHarness h({.keyframe_interval_s = 0});  // no keyframes: everything via deltas
+  MeshStreamSubscriber& sub = h.sub();
+  FakeMesh m(4);
+  m.stress.assign(static_cast<size_t>(m.world.rows()), 0.0);
+  std::mt19937 rng(12345);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::uniform_int_distribution<int> coin(0, 9);
+  Feed(sub, h.Publish(m), h.session());
+  ExpectReplicaEquals(sub.replica(), h.pub(), m);
+  const uint64_t snapshots_after_join = h.pub().stats().snapshots;
+  for (int frame = 1; frame <= 120; ++frame) {
+    m.frame = static_cast<uint64_t>(frame);
+    m.sim_time = 0.05 * frame;
+    // Random motion: most nodes still, some tiny (below tolerance), some large.
+    for (Eigen::Index i = 0; i < m.world.rows(); ++i) {
+      const int c = coin(rng);
+      if (c == 0) m.world.row(i) += 1e-3 * Eigen::RowVector3d(u(rng), u(rng), u(rng));
+      if (c == 1) m.world.row(i) += 3e-6 * Eigen::RowVector3d(u(rng), u(rng), u(rng));
+      if (c == 2) m.stress[static_cast<size_t>(i)] = 1e4 * std::abs(u(rng));
+    }
+    if (coin(rng) == 0) {  // topology: split a random node (adds a node, retargets tets)
+      m.Split(std::uniform_int_distribution<int32_t>(0, static_cast<int32_t>(m.world.rows()) - 1)(rng));
+    }
+    if (coin(rng) == 1) {  // a cut moving a rest position (seed §3.3)
+      m.rest(coin(rng), 1) += 2e-4;
+      ++m.version;
+    }
+    Feed(sub, h.Publish(m), h.session());
+    ASSERT_NO_FATAL_FAILURE(ExpectReplicaEquals(sub.replica(), h.pub(), m)) << "frame " << frame;
+    ASSERT_EQ(sub.replica().stress().size(), m.stress.size());
+  }
+  EXPECT_GT(m.version, 3U);
+  EXPECT_EQ(h.pub().stats().snapshots, snapshots_after_join);  // only deltas after the first
+  EXPECT_EQ(sub.stats().hash_mismatches, 0U);
+  EXPECT_EQ(sub.stats().resyncs, 0U);
+  EXPECT_EQ(sub.stats().deltas, 120U);
+}
+
+TEST(MeshStreamTest, DroppedDeltaIsAGapAndTheNextSnapshotResyncs) {
+  StreamHarness h({.keyframe_interval_s = 0});
+  MeshStreamSubscriber& sub = h.sub();
+  FakeMesh m(3);
+  Feed(sub, h.Publish(m), h.session());
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  Feed(sub, h.Publish(m), h.session());
+  ASSERT_TRUE(sub.current());
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.004);
+  (void)h.Publish(m);  // dropped
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.006);
+  Feed(sub, h.Publish(m), h.session());
+  EXPECT_FALSE(sub.replica().synced());
+  EXPECT_EQ(sub.stats().gaps, 1U);
+  EXPECT_EQ(sub.stats().resyncs, 1U);
+  // More deltas while out of sync are held, not applied.
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.007);
+  Feed(sub, h.Publish(m), h.session());
+  EXPECT_FALSE(sub.replica().synced());
+  // A new reader makes the publisher send a snapshot; we resync from it.
+  MeshStreamSubscriber joiner(h.participant(), h.session());
+  const auto deadline = MonotonicNs() + 5'000'000'000LL;
+  std::vector<Sample> got;
+  while (MonotonicNs() < deadline) {
+    m.Poke({0.05, 0.05, 0.1}, 0.04, 0.008);
+    got = h.Publish(m);
+    if (got.front().kind == EnvelopeKind::kSnapshot) break;
+  }
+  ASSERT_EQ(got.front().kind, EnvelopeKind::kSnapshot);
+  Feed(sub, got, h.session());
+  ExpectReplicaEquals(sub.replica(), h.pub(), m);
+  EXPECT_TRUE(sub.current());
+  EXPECT_EQ(sub.stats().resyncs, 1U);
+  EXPECT_EQ(sub.stats().hash_mismatches, 0U);
+}
+
+TEST(MeshStreamTest, CorruptedDeltaIsAHashMismatchThenResync) {
+  StreamHarness h({.keyframe_interval_s = 0.3});
+  MeshStreamSubscriber& sub = h.sub();
+  FakeMesh m(3);
+  Feed(sub, h.Publish(m), h.session());
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  std::vector<Sample> got = h.Publish(m);
+  ASSERT_EQ(got.size(), 1U);
+  v1::MeshDelta delta;
+  ASSERT_TRUE(delta.ParseFromArray(got[0].bytes.data(), static_cast<int>(got[0].bytes.size())));
+  ASSERT_GT(delta.moved_dq_size(), 0);
+  delta.set_moved_dq(0, delta.moved_dq(0) + 1);  // one quantum off: well-formed, wrong
+  std::string bytes = delta.SerializeAsString();
+  sub.Process(EnvelopeKind::kDelta, h.session(), delta.seq(),
+              {reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()});
+  EXPECT_EQ(sub.stats().hash_mismatches, 1U);
+  EXPECT_EQ(sub.stats().resyncs, 1U);
+  EXPECT_FALSE(sub.replica().synced());
+  EXPECT_FALSE(sub.current());
+  // Keep streaming until the keyframe arrives: then in sync again.
+  const auto deadline = MonotonicNs() + 5'000'000'000LL;
+  while (!sub.replica().synced() && MonotonicNs() < deadline) {
+    m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002 + 1e-3 * std::sin(1e-9 * static_cast<double>(MonotonicNs())));
+    Feed(sub, h.Publish(m), h.session());
+    std::this_thread::sleep_for(20ms);  // let the keyframe interval pass (a test, not a DDS wait)
+  }
+  ExpectReplicaEquals(sub.replica(), h.pub(), m);
+  EXPECT_EQ(sub.stats().hash_mismatches, 1U);
+}
+
+TEST(MeshStreamTest, BadSamplesAreCountedAndIgnored) {
+  StreamHarness h({.keyframe_interval_s = 0});
+  MeshStreamSubscriber& sub = h.sub();
+  FakeMesh m(3);
+  Feed(sub, h.Publish(m), h.session());
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  const std::vector<Sample> next = h.Publish(m);
+  ASSERT_EQ(next.size(), 1U);
+  const uint64_t hash_before = sub.replica().hash();
+  const auto send = [&](EnvelopeKind kind, const std::string& session, uint64_t seq,
+                        const std::string& bytes) {
+    sub.Process(kind, session, seq, {reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size()});
+  };
+  // Garbage, oversized, foreign session (envelope key and payload).
+  send(EnvelopeKind::kDelta, h.session(), next[0].seq, std::string("\xff\xff\xff\xff\x0f garbage", 13));
+  send(EnvelopeKind::kSnapshot, h.session(), 1, std::string("\x0a\x80\x80\x80\x80\x10", 6));
+  send(EnvelopeKind::kStatus, h.session(), 1, std::string(MaxPayloadBytes<v1::SessionStatus>() + 1, '\0'));
+  send(EnvelopeKind::kDelta, "someone_else", next[0].seq, std::string(next[0].bytes.begin(), next[0].bytes.end()));
+  v1::MeshDelta d;
+  ASSERT_TRUE(d.ParseFromArray(next[0].bytes.data(), static_cast<int>(next[0].bytes.size())));
+  {
+    v1::MeshDelta foreign = d;
+    foreign.set_session("someone_else");
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), foreign.SerializeAsString());
+  }
+  // Well-formed protobuf, inconsistent content.
+  {
+    v1::MeshDelta bad = d;
+    bad.add_moved_nodes(1'000'000);  // out of range
+    bad.add_moved_dq(1), bad.add_moved_dq(1), bad.add_moved_dq(1);
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), bad.SerializeAsString());
+    bad = d;
+    bad.add_changed_tets(0);
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), bad.SerializeAsString());  // no rows
+    bad = d;
+    bad.set_num_nodes(1u << 31);
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), bad.SerializeAsString());
+    bad = d;
+    bad.set_quantum(1e-3);
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), bad.SerializeAsString());
+    bad = d;
+    if (bad.moved_dq_size() > 0) bad.set_moved_dq(0, 1 << 30);  // leaves the quantised range
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), bad.SerializeAsString());
+    bad = d;
+    send(EnvelopeKind::kDelta, h.session(), d.seq() + 7, bad.SerializeAsString());  // envelope ≠ payload seq
+    v1::MeshSnapshot snap;
+    snap.set_session(h.session());
+    snap.set_seq(d.seq() + 5);
+    snap.set_quantum(1e-5);
+    snap.add_world(0), snap.add_world(0), snap.add_world(0);
+    snap.add_rest(0), snap.add_rest(0), snap.add_rest(0);
+    snap.add_tets(0), snap.add_tets(0), snap.add_tets(0), snap.add_tets(9);  // index out of range
+    send(EnvelopeKind::kSnapshot, h.session(), snap.seq(), snap.SerializeAsString());
+  }
+  {
+    v1::MeshDelta unknown = d;
+    unknown.set_base_topology_version(99);
+    send(EnvelopeKind::kDelta, h.session(), d.seq(), unknown.SerializeAsString());
+  }
+  EXPECT_TRUE(sub.replica().synced());
+  EXPECT_EQ(sub.replica().hash(), hash_before);  // nothing changed the state
+  EXPECT_EQ(sub.stats().malformed, 9U);
+  EXPECT_EQ(sub.stats().oversized, 1U);
+  EXPECT_EQ(sub.stats().foreign_session, 2U);
+  EXPECT_EQ(sub.stats().unknown_topology, 1U);
+  EXPECT_EQ(sub.stats().hash_mismatches, 0U);
+  EXPECT_EQ(sub.stats().resyncs, 0U);
+  // The genuine delta still applies.
+  Feed(sub, next, h.session());
+  ExpectReplicaEquals(sub.replica(), h.pub(), m);
+}
+
+TEST(MeshStreamTest, DeltaForALocalPokeIsAtMostTenPercentOfASnapshot) {
+  // A ~20k-tet box (16³ cells × 6 = 24 576 tets, 4 913 nodes), 10 cm.
+  StreamHarness h({.keyframe_interval_s = 0});
+  FakeMesh m(16);
+  (void)h.Publish(m);
+  const uint64_t snapshot_bytes = h.pub().stats().last_snapshot_bytes;
+  m.Poke({0.05, 0.05, 0.1}, 0.02, 0.003);  // a 2 cm wide, 3 mm deep poke on the top
+  (void)h.Publish(m);
+  const uint64_t poke_bytes = h.pub().stats().last_delta_bytes;
+  m.Cut(0.05, 0.05);  // a plane cut half-way down
+  (void)h.Publish(m);
+  const uint64_t cut_bytes = h.pub().stats().last_delta_bytes;
+  m.frame += 1;
+  (void)h.Publish(m);
+  const uint64_t still_bytes = h.pub().stats().last_delta_bytes;
+  std::printf("[bench] mesh_stream bytes: snapshot %llu (%lld nodes, %lld tets), poke delta %llu (%.2f%%), "
+              "cut delta %llu (%.2f%%), unchanged frame %llu\n",
+              static_cast<unsigned long long>(snapshot_bytes), static_cast<long long>(m.rest.rows()),
+              static_cast<long long>(m.tets.rows()), static_cast<unsigned long long>(poke_bytes),
+              100.0 * static_cast<double>(poke_bytes) / static_cast<double>(snapshot_bytes),
+              static_cast<unsigned long long>(cut_bytes),
+              100.0 * static_cast<double>(cut_bytes) / static_cast<double>(snapshot_bytes),
+              static_cast<unsigned long long>(still_bytes));
+  ::testing::Test::RecordProperty("snapshot_bytes", std::to_string(snapshot_bytes));
+  ::testing::Test::RecordProperty("poke_delta_bytes", std::to_string(poke_bytes));
+  ::testing::Test::RecordProperty("cut_delta_bytes", std::to_string(cut_bytes));
+  EXPECT_LE(10 * poke_bytes, snapshot_bytes);
+  EXPECT_LT(cut_bytes, snapshot_bytes);
+  EXPECT_LT(still_bytes, 64U);
+}
+
+TEST(MeshStreamTest, LateJoinerStartsFromTheCurrentMesh) {
+  DdsParticipant participant(testing::TestDomainId());
+  const std::string session = testing::UniqueSession("ms");
+  MeshStreamPublisher pub(participant, session, {.keyframe_interval_s = 60});
+  FakeMesh m(6);
+  MeshStreamSubscriber first(participant, session);
+  auto step = [&](int i) {
+    m.frame = static_cast<uint64_t>(i);
+    m.Poke({0.05, 0.05, 0.1}, 0.04, 0.001 * (i % 7));
+    pub.PublishFrame([&](MeshFrame& f) { m.Fill(f); });
+  };
+  int i = 0;
+  const auto deadline = MonotonicNs() + 5'000'000'000LL;
+  while (!first.current() && MonotonicNs() < deadline) {
+    step(++i);
+    first.Poll(20ms);
+  }
+  ASSERT_TRUE(first.current());
+  for (int k = 0; k < 20; ++k) step(++i);  // the retained keyframe is now 20 frames old
+  const int64_t join_ns = MonotonicNs();
+  MeshStreamSubscriber late(participant, session);
+  int64_t current_ns = 0;
+  while (MonotonicNs() < deadline + 5'000'000'000LL) {
+    step(++i);
+    first.Poll(0ns);
+    late.Poll(20ms);
+    if (late.current()) {
+      current_ns = MonotonicNs();
+      break;
+    }
+  }
+  ASSERT_TRUE(late.current());
+  // Current = the publisher's latest frame, not the old keyframe.
+  EXPECT_EQ(late.replica().seq(), pub.stats().last_seq);
+  EXPECT_EQ(late.replica().hash(), pub.stats().last_hash);
+  EXPECT_EQ(late.stats().resyncs, 0U);
+  std::printf("[bench] late join (in-process, 20 ms frames): %.3f s to a verified current mesh\n",
+              1e-9 * static_cast<double>(current_ns - join_ns));
+  EXPECT_LT(current_ns - join_ns, 2'000'000'000LL);
+}
+
+TEST(MeshStreamTest, EncodeCostWithZeroOneAndFourReaders) {
+  FakeMesh m(16);  // 24 576 tets
+  DdsParticipant participant(testing::TestDomainId());
+  for (const int readers : {0, 1, 4}) {
+    const std::string session = testing::UniqueSession("ms");
+    MeshStreamPublisher pub(participant, session, {.keyframe_interval_s = 0});
+    std::vector<std::unique_ptr<MeshStreamSubscriber>> subs;
+    for (int r = 0; r < readers; ++r) {
+      subs.push_back(std::make_unique<MeshStreamSubscriber>(participant, session));
+    }
+    const auto deadline = MonotonicNs() + 5'000'000'000LL;
+    while (readers > 0 && !pub.HasReaders() && MonotonicNs() < deadline) {
+      subs[0]->Poll(10ms);
+    }
+    constexpr int kFrames = 30;
+    int64_t total_ns = 0;
+    for (int i = 0; i < kFrames + 1; ++i) {
+      m.Poke({0.05, 0.05, 0.1}, 0.03, 0.0001 * i);
+      const int64_t t0 = MonotonicNs();
+      pub.PublishFrame([&](MeshFrame& f) { m.Fill(f); });
+      if (i > 0) total_ns += MonotonicNs() - t0;  // frame 0 is the joining snapshot
+      for (auto& s : subs) s->Poll(0ns);
+    }
+    std::printf("[bench] encode cost, %d reader(s): %.3f ms per frame (PublishFrame incl. fill), "
+                "%.3f ms diff+encode+write\n",
+                readers, 1e-6 * static_cast<double>(total_ns) / kFrames,
+                1e-6 * static_cast<double>(pub.stats().encode_ns) / (kFrames + 1));
+    if (readers == 0) {
+      EXPECT_EQ(pub.stats().encode_ns, 0);
+      EXPECT_EQ(pub.stats().skipped_no_reader, static_cast<uint64_t>(kFrames + 1));
+    } else {
+      EXPECT_EQ(pub.stats().deltas, static_cast<uint64_t>(kFrames));
+    }
+  }
+}
+
+}  // namespace
+}  // namespace cutsim::transport

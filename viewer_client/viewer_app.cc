@@ -1,0 +1,261 @@
+#include "viewer_client/viewer_app.h"
+
+#include <algorithm>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <sstream>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include "common/core/clock.h"
+#include "common/core/error.h"
+#include "common/core/log.h"
+#include "common/render/camera.h"
+#include "common/render/image.h"
+#include "common/render/surface_renderer.h"
+#include "common/render/video_writer.h"
+#include "common/transport/channels.h"
+#include "common/transport/dds.h"
+#include "common/transport/mesh_stream.h"
+
+namespace cutsim::viewer {
+namespace {
+
+volatile std::sig_atomic_t g_stop = 0;
+void OnSignal(int) { g_stop = 1; }
+
+/// Parses "x,y,z" (metres); throws InputError naming the flag.
+Eigen::Vector3d ParseVec3(const std::string& text, const std::string& flag) {
+  Eigen::Vector3d v;
+  std::istringstream in(text);
+  char c1 = 0, c2 = 0;
+  if (!(in >> v.x() >> c1 >> v.y() >> c2 >> v.z()) || c1 != ',' || c2 != ',' || !v.allFinite()) {
+    ThrowInputError({.field = flag}, fmt::format("expected x,y,z in metres, got '{}'", text));
+  }
+  in >> std::ws;
+  if (!in.eof()) ThrowInputError({.field = flag}, fmt::format("trailing text in '{}'", text));
+  return v;
+}
+
+/// Writes `text` to `path` through a temporary file, so a failed write never
+/// replaces a good summary.
+void WriteFileAtomically(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::trunc);
+    out << text << '\n';
+    if (!out.flush()) ThrowFileError(path, "cannot write");
+  }
+  std::filesystem::rename(tmp, path);
+}
+
+struct RunSummary {
+  int64_t frames = 0;           ///< Frames rendered (all hash-verified).
+  int64_t frames_skipped = 0;   ///< Render ticks with no verified current mesh.
+  int64_t render_ns = 0;        ///< Render + read-back time, total.
+  int64_t local_hash_mismatches = 0;  ///< Re-checks of the held mesh that failed before rendering.
+  double join_latency_s = -1;   ///< Start → first verified current mesh.
+  uint64_t first_seq = 0, first_hash = 0, last_seq = 0, last_hash = 0;
+  double first_sim_time = 0;
+  int64_t first_frame_mono_ns = 0;
+  std::string exit_reason = "signal";
+};
+
+std::string SummaryJson(const ViewerOptions& o, const RunSummary& r,
+                        const transport::MeshStreamSubscriberStats& s) {
+  return fmt::format(
+      "{{\"session\": \"{}\", \"frames\": {}, \"verified_frames\": {}, \"frames_skipped\": {}, "
+      "\"resyncs\": {}, \"gaps\": {}, \"hash_checks\": {}, \"hash_mismatches\": {}, "
+      "\"bytes_received\": {}, \"samples\": {}, \"snapshots\": {}, \"deltas\": {}, "
+      "\"stale_snapshots\": {}, \"malformed\": {}, \"oversized\": {}, \"foreign_session\": {}, "
+      "\"unknown_topology\": {}, \"ignored\": {}, \"status_messages\": {}, "
+      "\"join_latency_s\": {:.6f}, \"render_ms_mean\": {:.4f}, \"first_seq\": {}, "
+      "\"first_hash\": \"{:016x}\", \"first_sim_time\": {:.9g}, \"first_frame_mono_ns\": {}, "
+      "\"last_seq\": {}, \"last_hash\": \"{:016x}\", \"width\": {}, \"height\": {}, "
+      "\"exit_reason\": \"{}\"}}",
+      o.session, r.frames, r.frames, r.frames_skipped, s.resyncs, s.gaps, s.hash_checks,
+      s.hash_mismatches + static_cast<uint64_t>(r.local_hash_mismatches), s.bytes_received,
+      s.samples, s.snapshots, s.deltas, s.stale_snapshots, s.malformed, s.oversized,
+      s.foreign_session, s.unknown_topology, s.ignored, s.status, r.join_latency_s,
+      r.frames > 0 ? 1e-6 * static_cast<double>(r.render_ns) / static_cast<double>(r.frames) : 0.0,
+      r.first_seq, r.first_hash, r.first_sim_time, r.first_frame_mono_ns, r.last_seq, r.last_hash,
+      o.width, o.height, r.exit_reason);
+}
+
+}  // namespace
+
+int ViewerApp::ParseArgs(int argc, char** argv) {
+  CLI::App app{"cutsim-viewer: watches a cutsim session over DDS and renders it offscreen"};
+  std::string eye, target;
+  app.add_option("--session", options_.session, "Session to watch")->capture_default_str();
+  app.add_option("--dds-domain", options_.dds_domain, "DDS domain id")
+      ->check(CLI::Range(0u, transport::kMaxDdsDomainId))
+      ->capture_default_str();
+  app.add_option("--dds-config", options_.dds_config,
+                 "Cyclone DDS XML file (default: $CYCLONEDDS_URI, else loopback only)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--frames", options_.frames_dir, "Write PNG frames to this directory");
+  app.add_option("--video", options_.video, "Write a video (needs ffmpeg), e.g. out.mp4");
+  app.add_option("--fps", options_.fps, "Render rate, Hz (independent of the physics rate)")
+      ->check(CLI::Range(0.1, 240.0))
+      ->capture_default_str();
+  app.add_option("--width", options_.width, "Image width, pixels")
+      ->check(CLI::Range(16, 8192))
+      ->capture_default_str();
+  app.add_option("--height", options_.height, "Image height, pixels")
+      ->check(CLI::Range(16, 8192))
+      ->capture_default_str();
+  app.add_option("--eye", eye, "Camera position x,y,z (m); default frames the first mesh");
+  app.add_option("--target", target, "Camera target x,y,z (m)");
+  app.add_flag("--stress", options_.stress, "Colour intact faces by the per-node stress");
+  app.add_option("--max-frames", options_.max_frames, "Exit after rendering N frames")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--duration", options_.duration, "Exit after S seconds")->check(CLI::PositiveNumber);
+  app.add_option("--exit-when-idle", options_.exit_when_idle,
+                 "Exit 0 when no sample arrived for S seconds after some did")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--summary", options_.summary, "Write the JSON summary to this file");
+  app.add_option("--frame-log", options_.frame_log,
+                 "Write one line per rendered frame: index seq hash sim_time mono_ns");
+  app.add_option("--log-level", options_.log_level, "trace, debug, info, warn, error, off");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  transport::ValidateSessionName(options_.session, "--session");
+  if (!eye.empty()) options_.eye = ParseVec3(eye, "--eye");
+  if (!target.empty()) options_.target = ParseVec3(target, "--target");
+  if (options_.eye.has_value() != options_.target.has_value()) {
+    ThrowInputError({.field = options_.eye ? "--target" : "--eye"},
+                    "--eye and --target go together");
+  }
+  if (!options_.video.empty() && !render::FfmpegVideoWriter::Available()) {
+    ThrowInputError({.file = options_.video, .field = "--video"},
+                    "ffmpeg is not installed (apt-get install ffmpeg), so no video can be written; "
+                    "use --frames DIR for PNG frames");
+  }
+  return -1;
+}
+
+int ViewerApp::Run() {
+  InitLogging("cutsim-viewer", options_.log_level);
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  const ViewerOptions& o = options_;
+  const int64_t start_ns = MonotonicNs();
+
+  if (!o.frames_dir.empty()) std::filesystem::create_directories(o.frames_dir);
+  std::ofstream frame_log;
+  if (!o.frame_log.empty()) {
+    frame_log.open(o.frame_log, std::ios::trunc);
+    if (!frame_log) ThrowFileError(o.frame_log, "cannot open for writing");
+  }
+  std::string config;
+  if (!o.dds_config.empty()) config = "file://" + std::filesystem::absolute(o.dds_config).string();
+  transport::DdsParticipant participant(o.dds_domain, config);
+  transport::MeshStreamSubscriber sub(participant, o.session);
+  Log().info("watching session '{}' on DDS domain {} at {} fps", o.session, o.dds_domain, o.fps);
+
+  render::SurfaceRenderer renderer;
+  std::optional<render::Camera> camera;
+  if (o.eye) {
+    camera = render::Camera{.eye = *o.eye, .target = *o.target, .width = o.width, .height = o.height};
+    render::ValidateCamera(*camera);
+  }
+  std::unique_ptr<render::FfmpegVideoWriter> video;
+  if (!o.video.empty()) {
+    video = std::make_unique<render::FfmpegVideoWriter>(o.video, o.width, o.height, o.fps);
+  }
+
+  RunSummary r;
+  const auto period_ns = static_cast<int64_t>(1e9 / o.fps);
+  int64_t next_tick = start_ns + period_ns;
+  while (!g_stop) {
+    const int64_t now = MonotonicNs();
+    if (o.duration && now - start_ns >= static_cast<int64_t>(*o.duration * 1e9)) {
+      r.exit_reason = "duration";
+      break;
+    }
+    if (o.exit_when_idle && sub.last_sample_ns() > 0 &&
+        now - sub.last_sample_ns() >= static_cast<int64_t>(*o.exit_when_idle * 1e9)) {
+      r.exit_reason = "idle";
+      break;
+    }
+    if (now < next_tick) {
+      // Bounded WaitSet wait: samples are processed as they come, and the
+      // loop still notices the next tick and signals.
+      sub.Poll(std::chrono::nanoseconds(std::min<int64_t>(next_tick - now, 50'000'000)));
+      continue;
+    }
+    next_tick += period_ns;
+    if (next_tick < now) next_tick = now + period_ns;  // fell behind: skip ticks, do not burst
+    if (!sub.current()) {
+      ++r.frames_skipped;
+      continue;
+    }
+    const transport::MeshReplica& mesh = sub.replica();
+    // The replica verified the publisher's hash when it applied the last
+    // snapshot/delta; recheck the state we are about to draw against it.
+    if (mesh.ComputeHash() != mesh.hash()) {
+      ++r.local_hash_mismatches;
+      ++r.frames_skipped;
+      Log().error("held mesh no longer matches its hash (seq {}); not rendered", mesh.seq());
+      continue;
+    }
+    if (!camera) {
+      camera = render::FrameBoundingBox(render::BoundingBox(mesh.world()), o.width, o.height);
+    }
+    const int64_t t0 = MonotonicNs();
+    render::RenderOptions ropts;
+    ropts.colour_by_scalar = o.stress;
+    const render::Image image = renderer.Render(
+        *camera, {.positions = mesh.world(),
+                  .triangles = mesh.surface(),
+                  .opened = mesh.opened(),
+                  .vertex_scalar = o.stress ? std::span<const double>(mesh.stress())
+                                            : std::span<const double>()},
+        ropts);
+    r.render_ns += MonotonicNs() - t0;
+    if (!o.frames_dir.empty()) {
+      render::WritePng(std::filesystem::path(o.frames_dir) / fmt::format("frame_{:06d}.png", r.frames),
+                       image);
+    }
+    if (video) video->WriteFrame(image);
+    const int64_t done_ns = MonotonicNs();
+    if (r.frames == 0) {
+      r.first_seq = mesh.seq();
+      r.first_hash = mesh.hash();
+      r.first_sim_time = mesh.sim_time();
+      r.first_frame_mono_ns = done_ns;
+      r.join_latency_s = 1e-9 * static_cast<double>(done_ns - start_ns);
+      Log().info("first verified frame: seq {} hash {:016x} after {:.3f} s", mesh.seq(), mesh.hash(),
+                 r.join_latency_s);
+    }
+    if (frame_log) {
+      frame_log << r.frames << ' ' << mesh.seq() << ' ' << fmt::format("{:016x}", mesh.hash()) << ' '
+                << fmt::format("{:.9g}", mesh.sim_time()) << ' ' << done_ns << '\n';
+      frame_log.flush();
+    }
+    r.last_seq = mesh.seq();
+    r.last_hash = mesh.hash();
+    ++r.frames;
+    if (o.max_frames && r.frames >= *o.max_frames) {
+      r.exit_reason = "max_frames";
+      break;
+    }
+  }
+  if (video) video->Close();
+  const std::string json = SummaryJson(o, r, sub.stats());
+  // Always on stderr, whatever the log level (stdout stays free).
+  std::fprintf(stderr, "cutsim-viewer: summary: %s\n", json.c_str());
+  if (!o.summary.empty()) WriteFileAtomically(o.summary, json);
+  return 0;
+}
+
+}  // namespace cutsim::viewer
