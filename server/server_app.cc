@@ -17,10 +17,13 @@
 #include "common/sim/simulation.h"
 
 namespace cutsim::server {
+volatile std::sig_atomic_t g_stop = 0;
+volatile std::sig_atomic_t g_print_stats = 0;
+
 namespace {
 
-volatile std::sig_atomic_t g_stop = 0;
 void OnSignal(int) { g_stop = 1; }
+void OnStatsSignal(int) { g_print_stats = 1; }
 
 std::string SummaryJson(const sim::SimulationSummary& s) {
   return fmt::format(
@@ -63,16 +66,24 @@ int ServerApp::ParseArgs(int argc, char** argv) {
       ->check(CLI::IsMember({"float", "double"}));
   app.add_option("--log-level", options_.log_level, "trace, debug, info, warn, error, off");
   app.add_flag("!--no-progress", options_.progress, "No progress bar");
+  app.add_option("--session", options_.session, "Session name (LCM channels, DDS key)");
+  app.add_option("--lcm-url", options_.lcm_url,
+                 "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)");
+  app.add_option("--dds-domain", options_.dds_domain, "DDS domain id for the viewers")
+      ->check(CLI::Range(0, 230));
+  app.add_option("--dds-config", options_.dds_config,
+                 "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--viewer-fps", options_.viewer_fps, "Mesh frames per second to viewers")
+      ->check(CLI::Range(0.1, 240.0));
+  app.add_option("--frame-rate", options_.frame_rate,
+                 "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
+      ->check(CLI::Range(1.0, 10000.0));
+  app.add_option("--stats-json", options_.stats_json, "Also write the exit statistics to this file");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
-  }
-  if (!options_.headless) {
-    std::fprintf(stderr,
-                 "cutsim-server: the real-time mode (haptic link) is not built yet; "
-                 "run with --headless\n");
-    return 2;
   }
   return -1;
 }
@@ -81,7 +92,8 @@ int ServerApp::Run() {
   InitLogging("cutsim-server", options_.log_level);
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  return RunHeadless();
+  std::signal(SIGUSR1, OnStatsSignal);
+  return options_.headless ? RunHeadless() : RunRealtime();
 }
 
 int ServerApp::RunHeadless() {
@@ -103,7 +115,8 @@ int ServerApp::RunHeadless() {
   Stopwatch since_report;
   int exit_code = 0;
   while (!g_stop) {
-    if (simulation->sim_time() >= end_time - 1e-12) break;
+    // A remainder below 1 ns is round-off of the frame sum, not a frame: done.
+    if (simulation->sim_time() >= end_time - 1e-9) break;
     if (options_.until_rest && simulation->AtRest()) break;
     const double frame = std::min(simulation->frame_dt(), end_time - simulation->sim_time());
     const sim::SimStatus status = simulation->AdvanceFrame(frame);

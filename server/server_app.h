@@ -19,6 +19,15 @@ struct ServerOptions {
   std::string precision;
   std::string log_level = "info";
   bool progress = true;
+  // Real-time session (not --headless).
+  std::string session = "default";
+  std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
+  uint32_t dds_domain = 0;
+  std::string dds_config;          ///< file; empty: CYCLONEDDS_URI, else loopback
+  double viewer_fps = 10.0;        ///< mesh frames to viewers per second
+  double frame_rate = 0.0;         ///< physics frames per second; 0: the scene's frame_dt
+  double client_timeout = 1.0;     ///< s without tool poses: the haptic client is gone
+  std::string stats_json;          ///< write the exit statistics here too
 };
 
 class ServerApp {
@@ -30,6 +39,7 @@ class ServerApp {
 
  private:
   int RunHeadless();
+  int RunRealtime();
 
   ServerOptions options_;
 };

@@ -185,9 +185,13 @@ class Engine final : public Simulation {
     num_free_ = 0;
     for (int32_t n = 0; n < model_.num_nodes(); ++n) num_free_ += model_.fixed(n) ? 0 : 1;
 
+    // Default threads: all cores for big meshes; one below 20 000 tets, where
+    // a step takes microseconds and OpenMP's fork/barrier cost (worse on a
+    // loaded machine) exceeds the work it would split.
+    constexpr int32_t kParallelTets = 20000;
     threads_ = options.threads > 0 ? options.threads
-                                   : (s.time_step().threads() > 0 ? s.time_step().threads()
-                                                                  : omp_get_max_threads());
+               : s.time_step().threads() > 0 ? s.time_step().threads()
+               : (model_.num_tets() >= kParallelTets ? omp_get_max_threads() : 1);
     step_options_.num_threads = threads_;
     step_options_.safety_factor = s.time_step().safety_factor();
     step_options_.dt_refresh_interval = s.time_step().refresh_every_steps();

@@ -161,8 +161,8 @@ TEST(FemLanczos, StableUnderLargeDeformationAtAndAboveTheChosenFactor) {
                         {"random fixed", 1.0, 1.5e-3, true}};
   for (const Case& c : cases) {
     double ratio = 0;
-    EXPECT_FALSE(Unstable(c, 0.5, 4000, nullptr, 0)) << c.name << " (old: 0.5 of the bound)";
-    EXPECT_FALSE(Unstable(c, StepOptions{}.safety_factor, 4000, &ratio)) << c.name;
+    // (DISABLED_Scan compares factors 0.5–1.0 with and without Lanczos.)
+    EXPECT_FALSE(Unstable(c, StepOptions{}.safety_factor, 1200, &ratio)) << c.name;
     std::printf("[lanczos] %-20s Lanczos/bound ratio at start %.3f\n", c.name, ratio);
   }
 }
@@ -190,7 +190,7 @@ TEST(FemLanczos, DISABLED_Scan) {
 TEST(FemLanczos, UnstableWellAboveTheTrueLimit) {
   // The estimate is not absurdly conservative: 1.3× the estimated limit of a
   // body at rest blows up.
-  EXPECT_TRUE(Unstable({"rest", 1.0, 1e-6, true}, 1.3, 4000, nullptr));
+  EXPECT_TRUE(Unstable({"rest", 1.0, 1e-6, true}, 1.3, 1200, nullptr));
 }
 
 TEST(FemMassDamping, DissipatesAndKeepsTheStaticSolution) {

@@ -1,0 +1,236 @@
+// The real-time session: physics paced to the wall clock, tool poses in and
+// local models out over LCM (seed §3.4's buffer model), mesh frames out to
+// any number of viewers over DDS. Thin glue: the work is in common/.
+#include <algorithm>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <vector>
+
+#include <fmt/format.h>
+
+#include "common/core/clock.h"
+#include "common/core/error.h"
+#include "common/core/log.h"
+#include "common/haptics/local_model.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/simulation.h"
+#include "common/transport/channels.h"
+#include "common/transport/dds.h"
+#include "common/transport/haptic_link.h"
+#include "common/transport/lcm_bus.h"
+#include "common/transport/mesh_stream.h"
+#include "server/server_app.h"
+
+namespace cutsim::server {
+
+extern volatile std::sig_atomic_t g_stop;
+extern volatile std::sig_atomic_t g_print_stats;
+
+namespace {
+
+/// Frame-time statistics kept in a preallocated ring (no allocation per frame).
+class FrameStats {
+ public:
+  explicit FrameStats(size_t capacity) : samples_(capacity) {}
+  void Add(double seconds) {
+    samples_[next_ % samples_.size()] = seconds;
+    ++next_;
+    max_ = std::max(max_, seconds);
+  }
+  [[nodiscard]] double Percentile(double p) const {
+    const size_t n = std::min(next_, samples_.size());
+    if (n == 0) return 0.0;
+    std::vector<double> sorted(samples_.begin(), samples_.begin() + static_cast<std::ptrdiff_t>(n));
+    const size_t k = std::min(n - 1, static_cast<size_t>(p * static_cast<double>(n - 1) + 0.5));
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(k), sorted.end());
+    return sorted[k];
+  }
+  [[nodiscard]] double max() const { return max_; }
+  [[nodiscard]] size_t count() const { return next_; }
+
+ private:
+  std::vector<double> samples_;
+  size_t next_ = 0;
+  double max_ = 0.0;
+};
+
+struct SessionCounters {
+  uint64_t frames = 0;
+  uint64_t overruns = 0;
+  uint64_t tool_messages = 0;
+  uint64_t models_published = 0;
+  uint64_t viewer_frames = 0;
+};
+
+std::string StatsJson(const ServerOptions& o, const sim::SimulationSummary& s, const SessionCounters& c,
+                      const FrameStats& frame_time, const transport::HapticServerLinkStats& link,
+                      const transport::MeshStreamStats& mesh) {
+  return fmt::format(
+      "{{\"session\": \"{}\", \"frames\": {}, \"sim_time\": {:.6g}, \"frame_overruns\": {}, "
+      "\"frame_time_p50_ms\": {:.4g}, \"frame_time_p99_ms\": {:.4g}, \"frame_time_max_ms\": {:.4g}, "
+      "\"tool_messages\": {}, \"tool_rejected\": {}, \"models_published\": {}, "
+      "\"viewer_frames\": {}, \"viewer_frames_without_reader\": {}, \"snapshots\": {}, \"deltas\": {}, "
+      "\"cuts\": {}, \"topology_version\": {}, \"components\": {}, \"status\": \"{}\"}}",
+      o.session, c.frames, s.sim_time, c.overruns, 1e3 * frame_time.Percentile(0.5),
+      1e3 * frame_time.Percentile(0.99), 1e3 * frame_time.max(), link.accepted,
+      link.foreign_session + link.stale + link.duplicate + link.invalid + link.decode_errors +
+          link.unauthenticated,
+      c.models_published, mesh.frames, mesh.skipped_no_reader, mesh.snapshots, mesh.deltas, s.cuts,
+      s.topology_version, s.components, s.status);
+}
+
+}  // namespace
+
+int ServerApp::RunRealtime() {
+  transport::ValidateSessionName(options_.session, "--session");
+  const sim::LoadedScene scene = sim::LoadScene(options_.scene);
+  auto simulation = sim::Simulation::Create(
+      scene, {.threads = options_.threads, .precision = options_.precision});
+  const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();
+
+  transport::LcmBus bus(options_.lcm_url);
+  transport::HapticServerLink link(bus, options_.session);
+  std::string dds_config;
+  if (!options_.dds_config.empty()) {
+    dds_config = "file://" + std::filesystem::absolute(options_.dds_config).string();
+  }
+  transport::DdsParticipant participant(options_.dds_domain, dds_config);
+  transport::MeshStreamPublisher publisher(participant, options_.session);
+
+  const auto& hp = scene.scene.haptics();
+  Log().info("session '{}': physics {:.0f} Hz, viewers {:.0f} Hz, LCM {}, DDS domain {}",
+             options_.session, 1.0 / frame_dt, options_.viewer_fps, options_.lcm_url,
+             options_.dds_domain);
+
+  SessionCounters counters;
+  FrameStats frame_time(1 << 16);
+  sim::MeshView view;
+  const int64_t frame_ns = static_cast<int64_t>(std::llround(frame_dt * 1e9));
+  const int64_t viewer_period_ns = static_cast<int64_t>(std::llround(1e9 / options_.viewer_fps));
+  const int64_t client_timeout_ns = static_cast<int64_t>(options_.client_timeout * 1e9);
+  const int64_t start_ns = MonotonicNs();
+  int64_t deadline = start_ns;
+  int64_t next_viewer_ns = start_ns;
+  int64_t next_status_ns = start_ns;
+  int64_t last_tool_ns = -client_timeout_ns;
+  uint64_t last_tool_seq = 0;
+  uint64_t last_cuts = 0;
+  int exit_code = 0;
+
+  while (!g_stop) {
+    if (options_.duration && simulation->sim_time() >= *options_.duration - 1e-9) break;
+    const int64_t frame_start = MonotonicNs();
+
+    // Tool poses: the newest valid one drives the blade (stale ones dropped).
+    if (const auto tool = link.PollTool()) {
+      simulation->SetToolPose({tool->tip, tool->blade_dir});
+      last_tool_ns = frame_start;
+      last_tool_seq = tool->seq;
+      ++counters.tool_messages;
+    }
+    const bool client_present = frame_start - last_tool_ns < client_timeout_ns;
+
+    if (simulation->AdvanceFrame(frame_dt) != sim::SimStatus::kOk) {
+      Log().error("simulation stopped: {}", simulation->Summary().diagnosis);
+      exit_code = 3;
+      break;
+    }
+    ++counters.frames;
+
+    // The local model only when a haptic client listens (seed §3.4).
+    if (client_present && simulation->has_tool()) {
+      const sim::ToolReport tool = simulation->Tool();
+      haptics::ModelHeader header;
+      header.stamp_ns = MonotonicNs();
+      header.sim_time = simulation->sim_time();
+      header.valid_for = 2.0 * frame_dt;
+      header.cut.cuts = tool.cuts;
+      header.cut.cutting = tool.cuts > last_cuts;
+      header.cut.decay_per_second = hp.decay_per_second();
+      header.topology_version = simulation->topology_version();
+      haptics::ContactLinearisation contact;
+      contact.contact = tool.touching;
+      if (tool.touching) {
+        contact.x0 = tool.pose.tip;
+        contact.normal = tool.normal;
+        contact.f0 = tool.force_on_tool;
+        contact.stiffness = simulation->ContactStiffness();
+      }
+      link.PublishModel(haptics::BuildLocalModel(header, contact), last_tool_seq);
+      ++counters.models_published;
+      last_cuts = tool.cuts;
+    }
+
+    // Viewers at their own rate; nothing is encoded while none is matched.
+    if (frame_start >= next_viewer_ns) {
+      next_viewer_ns += viewer_period_ns;
+      if (next_viewer_ns < frame_start) next_viewer_ns = frame_start + viewer_period_ns;
+      publisher.PublishFrame([&](transport::MeshFrame& frame) {
+        simulation->FillMeshView(view);
+        frame.frame = counters.frames;
+        frame.sim_time = simulation->sim_time();
+        frame.topology_version = simulation->topology_version();
+        frame.world = view.world;
+        frame.rest = view.rest;
+        frame.tets = view.tets;
+        frame.surface = view.surface;
+        frame.opened = view.opened;
+        frame.stress.clear();
+      });
+      ++counters.viewer_frames;
+    }
+    if (frame_start >= next_status_ns) {
+      next_status_ns = frame_start + 1'000'000'000;
+      if (publisher.HasReaders()) {
+        const auto s = simulation->Summary();
+        v1::SessionStatus status;
+        status.set_session(options_.session);
+        status.set_frame(counters.frames);
+        status.set_sim_time(s.sim_time);
+        status.set_wall_time(1e-9 * static_cast<double>(frame_start - start_ns));
+        status.set_steps(static_cast<uint64_t>(s.steps));
+        status.set_dt(s.dt);
+        status.set_topology_version(s.topology_version);
+        status.set_cuts(s.cuts);
+        status.set_kinetic_energy(s.kinetic_energy);
+        status.set_frame_overruns(counters.overruns);
+        status.set_tool_messages(counters.tool_messages);
+        publisher.PublishStatus(status);
+      }
+    }
+    if (g_print_stats) {
+      g_print_stats = 0;
+      Log().info("stats: {}", StatsJson(options_, simulation->Summary(), counters, frame_time,
+                                        link.stats(), publisher.stats()));
+    }
+
+    // Pace to the wall clock on absolute deadlines; an overrun does not try
+    // to catch up (the physics would only fall further behind).
+    const int64_t end = MonotonicNs();
+    frame_time.Add(1e-9 * static_cast<double>(end - frame_start));
+    deadline += frame_ns;
+    if (end > deadline) {
+      ++counters.overruns;
+      deadline = end;
+    } else {
+      SleepUntilNs(deadline);
+    }
+  }
+
+  const std::string json = StatsJson(options_, simulation->Summary(), counters, frame_time,
+                                     link.stats(), publisher.stats());
+  Log().info("session ended: {}", json);
+  std::printf("%s\n", json.c_str());
+  if (!options_.stats_json.empty()) {
+    const std::string tmp = options_.stats_json + ".tmp";
+    std::ofstream(tmp) << json << "\n";
+    std::filesystem::rename(tmp, options_.stats_json);
+  }
+  if (!options_.out.empty()) simulation->WriteVtu(options_.out);
+  return exit_code;
+}
+
+}  // namespace cutsim::server
