@@ -189,9 +189,10 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   }
 
   RequireFiniteVec(s, "gravity", scene.gravity());
+  RequireNonNegative(s, "mass_damping", scene.mass_damping());
 
   auto& ts = *scene.mutable_time_step();
-  if (ts.safety_factor() == 0.0) ts.set_safety_factor(0.5);
+  if (ts.safety_factor() == 0.0) ts.set_safety_factor(0.85);
   RequirePositive(s, "time_step.safety_factor", ts.safety_factor());
   if (ts.safety_factor() > 1.0) {
     FieldError(s, "time_step.safety_factor", "must be <= 1 (a fraction of the stable limit)");
@@ -200,7 +201,7 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   if (ts.frame_dt() == 0.0) ts.set_frame_dt(0.01);
   RequirePositive(s, "time_step.frame_dt", ts.frame_dt());
   if (ts.threads() < 0) FieldError(s, "time_step.threads", "must be >= 0");
-  if (ts.refresh_every_steps() == 0) ts.set_refresh_every_steps(100);
+  if (ts.refresh_every_steps() == 0) ts.set_refresh_every_steps(10);
   if (ts.refresh_every_steps() < 0) FieldError(s, "time_step.refresh_every_steps", "must be > 0");
 
   RequireNonNegative(s, "rest.kinetic_energy", scene.rest().kinetic_energy());

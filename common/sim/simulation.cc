@@ -191,19 +191,21 @@ class Engine final : public Simulation {
     constexpr int32_t kParallelTets = 20000;
     threads_ = options.threads > 0 ? options.threads
                : s.time_step().threads() > 0 ? s.time_step().threads()
-               : (model_.num_tets() >= kParallelTets ? omp_get_max_threads() : 1);
+               : (model_.num_tets() >= kParallelTets ? omp_get_num_procs() : 1);
     step_options_.num_threads = threads_;
     step_options_.safety_factor = s.time_step().safety_factor();
     step_options_.dt_refresh_interval = s.time_step().refresh_every_steps();
     step_options_.viscous = ChooseViscous(s.time_step().viscosity());
+    step_options_.mass_damping = s.mass_damping();
     if (s.time_step().fixed_dt() > 0) {
-      const double bound = static_cast<double>(fem::CurrentTimeStep(model_, state_, step_options_)) /
-                           step_options_.safety_factor;
-      if (s.time_step().fixed_dt() > bound) {
+      (void)fem::CurrentTimeStep(model_, state_, step_options_);  // refreshes the estimate
+      const double limit = fem::EffectiveStableStep(state_);
+      if (s.time_step().fixed_dt() > limit) {
         ThrowInputError({.file = source, .field = "time_step.fixed_dt"},
-                        fmt::format("{:.3g} s exceeds the stable limit {:.3g} s", s.time_step().fixed_dt(), bound));
+                        fmt::format("{:.3g} s exceeds the estimated stable limit {:.3g} s",
+                                    s.time_step().fixed_dt(), limit));
       }
-      // Advance takes min(safety × bound, max_dt): pin it to the fixed step.
+      // Substeps are min(safety × limit, max_dt): pin them to the fixed step.
       step_options_.max_dt = s.time_step().fixed_dt();
       step_options_.safety_factor = 1.0;
     }
@@ -323,7 +325,7 @@ class Engine final : public Simulation {
     s.steps = state_.step;
     s.frames = frames_;
     s.dt = last_dt_;
-    s.stable_dt = state_.dt_tree.empty() ? 0.0 : static_cast<double>(fem::StableStepBound(state_));
+    s.stable_dt = state_.dt_tree.empty() ? 0.0 : fem::EffectiveStableStep(state_);
     s.sim_time = state_.time;
     s.wall_time = wall_time_;
     s.tet_steps_per_s = wall_time_ > 0 ? static_cast<double>(state_.step) * model_.num_tets() / wall_time_ : 0.0;

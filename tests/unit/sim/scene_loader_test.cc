@@ -28,7 +28,7 @@ std::string ErrorOf(const std::string& text) {
 TEST(SceneLoaderTest, MinimalSceneGetsDefaults) {
   const LoadedScene s = ParseScene(kMinimal, "scene.pbtxt", ".");
   EXPECT_EQ(s.scene.name(), "t");
-  EXPECT_DOUBLE_EQ(s.scene.time_step().safety_factor(), 0.5);
+  EXPECT_DOUBLE_EQ(s.scene.time_step().safety_factor(), 0.85);
   EXPECT_DOUBLE_EQ(s.scene.time_step().frame_dt(), 0.01);
   EXPECT_DOUBLE_EQ(s.scene.mesh().scale(), 1.0);
   EXPECT_EQ(s.scene.camera().width(), 640);
