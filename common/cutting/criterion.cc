@@ -71,6 +71,7 @@ void ValidateCutParams(const CutParams& p, const SourceRef& source) {
     fail("band_fraction", "must be in (0, 2]");
   if (p.max_move_halvings < 0 || p.max_move_halvings > 60) fail("max_move_halvings", "must be in [0, 60]");
   if (p.max_splits_per_step < 1) fail("max_splits_per_step", "must be >= 1");
+  if (p.min_fragment_tets < 0) fail("min_fragment_tets", "must be >= 0");
 }
 
 }  // namespace cutsim::cutting

@@ -65,6 +65,10 @@ struct Blade {
   Eigen::Vector3d tip = Eigen::Vector3d::Zero();             ///< m
   Eigen::Vector3d direction = Eigen::Vector3d::UnitZ();      ///< unit, tip → handle
   double length = 0.0;                                       ///< m
+  /// Tip when t0 was set (the previous executed cut or the first contact).
+  /// The blade's motion since then spans the cut plane with its direction;
+  /// without it the motion of the contact point, C_p(t) − C_p(t0), is used.
+  std::optional<Eigen::Vector3d> tip0;                       ///< m
 };
 
 /// One cut step's geometric input (from a `CutAttempt` plus the tool).

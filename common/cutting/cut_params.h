@@ -34,6 +34,10 @@ struct CutParams {
   /// Cap on vertex copies one cut step may create (singularity removal
   /// included); a step needing more is rejected and rolled back.
   int32_t max_splits_per_step = 4096;
+  /// Fragment guard: a step must not cut loose a piece of fewer tets than
+  /// this (discretisation debris, see cut_mesh.h); 0 disables the guard. It
+  /// is also off on meshes of fewer than 4× this many tets.
+  int32_t min_fragment_tets = 8;
 };
 
 /// Throws `InputError` naming `source` and the offending field (e.g.

@@ -85,11 +85,6 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
   const Vector3d n = step.normal.normalized();
-  Vector3d s1 = x1 - x0;
-  if (!(s1.norm() > 0.0)) s1 = step.cp - step.cp0;  // twins: fall back to the tool's motion
-  Vector3d m = s1.cross(n);  // normal of the plane P spanned by n and s1
-  if (!(m.norm() > 1e-9 * s1.norm()) || !m.allFinite()) return out;
-  m.normalize();
 
   // Local element size: mean world edge length around v1.
   double h = 0.0;
@@ -104,27 +99,70 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
   if (edges == 0 || !(h > 0.0)) return out;
   h /= edges;
   const double band = params.band_fraction * h;
+
+  // ---- 1. the cut plane P -----------------------------------------------------
+  // With a blade, P is the plane the blade sweeps: through the tip, spanned
+  // by the blade direction d and the tool's motion since t0. It follows the
+  // tool, not the mesh: the seed's s1 = x(v1) − x(v0) joins two closest
+  // vertices, which on a blade passing between two rows of nodes (or past
+  // the twins of an earlier split) jump from row to row, and the plane then
+  // swings across the rows and chops the crack into a zig-zag that sheds
+  // fragments. Without a blade (or a blade moving only along itself) the
+  // seed's plane through x(v1) spanned by n and s1 is used.
+  Vector3d m = Vector3d::Zero();
+  Vector3d origin = x1;
+  Vector3d sweep_from = x0, sweep_dir = Vector3d::Zero();
+  double sweep_len = 0.0;
+  Vector3d d = Vector3d::UnitZ();
+  if (step.blade) {
+    d = step.blade->direction.normalized();
+    const Vector3d tip0 = step.blade->tip0 ? *step.blade->tip0 : Vector3d(step.blade->tip - (step.cp - step.cp0));
+    Vector3d motion = step.blade->tip - tip0;
+    motion -= d.dot(motion) * d;  // the part of the motion that sweeps
+    if (motion.allFinite() && motion.norm() > 1e-6 * h) {
+      m = d.cross(motion).normalized();
+      origin = step.blade->tip;
+      sweep_from = tip0;
+      sweep_len = motion.norm();
+      sweep_dir = motion / sweep_len;
+    }
+  }
+  if (m == Vector3d::Zero()) {
+    Vector3d s1 = x1 - x0;
+    if (!(s1.norm() > 0.0)) s1 = step.cp - step.cp0;  // twins: fall back to the tool's motion
+    m = s1.cross(n);  // normal of the plane P spanned by n and s1
+    if (!(m.norm() > 1e-9 * s1.norm()) || !m.allFinite()) return out;
+    m.normalize();
+    sweep_len = s1.norm();
+    sweep_dir = s1 / sweep_len;
+  }
   out.v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
-  auto plane_dist = [&](const Vector3d& x) { return m.dot(x - x1); };
+  auto plane_dist = [&](const Vector3d& x) { return m.dot(x - origin); };
 
   // ---- 2. split set S -------------------------------------------------------
-  std::vector<int32_t> S{step.v1};
+  // v1 itself only if it is near P: the closest vertex of the contact facet
+  // may lie on the far row of a blade passing between two rows of nodes.
+  std::vector<int32_t> S;
+  if (!step.blade || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
   if (step.blade) {
-    const Vector3d d = step.blade->direction.normalized();
-    const double s1_len = s1.norm();
-    const Vector3d s1_hat = s1 / s1_len;
     // In the swept slab (k = 1: split) or a wider one to walk through
-    // (k = 2). No band below the tip: splitting a vertex opens the faces of
-    // its star, so the crack already reaches up to an element below the
-    // deepest split vertex.
+    // (k = 2): near P, between the tool's position at t0 (less a band, so
+    // the vertices at the edge where the blade came in are taken too) and
+    // its current one (plus a band: the vertex the tip is reaching), and
+    // between the tip and the handle end. No band below the tip: splitting
+    // a vertex opens the faces of its star, so the crack already reaches up
+    // to an element below the deepest split vertex. Tool positions, not
+    // node positions, bound the slab, so a closest vertex on the far row
+    // cannot stretch it.
     auto in_slab = [&](const Vector3d& x, double k) {
-      const double along = s1_hat.dot(x - x0);
+      const double along = sweep_dir.dot(x - sweep_from);
       const double depth = d.dot(x - step.blade->tip);
-      return std::abs(plane_dist(x)) <= k * band && along > (k > 1.0 ? -band : 0.0) &&
-             along <= s1_len + k * band && depth >= (k > 1.0 ? -band : 0.0) && depth <= step.blade->length;
+      return std::abs(plane_dist(x)) <= k * band && along >= -k * band && along <= sweep_len + k * band &&
+             depth >= (k > 1.0 ? -band : 0.0) && depth <= step.blade->length;
     };
-    std::unordered_set<int32_t> seen{step.v1};
-    std::deque<int32_t> queue{step.v1};
+    std::unordered_set<int32_t> seen{step.v1, step.v0};
+    std::deque<int32_t> queue{step.v1, step.v0};
+    if (in_slab(x0, 1.0)) S.push_back(step.v0);
     while (!queue.empty()) {
       const int32_t u = queue.front();
       queue.pop_front();
@@ -139,9 +177,12 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
       }
     }
     std::sort(S.begin(), S.end());
+    S.erase(std::unique(S.begin(), S.end()), S.end());
   }
 
   // ---- 3. sides: the farthest vertex from P decides --------------------------
+  // `flipped` holds tets moved to the other side by the fragment guard (6).
+  std::unordered_set<int32_t> flipped;
   std::unordered_map<int32_t, int8_t> side_cache;
   auto side = [&](int32_t t) -> int8_t {
     if (const auto it = side_cache.find(t); it != side_cache.end()) return it->second;
@@ -150,7 +191,8 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
       const double da = plane_dist(W.Get(a));
       if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
     }
-    const int8_t s = far < 0.0 ? int8_t{-1} : int8_t{1};
+    int8_t s = far < 0.0 ? int8_t{-1} : int8_t{1};
+    if (flipped.contains(t)) s = static_cast<int8_t>(-s);
     side_cache.emplace(t, s);
     return s;
   };
@@ -182,75 +224,116 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
     enqueue_tets(node_tets_[Idx(w)]);
     return true;
   };
-  for (const int32_t w : S) plane_split(w);
 
-  // ---- 4. singularities ------------------------------------------------------
-  bool rejected = false;
-  while (!work.empty() && !rejected) {
-    const int32_t v = work.front();
-    work.pop_front();
-    queued.erase(v);
-    if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) {
-      rejected = true;
-      break;
-    }
-    // Vertex rule: parts of the star joined only through v.
-    auto groups = StarGroups(v);
-    if (groups.size() > 1) {
-      for (size_t g = 1; g < groups.size(); ++g) {
-        SplitNode(v, groups[g], &ev);
-        enqueue_tets(groups[g]);
+  // Steps 3–4 as one pass that the fragment guard may roll back and redo.
+  auto separate = [&]() -> bool {
+    for (const int32_t w : S) plane_split(w);
+    // ---- 4. singularities ----------------------------------------------------
+    while (!work.empty()) {
+      const int32_t v = work.front();
+      work.pop_front();
+      queued.erase(v);
+      if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) return false;
+      // Vertex rule: parts of the star joined only through v.
+      auto groups = StarGroups(v);
+      if (groups.size() > 1) {
+        for (size_t g = 1; g < groups.size(); ++g) {
+          SplitNode(v, groups[g], &ev);
+          enqueue_tets(groups[g]);
+        }
+        enqueue_tets(node_tets_[Idx(v)]);
+        continue;
       }
-      enqueue_tets(node_tets_[Idx(v)]);
-      continue;
-    }
-    // Edge rule: parts around an edge joined only through the edge. The
-    // star of each endpoint is connected (checked above), so no vertex copy
-    // alone separates them; splitting an endpoint by the plane sides extends
-    // the cut by one vertex, after which the vertex rule applies again.
-    std::vector<int32_t> nbrs;
-    for (const int32_t t : node_tets_[Idx(v)])
-      for (const int32_t a : tets_[Idx(t)])
-        if (a != v) nbrs.push_back(a);
-    std::sort(nbrs.begin(), nbrs.end());
-    nbrs.erase(std::unique(nbrs.begin(), nbrs.end()), nbrs.end());
-    for (const int32_t u : nbrs) {
-      if (EdgeGroupCount(v, u) <= 1) continue;
-      std::array<int32_t, 2> cand{v, u};
-      if (std::abs(plane_dist(W.Get(u))) < std::abs(plane_dist(W.Get(v)))) std::swap(cand[0], cand[1]);
-      bool fixed = false;
-      for (const int32_t c : cand) {
-        if (!plane_done.contains(c) && plane_split(c)) {
-          fixed = true;
+      // Edge rule: parts around an edge joined only through the edge. The
+      // star of each endpoint is connected (checked above), so no vertex copy
+      // alone separates them; splitting an endpoint by the plane sides extends
+      // the cut by one vertex, after which the vertex rule applies again.
+      std::vector<int32_t> nbrs;
+      for (const int32_t t : node_tets_[Idx(v)])
+        for (const int32_t a : tets_[Idx(t)])
+          if (a != v) nbrs.push_back(a);
+      std::sort(nbrs.begin(), nbrs.end());
+      nbrs.erase(std::unique(nbrs.begin(), nbrs.end()), nbrs.end());
+      for (const int32_t u : nbrs) {
+        if (EdgeGroupCount(v, u) <= 1) continue;
+        std::array<int32_t, 2> cand{v, u};
+        if (std::abs(plane_dist(W.Get(u))) < std::abs(plane_dist(W.Get(v)))) std::swap(cand[0], cand[1]);
+        bool fixed = false;
+        for (const int32_t c : cand) {
+          if (!plane_done.contains(c) && plane_split(c)) {
+            fixed = true;
+            break;
+          }
+        }
+        if (fixed) {
+          if (queued.insert(v).second) work.push_back(v);
           break;
         }
+        // Otherwise the final check below decides (and rejects if needed).
       }
-      if (fixed) {
-        if (queued.insert(v).second) work.push_back(v);
-        break;
-      }
-      // Otherwise the final check below decides (and rejects if needed).
     }
-  }
-  if (!rejected) {
     std::vector<int32_t> check;
     // Faces changed only on retargeted tets and on their neighbours across
     // the old faces, whose vertices are the split node and the other corners.
-    for (const Split& s : ev.splits) {
-      check.push_back(s.node);
-      for (const int32_t t : s.tets)
+    for (const Split& sp : ev.splits) {
+      check.push_back(sp.node);
+      for (const int32_t t : sp.tets)
         for (const int32_t a : tets_[Idx(t)]) check.push_back(a);
     }
     std::sort(check.begin(), check.end());
     check.erase(std::unique(check.begin(), check.end()), check.end());
-    for (const int32_t a : check) {
-      if (!SurfaceManifoldAt(a)) {
-        rejected = true;
-        break;
+    for (const int32_t a : check)
+      if (!SurfaceManifoldAt(a)) return false;
+    return true;
+  };
+
+  // ---- 6. fragment guard ----------------------------------------------------
+  // Tets cut loose into a piece of fewer than `min_fragment_tets` tets (a
+  // tet whose farthest vertex put it on one side while its face neighbours
+  // went to the other, or a corner the singularity rules severed) are
+  // discretisation debris, not a cut: such a piece would fly off under the
+  // blade. Roll back, move its tets to the other side, and separate again.
+  // Local: flood fills stop at min_fragment_tets tets.
+  auto find_fragments = [&]() {
+    std::vector<int32_t> small;
+    const auto limit = static_cast<size_t>(params.min_fragment_tets);
+    if (limit == 0 || static_cast<size_t>(num_tets()) < 4 * limit) return small;
+    std::unordered_set<int32_t> done;
+    for (const Split& sp : ev.splits) {
+      for (const int32_t start : sp.tets) {
+        if (done.contains(start)) continue;
+        std::vector<int32_t> comp{start};
+        std::unordered_set<int32_t> in{start};
+        for (size_t i = 0; i < comp.size() && comp.size() < limit; ++i) {
+          const int32_t t = comp[i];
+          for (int f = 0; f < 4; ++f) {
+            const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
+            const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+            if (u >= 0 && in.insert(u).second) comp.push_back(u);
+          }
+        }
+        done.insert(comp.begin(), comp.end());
+        if (comp.size() < limit) small.insert(small.end(), comp.begin(), comp.end());
       }
     }
+    return small;
+  };
+  bool separated = separate();
+  for (int attempt = 0; separated && attempt < 3; ++attempt) {
+    const std::vector<int32_t> fragments = find_fragments();
+    if (fragments.empty()) break;
+    size_t newly = 0;
+    for (const int32_t t : fragments) newly += flipped.insert(t).second ? 1 : 0;
+    if (newly == 0) break;  // flipping again would undo a flip: keep this result
+    Rollback(journal_mark, n0);
+    ev = TopologyEvent{};  // W reads `ev` by reference: copies are gone again
+    side_cache.clear();
+    plane_done.clear();
+    work.clear();
+    queued.clear();
+    separated = separate();
   }
-  if (rejected) {
+  if (!separated) {
     Rollback(journal_mark, n0);
     journaling_ = false;
     journal_.resize(journal_mark);
@@ -337,7 +420,19 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
     }
     ++out.moves_skipped;
   };
-  if (step.remesh) {
+  if (step.remesh && step.blade) {
+    // With a blade, v0 and v1 move to the nearest point of P (if they are
+    // near it): the crack then lies on the blade's plane. The seed moves
+    // them to C_p(t0), C_p(t); the part of that move along the cut (up to
+    // α·d_v) does not change the cut's profile, only shears the elements
+    // around the vertex into slivers, which the quality rule then limits
+    // or skips.
+    for (const int32_t v : {step.v0, step.v1}) {
+      const Vector3d xv = W.Get(v);
+      const double dist = plane_dist(xv);
+      if (std::abs(dist) <= band) move_group(v, xv - dist * m);
+    }
+  } else if (step.remesh) {
     move_group(step.v0, step.cp0);
     move_group(step.v1, step.cp);
   }

@@ -563,8 +563,27 @@ class Engine final : public Simulation {
       opened_.assign(static_cast<size_t>(surface_.rows()), 0);
     }
     CUTSIM_CHECK(surface_tet_.size() == static_cast<size_t>(surface_.rows()), "surface/tet map size");
+    FlagDebris();
     CopyWorld();
     bvh_ = mesh::TriangleBvh(world_, surface_);
+  }
+
+  /// Facets the blade does not touch: those of pieces a cut has separated
+  /// with less than kDebrisMassFraction of the total mass (see
+  /// tool_contact.h). O(T) after a topology change, like the surface.
+  void FlagDebris() {
+    debris_facet_.clear();
+    if (!cut_) return;
+    int32_t count = 0;
+    const std::vector<int32_t> label = cut_->ConnectedComponents(&count);
+    if (count <= 1) return;
+    std::vector<double> mass(static_cast<size_t>(count), 0.0);
+    for (int32_t t = 0; t < model_.num_tets(); ++t)
+      mass[static_cast<size_t>(label[static_cast<size_t>(t)])] += static_cast<double>(model_.element_mass(t));
+    const double limit = kDebrisMassFraction * model_.TotalMass();
+    debris_facet_.assign(surface_tet_.size(), 0);
+    for (size_t f = 0; f < surface_tet_.size(); ++f)
+      debris_facet_[f] = mass[static_cast<size_t>(label[static_cast<size_t>(surface_tet_[f])])] < limit ? 1 : 0;
   }
 
   mesh::Tets TetsMatrix() const {
@@ -587,7 +606,7 @@ class Engine final : public Simulation {
     CopyWorld();
     bvh_.Refit(world_);
     facet_ = FindContactFacet(bvh_, world_, surface_, pose_.tip, pose_.blade_dir, blade_length_,
-                              mean_edge_, hits_scratch_, box_scratch_);
+                              mean_edge_, hits_scratch_, box_scratch_, debris_facet_);
     if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
     report_.touching = facet_.touching;
     report_.pose = pose_;
@@ -695,13 +714,15 @@ class Engine final : public Simulation {
     step.cp0 = attempt.cp0;
     step.cp = attempt.cp;
     step.normal = attempt.normal;
-    step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_};
+    // The blade's swept plane (tip at t0 → tip now) is the cut plane.
+    step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_, anchor_tip_};
     cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_);
     if (outcome.status != cutting::CutStatus::kExecuted) {
       ++cuts_rejected_;
       return;
     }
     tracker_->OnCutExecuted();
+    anchor_tip_ = pose_.tip;  // t0 := t: the next step sweeps from here
     Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
                 cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
                 outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
@@ -772,6 +793,8 @@ class Engine final : public Simulation {
   mesh::Triangles surface_;        // #F×3
   std::vector<uint8_t> opened_;    // #F
   std::vector<int32_t> surface_tet_;  // #F owning tet
+  std::vector<uint8_t> debris_facet_; // #F (or empty): facet of a debris piece
+  static constexpr double kDebrisMassFraction = 0.01;
   mesh::TriangleBvh bvh_;
   std::vector<mesh::SegmentHit> hits_scratch_;
   std::vector<int32_t> box_scratch_;

@@ -46,13 +46,15 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
-                              std::vector<int32_t>& boxes) {
+                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored) {
   ContactFacet best;
+  auto skip = [&](int32_t f) { return !ignored.empty() && ignored[static_cast<size_t>(f)] != 0; };
   // 1. Where the blade enters: crossing nearest the handle, facing it.
   const Eigen::Vector3d handle = tip + blade_length * blade_dir;
   bvh.AllHits(handle, tip, hits);
   double best_t = std::numeric_limits<double>::infinity();
   for (const mesh::SegmentHit& h : hits) {
+    if (skip(h.tri)) continue;
     const Facet facet = LoadFacet(world, surface, h.tri);
     if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine || h.t >= best_t) continue;
     best_t = h.t;
@@ -64,6 +66,7 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
   bvh.QueryBox(tip - r, tip + r, boxes);
   double best_distance = std::numeric_limits<double>::infinity();
   for (const int32_t f : boxes) {
+    if (skip(f)) continue;
     const Facet facet = LoadFacet(world, surface, f);
     if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine) continue;
     const mesh::ClosestPointHit hit = mesh::ClosestPointOnTriangle(tip, facet.p0, facet.p1, facet.p2);

@@ -14,6 +14,12 @@
 ///   Without a crossing the tip may still be just under a facet (the blade
 ///   pressed flat): the facing facet nearest to the tip within one mean
 ///   edge length counts too.
+/// - Only tissue the blade can push counts: facets flagged in `ignored`
+///   (the sim flags those of debris, pieces cut loose with less than 1% of
+///   the body's mass) are passed through. A penalty force sized for the
+///   body (k·δ with δ capped at the indentation limit, reached at once when
+///   the blade is already inside) would accelerate such a crumb of a few
+///   milligrams to metres per second.
 /// - Indentation δ = (C_p − tip)·n, capped at `indent_limit` (one mean edge
 ///   length): a blade pushed deeper is inside the tissue (in its own cut),
 ///   where the cut, not the surface layer, carries it.
@@ -55,12 +61,13 @@ struct ContactFacet {
 
 /// Finds the contact facet of the blade (tip, unit direction tip → handle,
 /// length) on a surface (see file comment). `near_radius` is the reach of
-/// the tip-only test; `hits` and `boxes` are scratch.
+/// the tip-only test; `hits` and `boxes` are scratch; `ignored` (empty, or
+/// one flag per surface triangle) marks facets never taken.
 ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
-                              std::vector<int32_t>& boxes);
+                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored = {});
 
 /// Penalty force on the tissue at the facet for the current facet node
 /// positions: returns F (the force on the tissue, N, to be split as bᵢF) and

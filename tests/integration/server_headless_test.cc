@@ -13,6 +13,7 @@ namespace {
 
 using testing::BinPath;
 using testing::RunProcess;
+using testing::JsonNumber;
 using testing::TempDir;
 using namespace std::chrono_literals;
 
@@ -29,12 +30,6 @@ materials { young_poisson { youngs_modulus: 200000 poisson_ratio: 0.3 } density:
 boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 1 y: 0 z: 0 } } }
 gravity { z: -9.81 }
 )pb";
-
-double JsonNumber(const std::string& json, const std::string& key) {
-  const auto at = json.find("\"" + key + "\": ");
-  if (at == std::string::npos) return NAN;
-  return std::stod(json.substr(at + key.size() + 4));
-}
 
 TEST(ServerHeadlessTest, RunsForDurationAndWritesVtu) {
   TempDir dir;

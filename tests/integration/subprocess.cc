@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -117,6 +118,21 @@ TempDir::~TempDir() {
   std::error_code ec;
   std::filesystem::remove_all(path_, ec);
 }
+
+double JsonNumber(const std::string& json, const std::string& key) {
+  const std::string needle = "\"" + key + "\":";
+  auto at = json.find(needle);
+  if (at == std::string::npos) return NAN;
+  at += needle.size();
+  while (at < json.size() && json[at] == ' ') ++at;
+  try {
+    return std::stod(json.substr(at));
+  } catch (const std::exception&) {
+    return NAN;
+  }
+}
+
+std::string ReadTextFile(const std::string& path) { return ReadFile(path); }
 
 int UniqueTestIndex() {
   // pid-derived, so parallel ctest processes differ; kept in a small range.

@@ -72,4 +72,11 @@ class TempDir {
 /// A number unique to this test process for DDS domain ids / LCM ports.
 int UniqueTestIndex();
 
+/// The number after `"key": ` in a flat JSON text (NaN if absent): enough
+/// for the one-line summaries the apps print.
+double JsonNumber(const std::string& json, const std::string& key);
+
+/// The whole text of a file ("" if missing).
+std::string ReadTextFile(const std::string& path);
+
 }  // namespace cutsim::testing

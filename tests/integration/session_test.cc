@@ -1,0 +1,98 @@
+// A whole training session as the demo runs it, shortened: the real server on
+// the seed's ligament, the scripted haptic client cutting it over LCM, and two
+// viewers over DDS (one joining late). Runs inside its own network namespace
+// (deploy/netns-run.sh), with a unique session, LCM port and DDS domain.
+#include <algorithm>
+#include <filesystem>
+#include <thread>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/render/image.h"
+#include "tests/integration/subprocess.h"
+
+namespace cutsim {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::BinPath;
+using testing::JsonNumber;
+using testing::ReadTextFile;
+using testing::Subprocess;
+using testing::TempDir;
+using testing::UniqueTestIndex;
+
+std::vector<std::filesystem::path> SortedPngs(const std::string& dir) {
+  std::vector<std::filesystem::path> out;
+  if (!std::filesystem::exists(dir)) return out;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (e.path().extension() == ".png") out.push_back(e.path());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
+  TempDir dir("cutsim-session");
+  const int k = UniqueTestIndex();
+  const std::string session = "s" + std::to_string(k);
+  const std::string lcm = "udpm://239.255.76.67:" + std::to_string(7900 + k) + "?ttl=0";
+  const std::string domain = std::to_string(k);
+  const std::string scenes = std::string(CUTSIM_SOURCE_DIR) + "/scenes";
+  const std::string d = dir.path();
+
+  Subprocess server({BinPath("cutsim-server"), "--scene", scenes + "/ligament.pbtxt", "--duration", "3.5",
+                     "--session", session, "--lcm-url", lcm, "--dds-domain", domain, "--stats-json",
+                     d + "/server.json", "--out", d + "/final.vtu"});
+  Subprocess viewer({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain, "--frames",
+                     d + "/frames", "--exit-when-idle", "3", "--summary", d + "/viewer.json", "--fps", "5"});
+  Subprocess haptic({BinPath("cutsim-haptic"), "--device", "scripted", "--path", scenes + "/ligament-cut.path",
+                     "--session", session, "--lcm-url", lcm, "--csv", d + "/haptic.csv", "--no-rt"});
+  std::this_thread::sleep_for(2s);
+  Subprocess late({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain, "--frames",
+                   d + "/frames-late", "--exit-when-idle", "3", "--summary", d + "/late.json", "--fps", "5"});
+
+  ASSERT_EQ(haptic.Wait(180s), std::optional<int>(0)) << haptic.Stderr();
+  ASSERT_EQ(server.Wait(240s), std::optional<int>(0)) << server.Stderr();
+  ASSERT_EQ(viewer.Wait(60s), std::optional<int>(0)) << viewer.Stderr();
+  ASSERT_EQ(late.Wait(60s), std::optional<int>(0)) << late.Stderr();
+
+  // The server cut the ligament through, driven by the client's poses.
+  const std::string s = ReadTextFile(d + "/server.json");
+  EXPECT_GT(JsonNumber(s, "tool_messages"), 5) << s;  // frames with a fresh pose
+  EXPECT_GE(JsonNumber(s, "cuts"), 1) << s;
+  EXPECT_GE(JsonNumber(s, "topology_version"), 1) << s;
+  EXPECT_EQ(JsonNumber(s, "components"), 2) << s;
+  EXPECT_GT(JsonNumber(s, "models_published"), 10) << s;
+
+  // The client saw the cut state and rendered the decay (seed eq. 13).
+  const std::string h = haptic.Stdout();
+  EXPECT_GE(JsonNumber(h, "cut_decays"), 1) << h;
+  EXPECT_GT(JsonNumber(h, "models_accepted"), 10) << h;
+  EXPECT_EQ(JsonNumber(h, "models_rejected"), 0) << h;
+  const std::string csv = ReadTextFile(d + "/haptic.csv");
+  EXPECT_GT(std::count(csv.begin(), csv.end(), '\n'), 2000) << "1 kHz rows for the 3 s path";
+
+  // Both viewers rebuilt the server's mesh (hash verified every frame).
+  for (const std::string name : {"viewer.json", "late.json"}) {
+    const std::string v = ReadTextFile(d + "/" + name);
+    EXPECT_EQ(JsonNumber(v, "hash_mismatches"), 0) << name << ": " << v;
+    EXPECT_GT(JsonNumber(v, "verified_frames"), 5) << name << ": " << v;
+  }
+  EXPECT_LT(JsonNumber(ReadTextFile(d + "/late.json"), "join_latency_s"), 5.0);
+
+  // Pictures: the tissue is visible; the cut colour appears only after the cut.
+  const auto frames = SortedPngs(d + "/frames");
+  ASSERT_GE(frames.size(), 5u);
+  const render::Image first = render::ReadPng(frames.front());
+  const render::Image last = render::ReadPng(frames.back());
+  EXPECT_GE(render::NonBackgroundFraction(first), 0.05);
+  EXPECT_EQ(render::CountCutFacePixels(first), 0);
+  EXPECT_GT(render::CountCutFacePixels(last), 0);
+  EXPECT_GT(render::MeanAbsoluteDifference(first, last), 0.0);
+}
+
+}  // namespace
+}  // namespace cutsim
