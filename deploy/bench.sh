@@ -48,11 +48,22 @@ cat "$out/organ_mesh.json"
 
 echo "== organ scene run (real-time factor)"
 if [[ -f scenes/organ.pbtxt ]]; then
-  "$bin/cutsim-server" --headless --scene scenes/organ.pbtxt --duration 0.02 --no-progress \
+  "$bin/cutsim-server" --headless --scene scenes/organ.pbtxt --duration 0.5 --no-progress \
     > "$out/organ_run.json" 2>"$out/organ_run.log" || echo "organ run failed (see $out/organ_run.log)"
 else
   echo "scenes/organ.pbtxt not present yet: skipped"
 fi
+
+echo "== haptic loop under load (real server physics on the other core) vs bare loop"
+bench/haptic_session.sh "$PWD/$bin" "$PWD/$out" "${HAPTIC_SECONDS:-20}" || echo "haptic bench skipped (see $out/haptic_loop.log)"
+
+echo "== observers: delta vs snapshot bytes, late join, encode cost (mesh_stream_test [bench] lines)"
+"$bin/mesh_stream_test" 2>/dev/null | grep '^\[bench\]' > "$out/mesh_stream.txt" || true
+cat "$out/mesh_stream.txt"
+
+echo "== headless cut of scenes/block.pbtxt (time per cut step, components)"
+"$bin/cutsim-server" --headless --scene scenes/block.pbtxt --no-progress > "$out/block_cut.json" 2>"$out/block_cut.log" \
+  || echo "block run failed (see $out/block_cut.log)"
 
 echo "== plots"
 /usr/bin/python3 bench/plot.py "$out"

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Haptic loop timing and link latency with the real server's physics loading
+# the other core, beside a bare clock_nanosleep loop measured in the same run.
+# Runs inside a private loopback namespace (deploy/netns-run.sh).
+#   bench/haptic_session.sh BIN_DIR OUT_DIR SECONDS
+set -euo pipefail
+bin="$1"; out="$2"; seconds="${3:-20}"
+root="$(cd "$(dirname "$0")/.." && pwd)"
+if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
+  exec "$root/deploy/netns-run.sh" "$0" "$@"
+fi
+# Back-and-forth strokes across the ligament's top (cutting it on the way).
+/usr/bin/python3 - "$out/strokes.path" "$seconds" <<'PY'
+import sys
+path, seconds = sys.argv[1], float(sys.argv[2])
+with open(path, "w") as f:
+    f.write("# t tip_x tip_y tip_z dir_x dir_y dir_z\n")
+    t, k = 0.0, 0
+    while t <= seconds:
+        y = -0.008 if k % 2 == 0 else 0.008
+        f.write(f"{t:.3f} 0.0151 {y} -0.006 0 0 1\n")
+        t += 2.0
+        k += 1
+PY
+"$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 1e6 \
+  --stats-json "$out/haptic_server.json" >/dev/null 2>"$out/haptic_server.log" &
+server=$!
+sleep 0.5
+"$bin/cutsim-haptic" --device scripted --path "$out/strokes.path" --csv "$out/haptic.csv" \
+  >"$out/haptic_loop.json" 2>"$out/haptic_loop.log"
+kill -TERM "$server"; wait "$server" || true
+# The bare loop with a busy thread on the other core, for reference.
+"$bin/cutsim-haptic-loop-bench" --seconds "$seconds" --hog >"$out/haptic_bare.json" 2>"$out/haptic_bare.log"
