@@ -57,6 +57,10 @@ fi
 echo "== haptic loop under load (real server physics on the other core) vs bare loop"
 bench/haptic_session.sh "$PWD/$bin" "$PWD/$out" "${HAPTIC_SECONDS:-20}" || echo "haptic bench skipped (see $out/haptic_loop.log)"
 
+echo "== buffer-model accuracy against a 1 kHz FEM reference"
+"$bin/buffer_model_bench" --scene scenes/ligament.pbtxt > "$out/buffer_model.jsonl"
+cat "$out/buffer_model.jsonl"
+
 echo "== observers: delta vs snapshot bytes, late join, encode cost (mesh_stream_test [bench] lines)"
 "$bin/mesh_stream_test" 2>/dev/null | grep '^\[bench\]' > "$out/mesh_stream.txt" || true
 cat "$out/mesh_stream.txt"

@@ -122,6 +122,8 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
     if (motion.allFinite() && motion.norm() > 1e-6 * h) {
       m = d.cross(motion).normalized();
       origin = step.blade->tip;
+      // Through v1 if it is near the blade's plane (EXPERIMENT)
+      if (std::abs(m.dot(x1 - origin)) <= band) origin = x1;
       sweep_from = tip0;
       sweep_len = motion.norm();
       sweep_dir = motion / sweep_len;
