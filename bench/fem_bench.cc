@@ -23,43 +23,14 @@
 #include "common/fem/model.h"
 #include "common/fem/stable_dt.h"
 #include "common/fem/state.h"
+#include "common/mesh/generators.h"
 #include "common/mesh/tet_mesh.h"
 
 namespace cutsim::fem {
 namespace {
 
 mesh::TetMesh MakeBox(int nx, int ny, int nz, double h) {
-  mesh::TetMesh m;
-  const auto id = [&](int i, int j, int k) { return (k * (ny + 1) + j) * (nx + 1) + i; };
-  m.nodes.resize((nx + 1) * (ny + 1) * (nz + 1), 3);
-  for (int k = 0; k <= nz; ++k) {
-    for (int j = 0; j <= ny; ++j) {
-      for (int i = 0; i <= nx; ++i) m.nodes.row(id(i, j, k)) << h * i, h * j, h * k;
-    }
-  }
-  m.tets.resize(6 * nx * ny * nz, 4);
-  static constexpr std::array<std::array<int, 3>, 6> kPerms = {
-      {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}}};
-  int t = 0;
-  for (int k = 0; k < nz; ++k) {
-    for (int j = 0; j < ny; ++j) {
-      for (int i = 0; i < nx; ++i) {
-        for (const auto& p : kPerms) {
-          std::array<int, 3> c = {i, j, k};
-          std::array<int32_t, 4> tet{};
-          tet[0] = id(c[0], c[1], c[2]);
-          for (size_t s = 0; s < 3; ++s) {
-            ++c[static_cast<size_t>(p[s])];
-            tet[s + 1] = id(c[0], c[1], c[2]);
-          }
-          m.tets.row(t) << tet[0], tet[1], tet[2], tet[3];
-          if (mesh::SignedVolume(m, t) < 0) std::swap(m.tets(t, 2), m.tets(t, 3));
-          ++t;
-        }
-      }
-    }
-  }
-  return m;
+  return mesh::MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d(h * nx, h * ny, h * nz), nx, ny, nz);
 }
 
 // ~1k, 10k, 100k, 1M tets.

@@ -8,14 +8,24 @@
 /// `WorldAccess`.
 ///
 /// Cut step (seed §3.2–3.3), `ExecuteCut`:
-/// 1. Plane P through x(v1) spanned by the facet normal n and s1 = x(v1) −
-///    x(v0) (world); its unit normal is m = s1 × n / |s1 × n|.
-/// 2. Split set S = {v1} plus, if a blade is given, every vertex inside the
-///    blade's swept slab: |m·(x − x(v1))| ≤ band (band = band_fraction × the
-///    mean edge length around v1, "half an element"), 0 < ŝ1·(x − x(v0)) ≤
-///    |s1| + band (between the previous and the current blade position), and
-///    0 ≤ (x − tip)·d ≤ blade length (between the tip and the handle end
-///    along the blade direction d). Splitting a vertex opens the faces of its
+/// 1. Plane P. With a blade: the plane the blade sweeps, spanned by its
+///    direction d and the tool's motion since t0 (tip0 → tip, else C_p(t0) →
+///    C_p(t)), through the tip, then snapped parallel to itself onto the
+///    slab vertex nearest to it (step 2). Tool positions, not node
+///    positions: the seed's s1 = x(v1) − x(v0) joins closest vertices that
+///    jump between the two rows of nodes beside the blade and are pushed
+///    around by the contact, which swung P across the rows and shattered
+///    the crack. Without a blade (or if the blade plane's step is rejected,
+///    one retry): the seed's plane through x(v1) spanned by the facet
+///    normal n and s1, m = s1 × n / |s1 × n|.
+/// 2. Split set S. With a blade: every vertex in the swept slab,
+///    |m·(x − origin)| ≤ band (band = band_fraction × the mean edge length
+///    around v1, "half an element"), −band ≤ ŝ·(x − tip0) ≤ |motion| + band
+///    (between the previous and the current tool position, with a band
+///    behind, so the edge where the blade came in is taken, and ahead, the
+///    vertex the tip is reaching), and 0 ≤ (x − tip)·d ≤ blade length; v1
+///    only if it is in the band (the closest vertex may be on the far row).
+///    Without a blade, {v1}. Splitting a vertex opens the faces of its
 ///    star, so the crack reaches up to one element below the deepest split
 ///    vertex. A blade longer than the thickness hence cuts through; a
 ///    shallower one leaves a slit.
@@ -34,7 +44,17 @@
 ///    step that still leaves a non-manifold vertex or edge on the surface, or
 ///    needs more than max_splits_per_step copies, is rolled back entirely
 ///    (status kRejected, nothing changes, no event).
-/// 5. Remeshing: the twins of v0 (coincident copies of the same original
+/// 4b. Fragment guard: a step that cuts loose a piece of fewer than
+///    min_fragment_tets tets (found by flood fills from the retargeted tets,
+///    stopped at that size: local) is rolled back and redone with those
+///    tets on the other side (up to 3 times). Such a piece is debris of the
+///    discretisation (a tet the farthest-vertex rule put on the far side of
+///    its neighbours), not a cut, and would fly off under the blade.
+/// 5. Remeshing. With a blade: the twins of v0 and of v1 (if within the
+///    band) move onto P, to their nearest point (the seed's move to C_p
+///    also slides them along the cut by up to α·d_v, which does not change
+///    the cut's profile but shears their elements into slivers). Without a
+///    blade, the seed's: the twins of v0 (coincident copies of the same original
 ///    vertex) move to C_p(t0) and those of v1 to C_p(t): world to C_p, rest to
 ///    the barycentric preimage of C_p in the world tet around the vertex
 ///    that contains it best (largest smallest barycentric coordinate; affine
@@ -202,6 +222,10 @@ class CutMesh {
   int32_t NewSlot(int32_t t, int f, bool opened);
   void FreeSlot(int32_t slot);
 
+  /// ExecuteCut on the blade's plane (`blade_plane`, if a blade is given)
+  /// or on the seed's plane.
+  CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                               bool blade_plane);
   /// Splits `node` so that `moved` (subset of its tets) use a new copy.
   int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);
   /// Face-connected groups of the star of `node` (sorted by lowest tet).

@@ -70,6 +70,16 @@ int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vect
 }
 
 CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params) {
+  CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true);
+  // A blade plane that leaves a singularity the rules cannot remove (rolled
+  // back, nothing changed) gets one more try on the seed's plane through
+  // v0 and v1, which runs through existing vertices.
+  if (out.status == CutStatus::kRejected && step.blade) out = ExecuteCutOnPlane(step, world, params, false);
+  return out;
+}
+
+CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                                      bool blade_plane) {
   CutOutcome out;
   const int32_t n0 = num_nodes();
   const bool ids_ok = step.v0 >= 0 && step.v0 < n0 && step.v1 >= 0 && step.v1 < n0 && step.v0 != step.v1;
@@ -109,21 +119,21 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
   // swings across the rows and chops the crack into a zig-zag that sheds
   // fragments. Without a blade (or a blade moving only along itself) the
   // seed's plane through x(v1) spanned by n and s1 is used.
+  // (The motion is the tool tip's since t0 when the caller gives it, else
+  // that of the contact point: both are tool positions, never node ones.)
   Vector3d m = Vector3d::Zero();
   Vector3d origin = x1;
   Vector3d sweep_from = x0, sweep_dir = Vector3d::Zero();
   double sweep_len = 0.0;
   Vector3d d = Vector3d::UnitZ();
-  if (step.blade) {
-    d = step.blade->direction.normalized();
+  if (step.blade) d = step.blade->direction.normalized();
+  if (step.blade && blade_plane) {
     const Vector3d tip0 = step.blade->tip0 ? *step.blade->tip0 : Vector3d(step.blade->tip - (step.cp - step.cp0));
     Vector3d motion = step.blade->tip - tip0;
     motion -= d.dot(motion) * d;  // the part of the motion that sweeps
     if (motion.allFinite() && motion.norm() > 1e-6 * h) {
       m = d.cross(motion).normalized();
       origin = step.blade->tip;
-      // Through v1 if it is near the blade's plane (EXPERIMENT)
-      if (std::abs(m.dot(x1 - origin)) <= band) origin = x1;
       sweep_from = tip0;
       sweep_len = motion.norm();
       sweep_dir = motion / sweep_len;
@@ -137,6 +147,7 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
     m.normalize();
     sweep_len = s1.norm();
     sweep_dir = s1 / sweep_len;
+    sweep_from = x0;
   }
   out.v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
   auto plane_dist = [&](const Vector3d& x) { return m.dot(x - origin); };
@@ -145,7 +156,7 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
   // v1 itself only if it is near P: the closest vertex of the contact facet
   // may lie on the far row of a blade passing between two rows of nodes.
   std::vector<int32_t> S;
-  if (!step.blade || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
+  if (!step.blade) S.push_back(step.v1);
   if (step.blade) {
     // In the swept slab (k = 1: split) or a wider one to walk through
     // (k = 2): near P, between the tool's position at t0 (less a band, so
@@ -159,27 +170,50 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
     auto in_slab = [&](const Vector3d& x, double k) {
       const double along = sweep_dir.dot(x - sweep_from);
       const double depth = d.dot(x - step.blade->tip);
-      return std::abs(plane_dist(x)) <= k * band && along >= -k * band && along <= sweep_len + k * band &&
+      return std::abs(plane_dist(x)) <= k * band && (blade_plane ? along >= -k * band : along > (k > 1.0 ? -band : 0.0)) && along <= sweep_len + k * band &&
              depth >= (k > 1.0 ? -band : 0.0) && depth <= step.blade->length;
     };
-    std::unordered_set<int32_t> seen{step.v1, step.v0};
-    std::deque<int32_t> queue{step.v1, step.v0};
-    if (in_slab(x0, 1.0)) S.push_back(step.v0);
-    while (!queue.empty()) {
-      const int32_t u = queue.front();
-      queue.pop_front();
-      for (const int32_t t : node_tets_[Idx(u)]) {
-        for (const int32_t w : tets_[Idx(t)]) {
-          if (!seen.insert(w).second) continue;
-          const Vector3d xw = W.Get(w);
-          if (!in_slab(xw, 2.0)) continue;
-          queue.push_back(w);
-          if (in_slab(xw, 1.0)) S.push_back(w);
+    auto collect = [&]() {
+      S.clear();
+      if (!blade_plane || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
+      if (blade_plane && in_slab(x0, 1.0)) S.push_back(step.v0);
+      std::unordered_set<int32_t> seen{step.v1, step.v0};
+      std::deque<int32_t> queue{step.v1, step.v0};
+      while (!queue.empty()) {
+        const int32_t u = queue.front();
+        queue.pop_front();
+        for (const int32_t t : node_tets_[Idx(u)]) {
+          for (const int32_t w : tets_[Idx(t)]) {
+            if (!seen.insert(w).second) continue;
+            const Vector3d xw = W.Get(w);
+            if (!in_slab(xw, 2.0)) continue;
+            queue.push_back(w);
+            if (in_slab(xw, 1.0)) S.push_back(w);
+          }
         }
       }
+      std::sort(S.begin(), S.end());
+      S.erase(std::unique(S.begin(), S.end()), S.end());
+    };
+    collect();
+    // (On the seed's plane, which holds v1, there is nothing to snap.)
+    // Snap P, parallel to itself, onto the slab vertex nearest to it. A
+    // plane midway between two layers of vertices puts both in the band,
+    // and the tets between them tie on the farthest-vertex rule, which then
+    // picks sides at random: a jagged crack that the singularity rules
+    // reject or shatter (2× the rejections in the randomized test). Not
+    // snapped onto v1: the vertices under the blade are pushed around by
+    // the contact (by more than a millimetre in scenes/block), and a plane
+    // through v1 then drifts onto the next layer below the surface.
+    if (blade_plane) {
+      int32_t nearest = -1;
+      for (const int32_t w : S)
+        if (nearest < 0 || std::abs(plane_dist(W.Get(w))) < std::abs(plane_dist(W.Get(nearest)))) nearest = w;
+      if (nearest >= 0 && plane_dist(W.Get(nearest)) != 0.0) {
+        origin += plane_dist(W.Get(nearest)) * m;
+        collect();
+      }
     }
-    std::sort(S.begin(), S.end());
-    S.erase(std::unique(S.begin(), S.end()), S.end());
   }
 
   // ---- 3. sides: the farthest vertex from P decides --------------------------

@@ -105,6 +105,47 @@ TEST(CutMesh, StraightCutWithALongBladeSeparatesTheBoxIntoTwo) {
   EXPECT_EQ(sc.cm.version(), sc.events.size());
 }
 
+TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
+  // The blade passes 0.01 h beside the row y = h; the closest vertex given
+  // to every other step is on the far row (y = 2h), as a contact facet's
+  // largest barycentric can be. The crack must still be the y = h node
+  // plane: two parts, no fragment, every opened face in that plane.
+  const mesh::TetMesh m = Box();
+  CutMesh cm(m);
+  VectorWorld world = WorldFromRest(m);
+  const Reference ref(m);
+  CutParams params;
+  const double top = 2 * kH, y = 1.01 * kH;
+  auto node_at = [&](int i, int j) { return static_cast<int32_t>(i + 5 * (j + 4 * 2)); };  // top layer
+  int32_t v0 = node_at(0, 1);
+  Vector3d tip0(-0.2 * kH, y, -0.5 * kH);
+  for (int i = 1; i <= 4; ++i) {
+    CutStep step;
+    step.v0 = v0;
+    step.v1 = node_at(i, i % 2 == 0 ? 2 : 1);
+    step.cp0 = Vector3d(tip0.x(), y, top);
+    step.cp = Vector3d(i * kH, y, top);
+    const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
+    step.blade = Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0};
+    const CutOutcome out = cm.ExecuteCut(step, world, params);
+    ASSERT_EQ(out.status, CutStatus::kExecuted) << "step " << i;
+    world.ApplyEvent(out.event);
+    ExpectInvariants(cm, world, ref, "step " + std::to_string(i));
+    v0 = step.v1;
+    tip0 = tip;
+  }
+  EXPECT_EQ(cm.NumConnectedComponents(), 2);
+  std::vector<uint8_t> opened;
+  const mesh::Triangles tris = cm.SurfaceTriangles(&opened);
+  int n_opened = 0;
+  for (int r = 0; r < tris.rows(); ++r) {
+    if (!opened[static_cast<size_t>(r)]) continue;
+    ++n_opened;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(world.Get(tris(r, k)).y(), kH, 0.02 * kH) << "opened face off the plane";
+  }
+  EXPECT_EQ(n_opened, 2 * 2 * 4 * 2) << "both sides of the 4 × 2 cell faces";
+}
+
 TEST(CutMesh, ShallowBladeDoesNotSeparate) {
   // A blade reaching half the thickness opens a slit but the bottom holds.
   const mesh::TetMesh m = Box();
