@@ -73,6 +73,7 @@ void ExpectNoAllocation(ViscousTreatment viscous) {
   EXPECT_GT(r.substeps, 1);  // several substeps, refreshes included
   EXPECT_EQ(g_allocations.load(), 0);
 #else
+  (void)viscous;
   GTEST_SKIP() << "malloc interposition unavailable (sanitizer build)";
 #endif
 }
