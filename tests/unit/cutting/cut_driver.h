@@ -69,7 +69,7 @@ DriveStats DrivePath(CutMesh& cm, VectorWorld& world, const std::vector<Eigen::V
     step.cp0 = a.cp0;
     step.cp = a.cp;
     step.normal = a.normal;
-    step.blade = Blade{p - depth * Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ(), depth + 0.01};
+    step.blade.emplace(Blade{p - depth * Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ(), depth + 0.01});
     const auto t_start = std::chrono::steady_clock::now();
     const CutOutcome out = cm.ExecuteCut(step, world, params);
     stats.cut_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();

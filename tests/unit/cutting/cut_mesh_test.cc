@@ -126,7 +126,7 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
     step.cp0 = Vector3d(tip0.x(), y, top);
     step.cp = Vector3d(i * kH, y, top);
     const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
-    step.blade = Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0};
+    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
     const CutOutcome out = cm.ExecuteCut(step, world, params);
     ASSERT_EQ(out.status, CutStatus::kExecuted) << "step " << i;
     world.ApplyEvent(out.event);
