@@ -210,7 +210,11 @@ class Engine final : public Simulation {
       step_options_.safety_factor = 1.0;
     }
     SetRestTolerances();
-    if (s.has_tool()) SetUpTool(scene);
+    if (s.has_tool()) {
+      SetUpTool(scene);  // builds the surface (from the cut complex when cutting)
+    } else {
+      RebuildSurface();  // the viewers' surface; no BVH without a tool
+    }
     Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}",
                s.name(), model_.num_nodes(), model_.num_tets(), num_free_, precision_name(),
                threads_, step_options_.viscous == fem::ViscousTreatment::kImplicit ? "implicit" : "explicit");
@@ -298,9 +302,6 @@ class Engine final : public Simulation {
     view.tets.resize(model_.num_tets(), 4);
     for (int32_t t = 0; t < model_.num_tets(); ++t) {
       for (int c = 0; c < 4; ++c) view.tets(t, c) = model_.tet_node(t, c);
-    }
-    if (surface_.rows() == 0) {
-      const_cast<Engine*>(this)->RebuildSurface();
     }
     view.surface = surface_;
     view.opened = opened_;
@@ -563,6 +564,7 @@ class Engine final : public Simulation {
       opened_.assign(static_cast<size_t>(surface_.rows()), 0);
     }
     CUTSIM_CHECK(surface_tet_.size() == static_cast<size_t>(surface_.rows()), "surface/tet map size");
+    if (!has_tool_) return;  // contact structures only serve the tool
     FlagDebris();
     CopyWorld();
     bvh_ = mesh::TriangleBvh(world_, surface_);
