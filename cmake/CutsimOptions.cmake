@@ -5,7 +5,7 @@ add_library(cutsim_warnings INTERFACE)
 add_library(cutsim::warnings ALIAS cutsim_warnings)
 target_compile_options(cutsim_warnings INTERFACE
   -Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Wold-style-cast
-  -Wcast-align -Wunused -Woverloaded-virtual -Wnull-dereference
+  -Wcast-align -Wunused -Woverloaded-virtual
   -Wdouble-promotion -Wformat=2 -Wimplicit-fallthrough
   -Wno-missing-field-initializers)
 if(CUTSIM_WERROR)
