@@ -128,7 +128,7 @@ int ServerApp::RunHeadless() {
     if (since_report.ElapsedSeconds() > (tty ? 0.2 : 5.0)) {
       since_report.Reset();
       const double frac = std::min(1.0, simulation->sim_time() / end_time);
-      const auto s = simulation->Summary();
+      const auto s = simulation->QuickSummary();
       if (tty) {
         const int width = 30;
         const int filled = static_cast<int>(frac * width);

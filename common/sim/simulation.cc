@@ -315,7 +315,7 @@ class Engine final : public Simulation {
   double sim_time() const override { return state_.time; }
   double frame_dt() const override { return scene_.scene.time_step().frame_dt(); }
 
-  SimulationSummary Summary() const override {
+  SimulationSummary QuickSummary() const override {
     SimulationSummary s;
     s.scene = scene_.scene.name();
     s.precision = precision_name();
@@ -332,7 +332,6 @@ class Engine final : public Simulation {
     s.tet_steps_per_s = wall_time_ > 0 ? static_cast<double>(state_.step) * model_.num_tets() / wall_time_ : 0.0;
     s.realtime_factor = wall_time_ > 0 ? state_.time / wall_time_ : 0.0;
     s.kinetic_energy = KineticEnergy();
-    s.strain_energy = fem::StrainEnergy(model_, state_.x.data());
     s.residual_force = ResidualForce();
     s.max_displacement = MaxDisplacement();
     s.at_rest = AtRest();
@@ -343,6 +342,12 @@ class Engine final : public Simulation {
     s.cuts_rejected = cuts_rejected_;
     s.topology_version = model_.topology_version();
     s.cut_wall_time = cut_wall_time_;
+    return s;
+  }
+
+  SimulationSummary Summary() const override {
+    SimulationSummary s = QuickSummary();
+    s.strain_energy = fem::StrainEnergy(model_, state_.x.data());
     s.total_mass = model_.TotalMass();
     int32_t components = 1;
     (void)cutting::ConnectedComponents(TetsMatrix(), &components);
@@ -362,10 +367,7 @@ class Engine final : public Simulation {
     for (int32_t n = 0; n < model_.num_nodes(); ++n) {
       for (int k = 0; k < 3; ++k) m.nodes(n, k) = static_cast<double>(state_.x[3 * n + k]);
     }
-    m.tets.resize(model_.num_tets(), 4);
-    for (int32_t t = 0; t < model_.num_tets(); ++t) {
-      for (int c = 0; c < 4; ++c) m.tets(t, c) = model_.tet_node(t, c);
-    }
+    m.tets = TetsMatrix();
     m.regions = mesh_.mesh.regions;
     return m;
   }

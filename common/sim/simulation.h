@@ -128,6 +128,10 @@ class Simulation {
   [[nodiscard]] virtual double sim_time() const = 0;
   [[nodiscard]] virtual double frame_dt() const = 0;
   [[nodiscard]] virtual SimulationSummary Summary() const = 0;
+  /// Summary without the whole-mesh passes (strain energy, components,
+  /// opened faces, smallest rest volume, total mass stay 0): cheap enough
+  /// for progress lines and the per-second session status.
+  [[nodiscard]] virtual SimulationSummary QuickSummary() const = 0;
 
   /// Current mesh (world positions) and rest mesh.
   [[nodiscard]] virtual mesh::TetMesh WorldMesh() const = 0;
