@@ -211,7 +211,7 @@ void ElementForcesTeam(const Model<T>& model, const T* x, const T* v, ForceMode 
 template <typename T>
 void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T* f_ext,
                           bool add_loads, T* out) {
-  const int32_t* off = model.incidence_offsets();
+  const int32_t* range = model.incidence_ranges();
   const int32_t* slots = model.incidence_slots();
   const T* mass = model.node_masses();
   const T* pf = model.prescribed_forces();
@@ -222,7 +222,7 @@ void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T
 #pragma omp for schedule(static)
   for (int32_t n = 0; n < n_nodes; ++n) {
     T f0 = 0, f1 = 0, f2 = 0;
-    for (int32_t k = off[n]; k < off[n + 1]; ++k) {
+    for (int32_t k = range[2 * n]; k < range[2 * n + 1]; ++k) {
       const T* e = element_force + slots[k];
       f0 += e[0];
       f1 += e[1];

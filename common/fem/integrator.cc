@@ -16,81 +16,242 @@ namespace {
 
 int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
-/// Implicit viscous update: solves (M + dt·C) v = M v* on the free nodes by
-/// M-preconditioned CG from v = 0, where C·p = −f_visc(p) (linear in p at the
-/// current F; fixed nodes are held at zero velocity inside the solve).
-/// On entry state.v holds v*; on exit the solution.
+/// Block-Jacobi preconditioner of M + dt·C: for each free node the inverse
+/// of m·I + dt·Σ_e C_aa, with C_aa = vol·F[(φ+ψ)g gᵀ + ψ|g|²I]Fᵀ the damping
+/// force on node a per unit velocity of node a (Ḟ = u gᵀ, g = row of Dm⁻ᵀ
+/// for the node's corner, −Σ of the others for corner 0). Stored symmetric:
+/// xx yy zz xy xz yz. Fixed nodes get 0 (they are held at zero velocity).
 template <typename T>
-void ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOptions& opt,
-                     int nt) {
+void BuildBlockJacobi(const Model<T>& model, const T* x, T dt, bool with_damping, T* inv, int nt) {
+  const int32_t nn = model.num_nodes();
+  const T* mass = model.node_masses();
+  const uint8_t* fixed = model.fixed_mask();
+  const int32_t* range = model.incidence_ranges();
+  const int32_t* slots = model.incidence_slots();
+  const int32_t* tets = model.tets();
+  const T* vol = model.rest_volumes();
+  const T* psi = model.psis();
+  const T* phi = model.phis();
+  const T* b[9];
+  for (int k = 0; k < 9; ++k) b[k] = model.dm_inv(k);
+#pragma omp parallel for schedule(static) num_threads(nt)
+  for (int32_t n = 0; n < nn; ++n) {
+    T* out = inv + 6 * n;
+    if (fixed[n] != 0 || !(mass[n] > T(0))) {
+      for (int k = 0; k < 6; ++k) out[k] = 0;
+      continue;
+    }
+    // A = m·I + dt·Σ C_aa (symmetric, accumulated in T).
+    T a00 = mass[n], a11 = mass[n], a22 = mass[n], a01 = 0, a02 = 0, a12 = 0;
+    const int32_t k_end = with_damping ? range[2 * n + 1] : range[2 * n];  // else P = M
+    for (int32_t k = range[2 * n]; k < k_end; ++k) {
+      const int32_t t = slots[k] / 12;
+      const int corner = (slots[k] % 12) / 3;
+      const int32_t* tn = tets + 4 * t;
+      const T* x0 = x + 3 * tn[0];
+      T B[9], F[9], g[3];
+      for (int i = 0; i < 9; ++i) B[i] = b[i][t];
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) {
+          F[3 * r + c] = (x[3 * tn[1] + r] - x0[r]) * B[c] + (x[3 * tn[2] + r] - x0[r]) * B[3 + c] +
+                         (x[3 * tn[3] + r] - x0[r]) * B[6 + c];
+        }
+      }
+      for (int c = 0; c < 3; ++c) {
+        g[c] = corner > 0 ? B[3 * (corner - 1) + c] : -(B[c] + B[3 + c] + B[6 + c]);
+      }
+      // h = F g (3), C_aa = vol·[(φ+ψ) h hᵀ + ψ|g|² F Fᵀ].
+      T h[3], fft[6];
+      for (int r = 0; r < 3; ++r) h[r] = F[3 * r] * g[0] + F[3 * r + 1] * g[1] + F[3 * r + 2] * g[2];
+      const auto row_dot = [&](int i, int j) {
+        return F[3 * i] * F[3 * j] + F[3 * i + 1] * F[3 * j + 1] + F[3 * i + 2] * F[3 * j + 2];
+      };
+      fft[0] = row_dot(0, 0), fft[1] = row_dot(1, 1), fft[2] = row_dot(2, 2);
+      fft[3] = row_dot(0, 1), fft[4] = row_dot(0, 2), fft[5] = row_dot(1, 2);
+      const T s1 = dt * vol[t] * (phi[t] + psi[t]);
+      const T s2 = dt * vol[t] * psi[t] * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+      a00 += s1 * h[0] * h[0] + s2 * fft[0];
+      a11 += s1 * h[1] * h[1] + s2 * fft[1];
+      a22 += s1 * h[2] * h[2] + s2 * fft[2];
+      a01 += s1 * h[0] * h[1] + s2 * fft[3];
+      a02 += s1 * h[0] * h[2] + s2 * fft[4];
+      a12 += s1 * h[1] * h[2] + s2 * fft[5];
+    }
+    // Inverse by cofactors: A = m·I + PSD, so det ≥ m³ > 0.
+    const T c00 = a11 * a22 - a12 * a12, c01 = a02 * a12 - a01 * a22, c02 = a01 * a12 - a02 * a11;
+    const T c11 = a00 * a22 - a02 * a02, c12 = a01 * a02 - a00 * a12, c22 = a00 * a11 - a01 * a01;
+    const T det = a00 * c00 + a01 * c01 + a02 * c02;
+    const T id = det > T(0) && std::isfinite(det) ? T(1) / det : T(0);
+    if (id > T(0)) {
+      out[0] = c00 * id, out[1] = c11 * id, out[2] = c22 * id;
+      out[3] = c01 * id, out[4] = c02 * id, out[5] = c12 * id;
+    } else {  // non-finite F: fall back to M⁻¹ (the CG then breaks down and the guard keeps v* safe)
+      out[0] = out[1] = out[2] = T(1) / mass[n];
+      out[3] = out[4] = out[5] = 0;
+    }
+  }
+}
+
+/// z = P⁻¹ r for one node's symmetric 3×3 block.
+template <typename T>
+inline void ApplyBlock(const T* p, const T* r, T* z) {
+  z[0] = p[0] * r[0] + p[3] * r[1] + p[4] * r[2];
+  z[1] = p[3] * r[0] + p[1] * r[1] + p[5] * r[2];
+  z[2] = p[4] * r[0] + p[5] * r[1] + p[2] * r[2];
+}
+
+/// q = (M + dt·C) p on free DOFs (0 on fixed ones); returns pᵀq. C·p =
+/// −f_visc(p), linear in p at the current F. `*bad` as ElementForcesTeam.
+template <typename T>
+double ApplyViscousSystem(const Model<T>& model, const T* x, const T* p, T dt, T* ef, T* q, int32_t* bad,
+                          int nt) {
+  const int32_t nn = model.num_nodes();
+  const T* mass = model.node_masses();
+  const uint8_t* fixed = model.fixed_mask();
+  double pq = 0;
+#pragma omp parallel num_threads(nt)
+  {
+    ElementForcesTeam(model, x, p, ForceMode::kViscousOnly, ef, bad);
+#pragma omp barrier
+    GatherNodeForcesTeam<T>(model, ef, nullptr, false, q);  // q = f_visc(p) = −C p
+#pragma omp for schedule(static) reduction(+ : pq)
+    for (int32_t n = 0; n < nn; ++n) {
+      const bool active = fixed[n] == 0 && mass[n] > T(0);
+      for (int d = 0; d < 3; ++d) {
+        const T qd = active ? mass[n] * p[3 * n + d] - dt * q[3 * n + d] : T(0);
+        q[3 * n + d] = qd;
+        pq += static_cast<double>(p[3 * n + d] * qd);
+      }
+    }
+  }
+  return pq;
+}
+
+/// Implicit viscous update (ViscousTreatment::kImplicit): solves
+/// (M + dt·C) v⁺ = M v* on the free nodes by block-Jacobi-preconditioned CG,
+/// warm-started at v* + (the last step's v⁺ − v*). On entry state.v holds
+/// v*; on exit v⁺. Returns the iteration count; *capped when it stopped at
+/// the cap.
+template <typename T>
+int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOptions& opt, int nt,
+                    bool* capped) {
   const int32_t nn = model.num_nodes();
   const T* mass = model.node_masses();
   const uint8_t* fixed = model.fixed_mask();
   T* sol = state.v.data();
+  T* vs = state.v_star.data();
+  T* dv = state.viscous_dv.data();
   T* r = state.cg_r.data();
   T* p = state.cg_p.data();
   T* q = state.cg_q.data();
+  T* pre = state.cg_precond.data();
   T* ef = state.element_force.data();
   const T* x = state.x.data();
-  double rz = 0;
-  // r = M v*, z = M⁻¹r = v*, p = z, sol = 0.
-#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : rz)
+  *capped = false;
+  BuildBlockJacobi(model, x, dt, opt.cg_block_jacobi, pre, nt);
+  const T warm = opt.cg_warm_start ? T(1) : T(0);
+  // v* aside; the start sol = v* + dv; bb = |M v*|²_P⁻¹ (the scale of the
+  // residual), e_star = |v*|²_M (the energy bound of the solution).
+  double bb = 0, e_star = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : bb, e_star)
   for (int32_t n = 0; n < nn; ++n) {
     const bool active = fixed[n] == 0 && mass[n] > T(0);
+    T b[3], z[3];
     for (int d = 0; d < 3; ++d) {
-      const T vs = active ? sol[3 * n + d] : T(0);
-      r[3 * n + d] = mass[n] * vs;
-      p[3 * n + d] = vs;
-      rz += static_cast<double>(mass[n] * vs * vs);
-      if (active) sol[3 * n + d] = 0;
+      const int32_t i = 3 * n + d;
+      // Fixed nodes are held at zero velocity inside the solve; their own
+      // velocity waits in dv (unused for them) and is put back at the end.
+      if (!active) dv[i] = sol[i];
+      vs[i] = active ? sol[i] : T(0);
+      sol[i] = active ? vs[i] + warm * dv[i] : T(0);
+      b[d] = mass[n] * vs[i];
+    }
+    ApplyBlock(pre + 6 * n, b, z);
+    for (int d = 0; d < 3; ++d) {
+      bb += static_cast<double>(b[d] * z[d]);
+      e_star += static_cast<double>(b[d] * vs[3 * n + d]);
     }
   }
-  const double rz0 = rz;
-  if (!(rz0 > 0)) {
-    return;  // nothing moves (v* = 0): the solution is 0 on free nodes, already set
-  }
-  const double tol2 = opt.cg_tolerance * opt.cg_tolerance * rz0;
-  for (int it = 0; it < opt.cg_max_iterations; ++it) {
-    double pq = 0;
-    int32_t bad = INT32_MAX;
-#pragma omp parallel num_threads(nt)
-    {
-      ElementForcesTeam(model, x, p, ForceMode::kViscousOnly, ef, &bad);
-#pragma omp barrier
-      GatherNodeForcesTeam<T>(model, ef, nullptr, false, q);  // q = f_visc(p) = −C p
-#pragma omp for schedule(static) reduction(+ : pq)
-      for (int32_t n = 0; n < nn; ++n) {
-        const bool active = fixed[n] == 0 && mass[n] > T(0);
-        for (int d = 0; d < 3; ++d) {
-          // q = (M + dt·C) p on free DOFs.
-          const T qd = active ? mass[n] * p[3 * n + d] - dt * q[3 * n + d] : T(0);
-          q[3 * n + d] = qd;
-          pq += static_cast<double>(p[3 * n + d] * qd);
-        }
+  int iterations = 0;
+  if (!(bb > 0)) {
+    // v* = 0 on every free node: the solution is 0.
+#pragma omp parallel for schedule(static) num_threads(nt)
+    for (int32_t n = 0; n < nn; ++n) {
+      const bool active = fixed[n] == 0 && mass[n] > T(0);
+      for (int d = 0; d < 3; ++d) {
+        sol[3 * n + d] = active ? T(0) : dv[3 * n + d];
+        if (active) dv[3 * n + d] = 0;
       }
     }
-    if (!(pq > 0) || bad != INT32_MAX) break;  // breakdown: keep the last (dissipative) iterate
+    return 0;
+  }
+  const double tol2 = opt.cg_tolerance * opt.cg_tolerance * bb;
+  // r = M v* − A sol, p = z = P⁻¹ r.
+  int32_t bad = INT32_MAX;
+  (void)ApplyViscousSystem(model, x, sol, dt, ef, q, &bad, nt);
+  double rz = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : rz)
+  for (int32_t n = 0; n < nn; ++n) {
+    for (int d = 0; d < 3; ++d) r[3 * n + d] = mass[n] * vs[3 * n + d] - q[3 * n + d];
+    ApplyBlock(pre + 6 * n, r + 3 * n, p + 3 * n);
+    for (int d = 0; d < 3; ++d) rz += static_cast<double>(r[3 * n + d] * p[3 * n + d]);
+  }
+  bool converged = bad == INT32_MAX && rz <= tol2;
+  while (!converged && bad == INT32_MAX && iterations < opt.cg_max_iterations) {
+    const double pq = ApplyViscousSystem(model, x, p, dt, ef, q, &bad, nt);
+    if (!(pq > 0) || bad != INT32_MAX) break;  // breakdown: keep the iterate (clamped below)
+    ++iterations;
     const T alpha = static_cast<T>(rz / pq);
     double rz_new = 0;
 #pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : rz_new)
     for (int32_t n = 0; n < nn; ++n) {
-      const T inv_m = mass[n] > T(0) ? T(1) / mass[n] : T(0);
+      T z[3];
       for (int d = 0; d < 3; ++d) {
         const int32_t i = 3 * n + d;
         sol[i] += alpha * p[i];
         r[i] -= alpha * q[i];
-        rz_new += static_cast<double>(r[i] * r[i] * inv_m);
       }
+      ApplyBlock(pre + 6 * n, r + 3 * n, z);
+      for (int d = 0; d < 3; ++d) rz_new += static_cast<double>(r[3 * n + d] * z[d]);
     }
-    if (rz_new <= tol2) break;
+    if (rz_new <= tol2) {
+      converged = true;
+      break;
+    }
     const T beta = static_cast<T>(rz_new / rz);
     rz = rz_new;
 #pragma omp parallel for schedule(static) num_threads(nt)
     for (int32_t n = 0; n < nn; ++n) {
-      const T inv_m = mass[n] > T(0) ? T(1) / mass[n] : T(0);
-      for (int d = 0; d < 3; ++d) p[3 * n + d] = r[3 * n + d] * inv_m + beta * p[3 * n + d];
+      T z[3];
+      ApplyBlock(pre + 6 * n, r + 3 * n, z);
+      for (int d = 0; d < 3; ++d) p[3 * n + d] = z[d] + beta * p[3 * n + d];
     }
   }
+  *capped = !converged;
+  // The exact solution has |v⁺|_M ≤ |v*|_M; a truncated (warm-started)
+  // iterate may not, so scale it back: the viscous phase never adds energy.
+  double e_sol = 0;
+#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : e_sol)
+  for (int32_t n = 0; n < nn; ++n) {
+    for (int d = 0; d < 3; ++d) e_sol += static_cast<double>(mass[n] * sol[3 * n + d] * sol[3 * n + d]);
+  }
+  const T scale = !std::isfinite(e_sol) ? T(0)
+                  : e_sol > e_star     ? static_cast<T>(std::sqrt(e_star / e_sol))
+                                       : T(1);
+#pragma omp parallel for schedule(static) num_threads(nt)
+  for (int32_t n = 0; n < nn; ++n) {
+    const bool active = fixed[n] == 0 && mass[n] > T(0);
+    for (int d = 0; d < 3; ++d) {
+      const int32_t i = 3 * n + d;
+      if (!active) {
+        sol[i] = dv[i];
+        continue;
+      }
+      sol[i] = scale == T(0) ? T(0) : sol[i] * scale;  // 0 also clears a NaN
+      dv[i] = sol[i] - vs[i];
+    }
+  }
+  return iterations;
 }
 
 }  // namespace
@@ -186,7 +347,9 @@ StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions&
   }
   if (implicit_visc) {
     // state.v holds v* = v + dt·M⁻¹f_elastic; damp it implicitly, then move.
-    ImplicitViscous(model, state, dt, options, nt);
+    bool capped = false;
+    res.cg_iterations = ImplicitViscous(model, state, dt, options, nt, &capped);
+    res.cg_capped = capped ? 1 : 0;
 #pragma omp parallel for schedule(static) num_threads(nt)
     for (int32_t n = 0; n < nn; ++n) {
       if (fixed[n] != 0 || !(mass[n] > T(0))) continue;
@@ -254,8 +417,12 @@ StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
     const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
     const double dt = remaining / std::max(1.0, n);
     const int substeps = res.substeps;
+    const int cg_iterations = res.cg_iterations;
+    const int cg_capped = res.cg_capped;
     res = Step(model, state, static_cast<T>(dt), options);
     res.substeps = substeps + (res.ok() ? 1 : 0);
+    res.cg_iterations += cg_iterations;
+    res.cg_capped += cg_capped;
     if (!res.ok()) return res;
     remaining -= dt;
     if (n <= 1) break;

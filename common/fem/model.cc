@@ -85,8 +85,10 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
   node_mass_.assign(NC, T(0));
   fixed_.assign(NC, 0);
   prescribed_force_.assign(3 * NC, T(0));
-  inc_offsets_.assign(NC + 1, 0);
-  inc_slots_.assign(4 * static_cast<size_t>(num_tets_), 0);
+  inc_range_.assign(2 * NC, 0);
+  // Append region for cut edits: half the compact size again (≥ 1024), so a
+  // compaction is paid for by at least 2·T retargeted corners.
+  inc_slots_.assign(4 * static_cast<size_t>(num_tets_) + std::max<size_t>(1024, 2 * static_cast<size_t>(num_tets_)), 0);
   gravity_ = options.gravity.cast<T>();
   inversion_det_threshold_ = static_cast<T>(options.inversion_det_threshold);
   min_singular_value_ = static_cast<T>(options.min_singular_value);
@@ -131,6 +133,7 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
     element_mass_[t] = static_cast<T>(mat.density * mesh::SignedVolume(mesh, t));
   }
   RebuildIncidence();
+  inc_compactions_ = 0;
   std::vector<int32_t> all(static_cast<size_t>(num_nodes_));
   for (int32_t n = 0; n < num_nodes_; ++n) all[static_cast<size_t>(n)] = n;
   RecomputeNodeMasses(all);
@@ -202,7 +205,7 @@ void Model<T>::reserve_nodes(int32_t capacity) {
   node_mass_.resize(NC, T(0));
   fixed_.resize(NC, 0);
   prescribed_force_.resize(3 * NC, T(0));
-  inc_offsets_.resize(NC + 1, inc_offsets_[static_cast<size_t>(num_nodes_)]);
+  inc_range_.resize(2 * NC, inc_tail_);
 }
 
 template <typename T>
@@ -222,6 +225,7 @@ int32_t Model<T>::AddNodeCopy(int32_t node, State<T>& state) {
   }
   fixed_[n] = fixed_[node];
   node_mass_[n] = T(0);
+  inc_range_[2 * n] = inc_range_[2 * n + 1] = inc_tail_;  // empty range
   topology_dirty_ = true;
   return n;
 }
@@ -230,8 +234,13 @@ template <typename T>
 void Model<T>::RetargetTet(int32_t t, int corner, int32_t new_node) {
   CUTSIM_CHECK(t >= 0 && t < num_tets_ && corner >= 0 && corner < 4, "RetargetTet: bad tet/corner");
   CUTSIM_CHECK(new_node >= 0 && new_node < num_nodes_, "RetargetTet: node out of range");
+  const int32_t old_node = tets_[4 * t + corner];
   tets_[4 * t + corner] = new_node;
   topology_dirty_ = true;
+  if (old_node == new_node) return;
+  const int32_t slot = 12 * t + 3 * corner;
+  RemoveIncidence(old_node, slot);
+  AddIncidence(new_node, slot);
 }
 
 template <typename T>
@@ -254,12 +263,12 @@ int Model<T>::RecomputeElements(std::span<const int32_t> tets) {
 
 template <typename T>
 void Model<T>::RecomputeNodeMasses(std::span<const int32_t> nodes) {
-  if (topology_dirty_) CommitTopology();
+  if (topology_dirty_) CommitTopology();  // O(1): the incidence is already current
   for (const int32_t n : nodes) {
     CUTSIM_CHECK(n >= 0 && n < num_nodes_, "RecomputeNodeMasses: node out of range");
     // Sum in double so repeated splits keep Σ node mass = Σ element mass.
     double m = 0;
-    for (int32_t k = inc_offsets_[n]; k < inc_offsets_[n + 1]; ++k) {
+    for (int32_t k = inc_range_[2 * n]; k < inc_range_[2 * n + 1]; ++k) {
       m += static_cast<double>(element_mass_[inc_slots_[k] / 12]) / 4.0;
     }
     node_mass_[n] = static_cast<T>(m);
@@ -268,29 +277,74 @@ void Model<T>::RecomputeNodeMasses(std::span<const int32_t> nodes) {
 
 template <typename T>
 void Model<T>::CommitTopology() {
-  RebuildIncidence();
   topology_dirty_ = false;
   ++topology_version_;
+}
+
+template <typename T>
+void Model<T>::RemoveIncidence(int32_t node, int32_t slot) {
+  // In place, keeping the range ascending: O(degree).
+  int32_t* begin = inc_slots_.data() + inc_range_[2 * node];
+  int32_t* end = inc_slots_.data() + inc_range_[2 * node + 1];
+  int32_t* at = std::find(begin, end, slot);
+  CUTSIM_CHECK(at != end, "incidence: slot missing from its node");
+  std::copy(at + 1, end, at);
+  --inc_range_[2 * node + 1];
+}
+
+template <typename T>
+void Model<T>::AddIncidence(int32_t node, int32_t slot) {
+  const int32_t begin = inc_range_[2 * node], end = inc_range_[2 * node + 1];
+  const int32_t degree = end - begin;
+  const auto capacity = static_cast<int32_t>(inc_slots_.size());
+  if (end != inc_tail_) {
+    // Not at the tail: move the range there so it can grow.
+    if (inc_tail_ + degree + 1 > capacity) {
+      RebuildIncidence();  // tets_ already holds the new corner
+      return;
+    }
+    std::copy(inc_slots_.begin() + begin, inc_slots_.begin() + end, inc_slots_.begin() + inc_tail_);
+    inc_range_[2 * node] = inc_tail_;
+    inc_range_[2 * node + 1] = inc_tail_ + degree;
+    inc_tail_ += degree;
+  } else if (inc_tail_ + 1 > capacity) {
+    RebuildIncidence();
+    return;
+  }
+  // Insert sorted (ascending slots: the gather reads element forces in order).
+  int32_t* first = inc_slots_.data() + inc_range_[2 * node];
+  int32_t* last = inc_slots_.data() + inc_range_[2 * node + 1];
+  int32_t* at = std::upper_bound(first, last, slot);
+  std::copy_backward(at, last, last + 1);
+  *at = slot;
+  ++inc_range_[2 * node + 1];
+  ++inc_tail_;
 }
 
 template <typename T>
 void Model<T>::RebuildIncidence() {
   // Counting sort of the 4·T (tet, corner) slots by node: no allocation,
   // and each node's slots come out in increasing tet order (cache friendly).
-  std::fill(inc_offsets_.begin(), inc_offsets_.begin() + num_nodes_ + 1, 0);
+  // Ends are counted in the end entries, then turned into begins.
+  for (int32_t n = 0; n < num_nodes_; ++n) inc_range_[2 * n + 1] = 0;
   for (int32_t t = 0; t < num_tets_; ++t) {
-    for (int c = 0; c < 4; ++c) ++inc_offsets_[tets_[4 * t + c] + 1];
+    for (int c = 0; c < 4; ++c) ++inc_range_[2 * tets_[4 * t + c] + 1];
   }
-  for (int32_t n = 0; n < num_nodes_; ++n) inc_offsets_[n + 1] += inc_offsets_[n];
+  int32_t running = 0;
+  for (int32_t n = 0; n < num_nodes_; ++n) {
+    const int32_t degree = inc_range_[2 * n + 1];
+    inc_range_[2 * n] = inc_range_[2 * n + 1] = running;  // end advances as slots are placed
+    running += degree;
+  }
   for (int32_t t = 0; t < num_tets_; ++t) {
     for (int c = 0; c < 4; ++c) {
       const int32_t n = tets_[4 * t + c];
-      inc_slots_[inc_offsets_[n]++] = 12 * t + 3 * c;
+      inc_slots_[static_cast<size_t>(inc_range_[2 * n + 1]++)] = 12 * t + 3 * c;
     }
   }
-  for (int32_t n = num_nodes_; n > 0; --n) inc_offsets_[n] = inc_offsets_[n - 1];
-  inc_offsets_[0] = 0;
-  for (int32_t n = num_nodes_ + 1; n <= node_capacity_; ++n) inc_offsets_[n] = inc_offsets_[num_nodes_];
+  inc_tail_ = running;
+  for (int32_t n = num_nodes_; n < node_capacity_; ++n) inc_range_[2 * n] = inc_range_[2 * n + 1] = inc_tail_;
+  ++inc_compactions_;
 }
 
 template <typename T>
@@ -307,6 +361,8 @@ State<T>::State(const Model<T>& model) {
   cg_r.assign(NC, T(0));
   cg_p.assign(NC, T(0));
   cg_q.assign(NC, T(0));
+  cg_precond.assign(2 * NC, T(0));
+  viscous_dv.assign(NC, T(0));
   lanczos_prev.assign(NC, T(0));
   lanczos_q.assign(NC, T(0));
   lanczos_w.assign(NC, T(0));

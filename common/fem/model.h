@@ -119,11 +119,21 @@ class Model {
   void SetPrescribedForce(int32_t node, const Vec3<T>& f);
   [[nodiscard]] const T* prescribed_forces() const { return prescribed_force_.data(); }  // #N×3
 
-  // ---- node → element incidence (CSR) -------------------------------------
-  /// Entries of node n are slots [offsets[n], offsets[n+1]); a slot is
-  /// 12·t + 3·corner, the node's place in the #T×12 element-force buffer.
-  [[nodiscard]] const int32_t* incidence_offsets() const { return inc_offsets_.data(); }  // #N+1
-  [[nodiscard]] const int32_t* incidence_slots() const { return inc_slots_.data(); }      // 4·#T
+  // ---- node → element incidence ------------------------------------------
+  /// Entries of node n are slots [ranges[2n], ranges[2n+1]) of
+  /// incidence_slots(); a slot is 12·t + 3·corner, the node's place in the
+  /// #T×12 element-force buffer. Built compact (CSR order, ascending tets);
+  /// cutting edits it locally: RetargetTet removes the slot from the old
+  /// node's range in place and moves the new node's range to an append
+  /// region at the end of the slot array (O(degree)). When that region is
+  /// full the whole array is compacted again (O(T), amortised over ≥ T/2
+  /// retargets).
+  [[nodiscard]] const int32_t* incidence_ranges() const { return inc_range_.data(); }  // #N_cap×2
+  [[nodiscard]] const int32_t* incidence_slots() const { return inc_slots_.data(); }   // 4·#T + slack
+  [[nodiscard]] int32_t incidence_begin(int32_t n) const { return inc_range_[2 * n]; }
+  [[nodiscard]] int32_t incidence_end(int32_t n) const { return inc_range_[2 * n + 1]; }
+  /// How many times the incidence was compacted since construction.
+  [[nodiscard]] int64_t incidence_compactions() const { return inc_compactions_; }
   [[nodiscard]] bool topology_dirty() const { return topology_dirty_; }
   [[nodiscard]] uint64_t topology_version() const { return topology_version_; }
 
@@ -143,16 +153,18 @@ class Model {
   /// became non-positive (a degenerate cut) gets zero stiffness (vol = 0,
   /// Dm⁻¹ = 0) so it can never produce NaN; returns how many did.
   int RecomputeElements(std::span<const int32_t> tets);
-  /// node mass = Σ element_mass/4 over the node's incident tets (rebuilds
-  /// the incidence first if topology is dirty).
+  /// node mass = Σ element_mass/4 over the node's incident tets (commits
+  /// the topology first if it is dirty).
   void RecomputeNodeMasses(std::span<const int32_t> nodes);
-  /// Rebuilds the incidence after RetargetTet/AddNodeCopy (no allocation:
-  /// storage is sized by capacity) and bumps topology_version().
+  /// Ends a batch of RetargetTet/AddNodeCopy: bumps topology_version(). The
+  /// incidence is already current (kept up to date locally, see above).
   void CommitTopology();
 
  private:
   void ComputeElement(int32_t t, bool* degenerate);
   void RebuildIncidence();
+  void RemoveIncidence(int32_t node, int32_t slot);
+  void AddIncidence(int32_t node, int32_t slot);
 
   int32_t num_nodes_ = 0;
   int32_t node_capacity_ = 0;
@@ -169,8 +181,10 @@ class Model {
   std::vector<T> node_mass_;       // #N_cap, kg
   std::vector<uint8_t> fixed_;     // #N_cap
   std::vector<T> prescribed_force_;  // #N_cap×3, N
-  std::vector<int32_t> inc_offsets_;  // #N_cap+1
-  std::vector<int32_t> inc_slots_;    // 4·#T
+  std::vector<int32_t> inc_range_;    // #N_cap×2: begin, end
+  std::vector<int32_t> inc_slots_;    // 4·#T + append region
+  int32_t inc_tail_ = 0;              // first unused entry of inc_slots_
+  int64_t inc_compactions_ = 0;
   Vec3<T> gravity_ = Vec3<T>::Zero();  // m/s²
   T inversion_det_threshold_ = T(0.3);
   T min_singular_value_ = T(0.3);

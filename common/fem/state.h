@@ -30,6 +30,12 @@ struct State {
   std::vector<T> element_force;  ///< Per-element nodal forces.  // #T_pad×12
   std::vector<T> v_star;         ///< Implicit viscous: explicit predictor.  // #N_cap×3
   std::vector<T> cg_r, cg_p, cg_q;  ///< Implicit viscous CG vectors.  // #N_cap×3
+  /// Implicit viscous: inverse of each node's 3×3 diagonal block of
+  /// M + dt·C (block-Jacobi preconditioner), symmetric xx yy zz xy xz yz.  // #N_cap×6
+  std::vector<T> cg_precond;
+  /// Implicit viscous: the last step's correction v⁺ − v* (the warm start of
+  /// the next solve; not scratch: kept between steps, 0 initially).  // #N_cap×3
+  std::vector<T> viscous_dv;
 
   // ---- stable time step ----------------------------------------------------
   /// Unscaled stable step bound per element (stable_dt.h), s.  // #T_pad

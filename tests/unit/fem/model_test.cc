@@ -98,7 +98,7 @@ TEST(FemModel, SplitConservesMassExactly) {
   for (int t = 0; t < model.num_tets(); ++t) elem_total += model.element_mass(t);
   EXPECT_NEAR(model.TotalMass(), elem_total, 1e-14 * m0);  // summation order only
   // Incidence: every slot of the copy points at a retargeted corner.
-  for (int k = model.incidence_offsets()[copy]; k < model.incidence_offsets()[copy + 1]; ++k) {
+  for (int k = model.incidence_begin(copy); k < model.incidence_end(copy); ++k) {
     const int slot = model.incidence_slots()[k];
     EXPECT_EQ(model.tet_node(slot / 12, (slot % 12) / 3), copy);
   }
