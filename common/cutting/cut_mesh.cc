@@ -151,6 +151,19 @@ mesh::Triangles CutMesh::SurfaceTriangles(std::vector<uint8_t>* opened) const {
   return tris;
 }
 
+int32_t CutMesh::SurfaceSlot(int32_t t, int f) const {
+  const auto it = faces_.find(FaceKeyOf(t, f));
+  if (it == faces_.end() || it->second.tets[1] >= 0) return -1;
+  return it->second.slot;
+}
+
+std::array<int32_t, 3> CutMesh::SurfaceTriangle(int32_t slot) const {
+  const SurfaceFace& s = surface_[Idx(slot)];
+  const auto lf = mesh::LocalTetFace(s.local_face);
+  const auto& n = tets_[Idx(s.tet)];
+  return {n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]};
+}
+
 std::vector<int32_t> CutMesh::ContactElements(int32_t node, int32_t facet_tet) const {
   std::vector<int32_t> out;
   if (node >= 0 && node < num_nodes()) out = node_tets_[Idx(node)];
@@ -186,6 +199,7 @@ int32_t CutMesh::NewSlot(int32_t t, int f, bool opened) {
   }
   surface_[Idx(slot)] = SurfaceFace{t, static_cast<int8_t>(f), opened, true};
   ++num_surface_;
+  if (track_slots_) changed_slots_.push_back(slot);
   return slot;
 }
 
@@ -193,6 +207,7 @@ void CutMesh::FreeSlot(int32_t slot) {
   surface_[Idx(slot)].alive = false;
   free_slots_.push_back(slot);
   --num_surface_;
+  if (track_slots_) changed_slots_.push_back(slot);
 }
 
 bool CutMesh::RemoveFaceTet(const Key& key, int32_t t) {

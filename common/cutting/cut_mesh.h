@@ -152,6 +152,19 @@ class CutMesh {
   /// renderers while a face lives.
   [[nodiscard]] const std::vector<SurfaceFace>& surface_slots() const { return surface_; }
   [[nodiscard]] int32_t num_surface_faces() const { return num_surface_; }
+  /// Surface slot of local face `f` (opposite corner f) of tet `t`, −1 if
+  /// the face is interior.
+  [[nodiscard]] int32_t SurfaceSlot(int32_t t, int f) const;
+  /// Nodes of surface slot `slot` (alive), outward.
+  [[nodiscard]] std::array<int32_t, 3> SurfaceTriangle(int32_t slot) const;
+  /// Change log for incremental consumers (the sim's BVH and surface):
+  /// while on, every slot created or freed is appended (duplicates
+  /// possible); TakeChangedSlots hands the log over and clears it.
+  void set_track_slot_changes(bool on) { track_slots_ = on; }
+  void TakeChangedSlots(std::vector<int32_t>& out) {
+    out.clear();
+    out.swap(changed_slots_);
+  }
   /// Live surface triangles, outward (counter-clockwise seen from outside),
   /// in slot order; `opened` (optional) receives the per-triangle flag.
   [[nodiscard]] mesh::Triangles SurfaceTriangles(std::vector<uint8_t>* opened = nullptr) const;
@@ -246,6 +259,8 @@ class CutMesh {
   uint64_t version_ = 0;
   std::vector<Op> journal_;
   bool journaling_ = false;
+  std::vector<int32_t> changed_slots_;
+  bool track_slots_ = false;
 };
 
 /// Face-connected components of any tet list (two tets are connected when

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 
+#include "common/core/error.h"
+
 namespace cutsim::mesh {
 
 using Eigen::Vector3d;
@@ -98,66 +100,113 @@ bool SegmentHitsBox(const Vector3d& a, const Vector3d& inv_dir, double t_max, co
 
 }  // namespace
 
-TriangleBvh::TriangleBvh(const Positions& positions, const Triangles& tris)
-    : tris_(tris), positions_(positions) {
-  const auto num_tris = static_cast<int32_t>(tris.rows());
-  order_.resize(static_cast<size_t>(num_tris));
-  std::vector<Vector3d> centroids(static_cast<size_t>(num_tris));
-  for (int32_t f = 0; f < num_tris; ++f) {
-    order_[static_cast<size_t>(f)] = f;
-    centroids[static_cast<size_t>(f)] = (Corner(f, 0) + Corner(f, 1) + Corner(f, 2)) / 3.0;
-  }
-  if (num_tris == 0) return;
-  nodes_.reserve(static_cast<size_t>(2 * (num_tris / kLeafSize + 1)));
-  nodes_.emplace_back();
-  BuildRange(0, 0, num_tris, centroids, 0);
-  Refit(positions);
+TriangleBvh::TriangleBvh(const Positions& positions, const Triangles& tris) : positions_(positions) {
+  tris_.resize(static_cast<size_t>(tris.rows()));
+  for (int32_t f = 0; f < tris.rows(); ++f) tris_[static_cast<size_t>(f)] = {tris(f, 0), tris(f, 1), tris(f, 2)};
+  Build();
+  rebuilds_ = 0;
 }
 
-void TriangleBvh::BuildRange(int32_t self, int32_t begin, int32_t end, std::vector<Vector3d>& centroids,
-                             int depth) {
-  if (end - begin <= kLeafSize || depth >= kMaxDepth - 1) {
-    nodes_[static_cast<size_t>(self)].first = begin;
+void TriangleBvh::Build() {
+  ++rebuilds_;
+  inserted_since_build_ = 0;
+  nodes_.clear();
+  order_.clear();
+  leaf_of_.assign(tris_.size(), -1);
+  pos_of_.assign(tris_.size(), -1);
+  std::vector<int32_t> ids;
+  ids.reserve(tris_.size());
+  std::vector<Vector3d> centroids(tris_.size(), Vector3d::Zero());
+  for (size_t f = 0; f < tris_.size(); ++f) {
+    if (tris_[f][0] < 0) continue;
+    ids.push_back(static_cast<int32_t>(f));
+    const auto i = static_cast<int32_t>(f);
+    centroids[f] = (Corner(i, 0) + Corner(i, 1) + Corner(i, 2)) / 3.0;
+  }
+  num_live_ = static_cast<int32_t>(ids.size());
+  if (ids.empty()) return;
+  const size_t leaves = ids.size() / kLeafSize + 2;
+  nodes_.reserve(2 * leaves);
+  order_.reserve(kLeafCapacity * leaves);
+  nodes_.emplace_back();
+  BuildRange(0, 0, num_live_, ids, centroids, 0);
+  Refit(positions_);
+}
+
+int32_t TriangleBvh::NewLeaf(std::span<const int32_t> ids) {
+  const auto first = static_cast<int32_t>(order_.size());
+  order_.resize(order_.size() + kLeafCapacity, -1);
+  const auto self = static_cast<int32_t>(nodes_.size());
+  nodes_.emplace_back();
+  for (size_t k = 0; k < ids.size(); ++k) {
+    order_[static_cast<size_t>(first) + k] = ids[k];
+    leaf_of_[static_cast<size_t>(ids[k])] = self;
+    pos_of_[static_cast<size_t>(ids[k])] = first + static_cast<int32_t>(k);
+  }
+  nodes_.back().first = first;
+  nodes_.back().count = static_cast<int32_t>(ids.size());
+  return self;
+}
+
+void TriangleBvh::BuildRange(int32_t self, int32_t begin, int32_t end, std::vector<int32_t>& ids,
+                             const std::vector<Vector3d>& centroids, int depth) {
+  if (end - begin <= kLeafSize || depth >= kMaxDepth - 2) {
+    // Leaves are created in place of `self`: move the node's slot to a leaf.
+    const auto first = static_cast<int32_t>(order_.size());
+    order_.resize(order_.size() + static_cast<size_t>(std::max<int32_t>(kLeafCapacity, end - begin)), -1);
+    for (int32_t i = begin; i < end; ++i) {
+      const int32_t id = ids[static_cast<size_t>(i)];
+      order_[static_cast<size_t>(first + i - begin)] = id;
+      leaf_of_[static_cast<size_t>(id)] = self;
+      pos_of_[static_cast<size_t>(id)] = first + i - begin;
+    }
+    nodes_[static_cast<size_t>(self)].first = first;
     nodes_[static_cast<size_t>(self)].count = end - begin;
     return;
   }
   Vector3d lo = Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
   for (int32_t i = begin; i < end; ++i) {
-    const auto& c = centroids[static_cast<size_t>(order_[static_cast<size_t>(i)])];
+    const auto& c = centroids[static_cast<size_t>(ids[static_cast<size_t>(i)])];
     lo = lo.cwiseMin(c);
     hi = hi.cwiseMax(c);
   }
   int axis = 0;
   (hi - lo).maxCoeff(&axis);
   const int32_t mid = begin + (end - begin) / 2;
-  std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end,
+  std::nth_element(ids.begin() + begin, ids.begin() + mid, ids.begin() + end,
                    [&](int32_t x, int32_t y) {
                      return centroids[static_cast<size_t>(x)][axis] < centroids[static_cast<size_t>(y)][axis];
                    });
   const auto left = static_cast<int32_t>(nodes_.size());
   nodes_[static_cast<size_t>(self)].first = left;
-  nodes_[static_cast<size_t>(self)].count = 0;
+  nodes_[static_cast<size_t>(self)].count = -1;
   nodes_.emplace_back();  // children are allocated together, after their parent
   nodes_.emplace_back();
-  BuildRange(left, begin, mid, centroids, depth + 1);
-  BuildRange(left + 1, mid, end, centroids, depth + 1);
+  BuildRange(left, begin, mid, ids, centroids, depth + 1);
+  BuildRange(left + 1, mid, end, ids, centroids, depth + 1);
 }
 
-void TriangleBvh::Refit(const Positions& positions) {
-  positions_ = positions;  // same size: Eigen reuses the storage
+void TriangleBvh::LeafBox(Node& n) const {
+  n.lo = Vector3d::Constant(std::numeric_limits<double>::infinity());
+  n.hi = -n.lo;
+  for (int32_t k = n.first; k < n.first + n.count; ++k) {
+    const int32_t f = order_[static_cast<size_t>(k)];
+    for (int c = 0; c < 3; ++c) {
+      n.lo = n.lo.cwiseMin(Corner(f, c));
+      n.hi = n.hi.cwiseMax(Corner(f, c));
+    }
+  }
+}
+
+void TriangleBvh::Refit(const Positions& positions, int32_t num_rows) {
+  const Eigen::Index rows = num_rows < 0 ? positions.rows() : num_rows;
+  if (positions_.rows() < rows) positions_.resize(std::max<Eigen::Index>(rows, positions.rows()), 3);
+  positions_.topRows(rows) = positions.topRows(rows);  // no allocation once sized
   // Children come after parents, so a reverse sweep sees children first.
   for (auto i = static_cast<int64_t>(nodes_.size()) - 1; i >= 0; --i) {
     Node& n = nodes_[static_cast<size_t>(i)];
-    if (n.count > 0) {
-      n.lo = Vector3d::Constant(std::numeric_limits<double>::infinity());
-      n.hi = -n.lo;
-      for (int32_t k = n.first; k < n.first + n.count; ++k) {
-        const int32_t f = order_[static_cast<size_t>(k)];
-        for (int c = 0; c < 3; ++c) {
-          n.lo = n.lo.cwiseMin(Corner(f, c));
-          n.hi = n.hi.cwiseMax(Corner(f, c));
-        }
-      }
+    if (n.count >= 0) {
+      LeafBox(n);
     } else {
       const Node& l = nodes_[static_cast<size_t>(n.first)];
       const Node& r = nodes_[static_cast<size_t>(n.first) + 1];
@@ -165,6 +214,123 @@ void TriangleBvh::Refit(const Positions& positions) {
       n.hi = l.hi.cwiseMax(r.hi);
     }
   }
+}
+
+void TriangleBvh::Remove(int32_t id) {
+  if (!alive(id)) return;
+  const auto i = static_cast<size_t>(id);
+  const int32_t leaf = leaf_of_[i];
+  Node& n = nodes_[static_cast<size_t>(leaf)];
+  const int32_t last = n.first + n.count - 1;
+  const int32_t moved = order_[static_cast<size_t>(last)];
+  order_[static_cast<size_t>(pos_of_[i])] = moved;
+  pos_of_[static_cast<size_t>(moved)] = pos_of_[i];
+  order_[static_cast<size_t>(last)] = -1;
+  --n.count;
+  leaf_of_[i] = -1;
+  pos_of_[i] = -1;
+  tris_[i][0] = -1;
+  --num_live_;
+}
+
+void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Positions& positions) {
+  CUTSIM_CHECK(id >= 0 && tri[0] >= 0 && tri[1] >= 0 && tri[2] >= 0, "TriangleBvh::Insert: bad id or node");
+  Remove(id);
+  const auto i = static_cast<size_t>(id);
+  if (i >= tris_.size()) {
+    tris_.resize(i + 1, {-1, -1, -1});
+    leaf_of_.resize(i + 1, -1);
+    pos_of_.resize(i + 1, -1);
+  }
+  const int32_t max_node = std::max({tri[0], tri[1], tri[2]});
+  if (positions_.rows() <= max_node) {
+    Positions grown(std::max<Eigen::Index>(positions.rows(), max_node + 1), 3);
+    grown.topRows(positions_.rows()) = positions_;
+    positions_ = std::move(grown);
+  }
+  for (const int32_t v : tri) positions_.row(v) = positions.row(v);
+  tris_[i] = tri;
+  ++num_live_;
+  ++inserted_since_build_;
+  if (nodes_.empty() || inserted_since_build_ > std::max(64, num_live_ / 2)) {
+    Build();  // amortised: paid by the insertions since the last build
+    return;
+  }
+  Vector3d lo = Corner(id, 0).cwiseMin(Corner(id, 1)).cwiseMin(Corner(id, 2));
+  Vector3d hi = Corner(id, 0).cwiseMax(Corner(id, 1)).cwiseMax(Corner(id, 2));
+  const Vector3d centre = 0.5 * (lo + hi);
+  auto area = [](const Vector3d& l, const Vector3d& h) {
+    const Vector3d e = (h - l).cwiseMax(0.0);
+    return e.x() * e.y() + e.y() * e.z() + e.z() * e.x();
+  };
+  int32_t at = 0;
+  int depth = 0;
+  while (true) {
+    Node& n = nodes_[static_cast<size_t>(at)];
+    const bool empty = !(n.lo.x() <= n.hi.x());
+    n.lo = empty ? lo : n.lo.cwiseMin(lo);
+    n.hi = empty ? hi : n.hi.cwiseMax(hi);
+    if (n.count >= 0) break;
+    // Least growth of the surface area; ties (e.g. both contain it) by distance to the box centre.
+    double best_growth = std::numeric_limits<double>::infinity();
+    double best_distance = best_growth;
+    int32_t pick = n.first;
+    for (int32_t c = n.first; c <= n.first + 1; ++c) {
+      const Node& ch = nodes_[static_cast<size_t>(c)];
+      const bool ch_empty = !(ch.lo.x() <= ch.hi.x());
+      const double growth =
+          ch_empty ? area(lo, hi) : area(ch.lo.cwiseMin(lo), ch.hi.cwiseMax(hi)) - area(ch.lo, ch.hi);
+      const double distance = ch_empty ? best_distance : (0.5 * (ch.lo + ch.hi) - centre).squaredNorm();
+      if (growth < best_growth || (growth == best_growth && distance < best_distance)) {
+        best_growth = growth;
+        best_distance = distance;
+        pick = c;
+      }
+    }
+    CUTSIM_CHECK(pick > at, "TriangleBvh::Insert: children must follow their parent");
+    at = pick;
+    if (++depth >= kMaxDepth - 2) {  // too deep for the traversal stack: rebuild (rare)
+      Build();
+      return;
+    }
+  }
+  Node& leaf = nodes_[static_cast<size_t>(at)];
+  if (leaf.count < kLeafCapacity) {
+    const int32_t p = leaf.first + leaf.count++;
+    order_[static_cast<size_t>(p)] = id;
+    leaf_of_[i] = at;
+    pos_of_[i] = p;
+    return;
+  }
+  if (leaf.count > kLeafCapacity || depth + 2 >= kMaxDepth - 1) {
+    Build();
+    return;
+  }
+  // Split the full leaf: its ids and the new one, halved at the median
+  // along the longest centroid extent, into two new leaves.
+  std::array<int32_t, kLeafCapacity + 1> ids{};
+  for (int k = 0; k < kLeafCapacity; ++k) ids[static_cast<size_t>(k)] = order_[static_cast<size_t>(leaf.first + k)];
+  ids[kLeafCapacity] = id;
+  auto centroid = [&](int32_t f) -> Vector3d { return (Corner(f, 0) + Corner(f, 1) + Corner(f, 2)) / 3.0; };
+  Vector3d clo = Vector3d::Constant(std::numeric_limits<double>::infinity()), chi = -clo;
+  for (const int32_t f : ids) {
+    clo = clo.cwiseMin(centroid(f));
+    chi = chi.cwiseMax(centroid(f));
+  }
+  int axis = 0;
+  (chi - clo).maxCoeff(&axis);
+  constexpr size_t kMid = (kLeafCapacity + 1) / 2;
+  std::nth_element(ids.begin(), ids.begin() + kMid, ids.end(),
+                   [&](int32_t x, int32_t y) { return centroid(x)[axis] < centroid(y)[axis]; });
+  // The old leaf's order_ segment is abandoned (reclaimed at the next build).
+  const int32_t left = NewLeaf(std::span<const int32_t>(ids.data(), kMid));
+  const int32_t right = NewLeaf(std::span<const int32_t>(ids.data() + kMid, ids.size() - kMid));
+  CUTSIM_CHECK(right == left + 1, "TriangleBvh: children must be adjacent");
+  LeafBox(nodes_[static_cast<size_t>(left)]);
+  LeafBox(nodes_[static_cast<size_t>(right)]);
+  Node& parent = nodes_[static_cast<size_t>(at)];  // nodes_ may have moved
+  parent.first = left;
+  parent.count = -1;
 }
 
 std::optional<ClosestPointHit> TriangleBvh::ClosestPoint(const Vector3d& q, double radius) const {
@@ -177,7 +343,7 @@ std::optional<ClosestPointHit> TriangleBvh::ClosestPoint(const Vector3d& q, doub
   while (top > 0) {
     const Node& n = nodes_[static_cast<size_t>(stack[static_cast<size_t>(--top)])];
     if (BoxDistance2(q, n.lo, n.hi) > best_d2) continue;
-    if (n.count > 0) {
+    if (n.count >= 0) {
       for (int32_t k = n.first; k < n.first + n.count; ++k) {
         const int32_t f = order_[static_cast<size_t>(k)];
         ClosestPointHit hit = ClosestPointOnTriangle(q, Corner(f, 0), Corner(f, 1), Corner(f, 2));
@@ -210,8 +376,8 @@ static void ForEachSegmentCandidate(const std::vector<int32_t>& order, const aut
   stack[static_cast<size_t>(top++)] = 0;
   while (top > 0) {
     const auto& n = nodes[static_cast<size_t>(stack[static_cast<size_t>(--top)])];
-    if (!SegmentHitsBox(a, inv_dir, 1.0, n.lo, n.hi)) continue;
-    if (n.count > 0) {
+    if (!(n.lo.x() <= n.hi.x()) || !SegmentHitsBox(a, inv_dir, 1.0, n.lo, n.hi)) continue;  // empty box
+    if (n.count >= 0) {
       for (int32_t k = n.first; k < n.first + n.count; ++k) visit(order[static_cast<size_t>(k)]);
     } else {
       stack[static_cast<size_t>(top++)] = n.first;
@@ -254,7 +420,7 @@ void TriangleBvh::QueryBox(const Vector3d& lo, const Vector3d& hi, std::vector<i
   while (top > 0) {
     const Node& n = nodes_[static_cast<size_t>(stack[static_cast<size_t>(--top)])];
     if (!overlaps(n.lo, n.hi)) continue;
-    if (n.count > 0) {
+    if (n.count >= 0) {
       for (int32_t k = n.first; k < n.first + n.count; ++k) {
         const int32_t f = order_[static_cast<size_t>(k)];
         const Vector3d tl = Corner(f, 0).cwiseMin(Corner(f, 1)).cwiseMin(Corner(f, 2));

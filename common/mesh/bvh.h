@@ -1,10 +1,13 @@
 #pragma once
 /// @file
-/// Axis-aligned bounding-box tree over surface triangles: built once per
-/// topology, refitted every step in O(F) without allocation, queried by the
-/// tool-contact and blade code.
+/// Axis-aligned bounding-box tree over surface triangles: built once,
+/// refitted every step in O(F) without allocation, queried by the
+/// tool-contact and blade code, and edited locally when a cut changes the
+/// surface (`Remove`/`Insert` by triangle id, amortised O(log F)).
 
+#include <array>
 #include <cstdint>
+#include <span>
 #include <optional>
 #include <vector>
 
@@ -41,16 +44,44 @@ std::optional<SegmentHit> IntersectSegmentTriangle(const Eigen::Vector3d& a, con
                                                    const Eigen::Vector3d& p0, const Eigen::Vector3d& p1,
                                                    const Eigen::Vector3d& p2);
 
-/// AABB tree over triangles. Triangle indices refer to the `tris` given at build.
+/// AABB tree over triangles. Triangle ids are the rows of the `tris` given
+/// at build; a row whose first index is negative is a dead id (not in the
+/// tree). Ids stay stable under Remove/Insert, so a caller can index the
+/// tree by its own slot numbers (e.g. CutMesh surface slots).
+///
+/// Local edits: Remove(id) takes the id out of its leaf in O(1) (boxes stay
+/// conservative until the next Refit). Insert(id, tri) descends from the
+/// root into the child whose box grows least (enlarging boxes on the way,
+/// so the tree is valid at once) and appends to a leaf, which has room for
+/// kLeafCapacity ids; a full leaf splits into two new leaves at its median.
+/// After more insertions than half the live triangles (≥ 64), or a path
+/// deeper than the traversal stack allows, the tree is rebuilt from
+/// scratch: amortised O(log F) per insertion.
 class TriangleBvh {
  public:
   TriangleBvh() = default;
   /// Builds the tree (median split along the longest centroid extent, ≤ 4
-  /// triangles per leaf). `positions` #N×3, `tris` #F×3.
+  /// triangles per leaf). `positions` #N×3, `tris` #F×3 (rows with a
+  /// negative first index are dead ids).
   TriangleBvh(const Positions& positions, const Triangles& tris);
 
-  /// Recomputes all boxes for moved nodes (same topology). O(F), no allocation.
-  void Refit(const Positions& positions);
+  /// Recomputes all boxes for moved nodes (same topology). O(F), no
+  /// allocation once the first `num_rows` rows (−1: all) of `positions` fit
+  /// the tree's copy.
+  void Refit(const Positions& positions, int32_t num_rows = -1);
+
+  /// Takes triangle `id` out of the tree (no-op for a dead id).
+  void Remove(int32_t id);
+  /// Puts triangle `id` (any id ≥ 0; the id space grows as needed) with
+  /// nodes `tri` into the tree, replacing what `id` held. Reads the three
+  /// nodes' rows of `positions`.
+  void Insert(int32_t id, const std::array<int32_t, 3>& tri, const Positions& positions);
+  /// Whether `id` is in the tree.
+  [[nodiscard]] bool alive(int32_t id) const {
+    return id >= 0 && id < static_cast<int32_t>(tris_.size()) && tris_[static_cast<size_t>(id)][0] >= 0;
+  }
+  /// Full rebuilds so far (construction excluded).
+  [[nodiscard]] int64_t rebuilds() const { return rebuilds_; }
 
   /// Closest surface point to `q` no farther than `radius`, or nullopt.
   [[nodiscard]] std::optional<ClosestPointHit> ClosestPoint(const Eigen::Vector3d& q, double radius) const;
@@ -64,25 +95,39 @@ class TriangleBvh {
   /// Triangles whose bounding box overlaps [lo, hi]; `out` is cleared first.
   void QueryBox(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, std::vector<int32_t>& out) const;
 
-  [[nodiscard]] int32_t num_triangles() const { return static_cast<int32_t>(tris_.rows()); }
+  /// Size of the id space (live and dead ids).
+  [[nodiscard]] int32_t num_triangles() const { return static_cast<int32_t>(tris_.size()); }
+  [[nodiscard]] int32_t num_live_triangles() const { return num_live_; }
   [[nodiscard]] int32_t num_nodes() const { return static_cast<int32_t>(nodes_.size()); }
 
  private:
   struct Node {
-    Eigen::Vector3d lo, hi;  // box, m
+    Eigen::Vector3d lo, hi;  // box, m (empty: lo > hi)
     int32_t first = 0;       // leaf: first index into order_; inner: left child (right = first + 1)
-    int32_t count = 0;       // leaf: number of triangles; inner: 0
+    int32_t count = 0;       // leaf: number of triangles (≥ 0); inner: −1
   };
-  static constexpr int kLeafSize = 4;
-  static constexpr int kMaxDepth = 64;  // the traversal stack is a fixed array
+  static constexpr int kLeafSize = 4;      // at build
+  static constexpr int kLeafCapacity = 8;  // room in order_ per leaf, for inserts
+  static constexpr int kMaxDepth = 64;     // the traversal stack is a fixed array
 
-  void BuildRange(int32_t self, int32_t begin, int32_t end, std::vector<Eigen::Vector3d>& centroids, int depth);
-  Eigen::Vector3d Corner(int32_t f, int k) const { return positions_.row(tris_(f, k)).transpose(); }
+  void Build();
+  void BuildRange(int32_t self, int32_t begin, int32_t end, std::vector<int32_t>& ids,
+                  const std::vector<Eigen::Vector3d>& centroids, int depth);
+  int32_t NewLeaf(std::span<const int32_t> ids);
+  void LeafBox(Node& n) const;
+  Eigen::Vector3d Corner(int32_t f, int k) const {
+    return positions_.row(tris_[static_cast<size_t>(f)][static_cast<size_t>(k)]).transpose();
+  }
 
-  Triangles tris_;                // #F×3
+  std::vector<std::array<int32_t, 3>> tris_;  // #ids; [0] < 0: dead
   Positions positions_;           // #N×3 copy of the last build/refit positions
-  std::vector<int32_t> order_;    // #F triangle rows, grouped by leaf
+  std::vector<int32_t> order_;    // kLeafCapacity entries per leaf, the first `count` used
   std::vector<Node> nodes_;       // children always after their parent
+  std::vector<int32_t> leaf_of_;  // #ids: leaf node holding the id (−1: none)
+  std::vector<int32_t> pos_of_;   // #ids: index in order_
+  int32_t num_live_ = 0;
+  int32_t inserted_since_build_ = 0;
+  int64_t rebuilds_ = 0;
 };
 
 }  // namespace cutsim::mesh

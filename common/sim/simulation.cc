@@ -31,6 +31,8 @@
 #include "common/mesh/mesh_io.h"
 #include "common/mesh/quality.h"
 #include "common/sim/scene_mesh.h"
+#include "common/sim/checkpoint.h"  // checkpoints (ops)
+#include "cutsim/v1/checkpoint.pb.h"
 #include "common/sim/tool_contact.h"
 
 namespace cutsim::sim {
@@ -238,7 +240,8 @@ class Engine final : public Simulation {
     double remaining = frame_time;
     double elapsed = 0;
     while (remaining > 0) {
-      const double dt_max = static_cast<double>(fem::CurrentTimeStep(model_, state_, step_options_));
+      double dt_max = static_cast<double>(fem::CurrentTimeStep(model_, state_, step_options_));
+      if (facet_.touching) dt_max = ContactLimitedStep(dt_max);
       const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
       const double dt = remaining / std::max(1.0, n);
       if (facet_.touching) {
@@ -272,6 +275,7 @@ class Engine final : public Simulation {
   void SetToolPose(const ToolPose& pose) override { external_pose_ = pose; }
   ToolReport Tool() const override { return report_; }
   uint64_t topology_version() const override { return model_.topology_version(); }
+  const std::vector<CutStepTiming>& CutTimings() const override { return cut_timings_; }
 
   Eigen::Matrix3d ContactStiffness() const override {
     if (!facet_.touching) return Eigen::Matrix3d::Zero();
@@ -303,8 +307,18 @@ class Engine final : public Simulation {
     for (int32_t t = 0; t < model_.num_tets(); ++t) {
       for (int c = 0; c < 4; ++c) view.tets(t, c) = model_.tet_node(t, c);
     }
-    view.surface = surface_;
-    view.opened = opened_;
+    // The surface is kept by slot (cutting: dead slots are rows of −1);
+    // viewers get the live triangles only, in slot order.
+    int32_t live = 0;
+    for (int32_t f = 0; f < num_slots_; ++f) live += surface_(f, 0) >= 0 ? 1 : 0;
+    view.surface.resize(live, 3);
+    view.opened.resize(static_cast<size_t>(live));
+    int32_t row = 0;
+    for (int32_t f = 0; f < num_slots_; ++f) {
+      if (surface_(f, 0) < 0) continue;
+      view.surface.row(row) = surface_.row(f);
+      view.opened[static_cast<size_t>(row++)] = opened_[static_cast<size_t>(f)];
+    }
   }
 
   bool AtRest() const override {
@@ -352,7 +366,7 @@ class Engine final : public Simulation {
     int32_t components = 1;
     (void)cutting::ConnectedComponents(TetsMatrix(), &components);
     s.components = components;
-    s.opened_faces = static_cast<int>(std::count(opened_.begin(), opened_.end(), uint8_t{1}));
+    s.opened_faces = static_cast<int>(std::count(opened_.begin(), opened_.begin() + num_slots_, uint8_t{1}));
     double min_volume = std::numeric_limits<double>::infinity();
     for (int32_t t = 0; t < model_.num_tets(); ++t) {
       min_volume = std::min(min_volume, static_cast<double>(model_.rest_volume(t)));
@@ -551,18 +565,32 @@ class Engine final : public Simulation {
   }
 
   /// Surface triangles (from the cut complex when cutting, else extracted)
-  /// and the BVH over them; after every topology change.
+  /// and the BVH over them, from scratch: at set-up and after a restore.
+  /// Cuts update both locally (UpdateSurface).
   void RebuildSurface() {
-    surface_tet_.clear();
     if (cut_) {
-      surface_ = cut_->SurfaceTriangles(&opened_);
-      for (const cutting::SurfaceFace& face : cut_->surface_slots()) {
-        if (face.alive) surface_tet_.push_back(face.tet);
+      cut_->set_track_slot_changes(has_tool_);
+      const auto& slots = cut_->surface_slots();
+      num_slots_ = static_cast<int32_t>(slots.size());
+      surface_.resize(std::max<int32_t>(num_slots_, 16), 3);
+      surface_.setConstant(-1);
+      opened_.assign(static_cast<size_t>(surface_.rows()), 0);
+      surface_tet_.assign(static_cast<size_t>(surface_.rows()), -1);
+      for (int32_t f = 0; f < num_slots_; ++f) {
+        const cutting::SurfaceFace& face = slots[static_cast<size_t>(f)];
+        if (!face.alive) continue;
+        const std::array<int32_t, 3> tri = cut_->SurfaceTriangle(f);
+        surface_.row(f) << tri[0], tri[1], tri[2];
+        opened_[static_cast<size_t>(f)] = face.opened ? 1 : 0;
+        surface_tet_[static_cast<size_t>(f)] = face.tet;
       }
+      std::vector<int32_t> drained;
+      cut_->TakeChangedSlots(drained);  // all covered above
     } else {
       mesh::Surface surf = mesh::ExtractSurface(TetsMatrix());
       surface_ = std::move(surf.tris);
       surface_tet_ = std::move(surf.tet);
+      num_slots_ = static_cast<int32_t>(surface_.rows());
       opened_.assign(static_cast<size_t>(surface_.rows()), 0);
     }
     CUTSIM_CHECK(surface_tet_.size() == static_cast<size_t>(surface_.rows()), "surface/tet map size");
@@ -572,22 +600,155 @@ class Engine final : public Simulation {
     bvh_ = mesh::TriangleBvh(world_, surface_);
   }
 
+  /// Surface update after a cut: only the slots the cut created or freed
+  /// (the CutMesh's change log), each removed from or inserted into the BVH.
+  void UpdateSurface() {
+    cut_->TakeChangedSlots(changed_slots_);
+    std::sort(changed_slots_.begin(), changed_slots_.end());
+    changed_slots_.erase(std::unique(changed_slots_.begin(), changed_slots_.end()), changed_slots_.end());
+    const auto& slots = cut_->surface_slots();
+    num_slots_ = static_cast<int32_t>(slots.size());
+    if (num_slots_ > surface_.rows()) {  // grow by doubling: amortised O(1) per slot
+      const auto old_rows = static_cast<int32_t>(surface_.rows());
+      const int32_t rows = std::max(num_slots_, 2 * old_rows);
+      surface_.conservativeResize(rows, 3);
+      surface_.bottomRows(rows - old_rows).setConstant(-1);
+      opened_.resize(static_cast<size_t>(rows), 0);
+      surface_tet_.resize(static_cast<size_t>(rows), -1);
+      if (!debris_tet_.empty()) debris_facet_.resize(static_cast<size_t>(rows), 0);
+    }
+    for (const int32_t f : changed_slots_) {
+      const cutting::SurfaceFace& face = slots[static_cast<size_t>(f)];
+      const auto i = static_cast<size_t>(f);
+      if (!face.alive) {
+        surface_.row(f).setConstant(-1);
+        opened_[i] = 0;
+        surface_tet_[i] = -1;
+        if (!debris_facet_.empty()) debris_facet_[i] = 0;
+        bvh_.Remove(f);
+        continue;
+      }
+      const std::array<int32_t, 3> tri = cut_->SurfaceTriangle(f);
+      surface_.row(f) << tri[0], tri[1], tri[2];
+      opened_[i] = face.opened ? 1 : 0;
+      surface_tet_[i] = face.tet;
+      if (!debris_facet_.empty()) debris_facet_[i] = debris_tet_[static_cast<size_t>(face.tet)];
+      // World rows of the triangle's nodes (new copies included), then a
+      // local insert: amortised O(log F), the tree is rebuilt only after
+      // as many inserts as half its faces (see bvh.h).
+      for (const int32_t v : tri) CopyWorldRow(v);
+      bvh_.Insert(f, tri, world_);
+    }
+  }
+
   /// Facets the blade does not touch: those of pieces a cut has separated
   /// with less than kDebrisMassFraction of the total mass (see
-  /// tool_contact.h). O(T) after a topology change, like the surface.
+  /// tool_contact.h). Whole-mesh at set-up (connected components); after a
+  /// cut, FlagDebrisNear floods only from the tets the cut changed.
   void FlagDebris() {
     debris_facet_.clear();
+    debris_tet_.clear();
     if (!cut_) return;
+    const int32_t T_count = model_.num_tets();
+    // Face neighbours of every tet, kept up to date locally after cuts.
+    neighbor_.assign(4 * static_cast<size_t>(T_count), -1);
+    for (int32_t t = 0; t < T_count; ++t) UpdateNeighbors(t);
+    visit_stamp_.assign(static_cast<size_t>(T_count), 0);
+    stamp_ = 0;
+    debris_tet_.assign(static_cast<size_t>(T_count), 0);
+    debris_facet_.assign(static_cast<size_t>(surface_.rows()), 0);
+    total_mass_ = model_.TotalMass();
     int32_t count = 0;
     const std::vector<int32_t> label = cut_->ConnectedComponents(&count);
     if (count <= 1) return;
     std::vector<double> mass(static_cast<size_t>(count), 0.0);
-    for (int32_t t = 0; t < model_.num_tets(); ++t)
+    for (int32_t t = 0; t < T_count; ++t)
       mass[static_cast<size_t>(label[static_cast<size_t>(t)])] += static_cast<double>(model_.element_mass(t));
-    const double limit = kDebrisMassFraction * model_.TotalMass();
-    debris_facet_.assign(surface_tet_.size(), 0);
-    for (size_t f = 0; f < surface_tet_.size(); ++f)
-      debris_facet_[f] = mass[static_cast<size_t>(label[static_cast<size_t>(surface_tet_[f])])] < limit ? 1 : 0;
+    const double limit = kDebrisMassFraction * total_mass_;
+    for (int32_t t = 0; t < T_count; ++t)
+      debris_tet_[static_cast<size_t>(t)] = mass[static_cast<size_t>(label[static_cast<size_t>(t)])] < limit ? 1 : 0;
+    for (int32_t f = 0; f < num_slots_; ++f) {
+      const int32_t t = surface_tet_[static_cast<size_t>(f)];
+      if (t >= 0) debris_facet_[static_cast<size_t>(f)] = debris_tet_[static_cast<size_t>(t)];
+    }
+  }
+
+  /// neighbor_ entries of tet t from the cut complex's face table.
+  void UpdateNeighbors(int32_t t) {
+    const std::array<int32_t, 4>& n = cut_->tet(t);
+    for (int f = 0; f < 4; ++f) {
+      const auto lf = mesh::LocalTetFace(f);
+      const std::array<int32_t, 2> pair =
+          cut_->FaceTets(n[static_cast<size_t>(lf[0])], n[static_cast<size_t>(lf[1])], n[static_cast<size_t>(lf[2])]);
+      neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)] = pair[0] == t ? pair[1] : pair[0];
+    }
+  }
+
+  /// After a cut: refresh the face neighbours of the retargeted tets and of
+  /// their former neighbours, then flood from each retargeted tet and from
+  /// the tets left on the split node, stopping once a piece weighs
+  /// kDebrisMassFraction of the body. A flood that stops short found a
+  /// piece cut loose: its tets and facets become debris (for good: pieces
+  /// never rejoin). O(touched + 1 % of the tets) per cut, not O(T).
+  void FlagDebrisNear(const cutting::TopologyEvent& event) {
+    if (debris_tet_.empty()) return;
+    starts_.clear();
+    for (const cutting::Split& split : event.splits) {
+      for (const int32_t t : split.tets) starts_.push_back(t);
+      for (const int32_t t : cut_->node_tets(split.node)) starts_.push_back(t);
+    }
+    if (starts_.empty()) return;
+    affected_.clear();
+    for (const int32_t t : starts_) {
+      affected_.push_back(t);
+      for (int f = 0; f < 4; ++f) {
+        const int32_t u = neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)];
+        if (u >= 0) affected_.push_back(u);
+      }
+    }
+    std::sort(affected_.begin(), affected_.end());
+    affected_.erase(std::unique(affected_.begin(), affected_.end()), affected_.end());
+    for (const int32_t t : affected_) UpdateNeighbors(t);
+    const double limit = kDebrisMassFraction * total_mass_;
+    if (stamp_ > 0xF0000000u) {  // wrap-around guard, once in billions of floods
+      std::fill(visit_stamp_.begin(), visit_stamp_.end(), 0u);
+      stamp_ = 0;
+    }
+    const uint32_t first_stamp = stamp_ + 1;
+    for (const int32_t start : starts_) {
+      if (debris_tet_[static_cast<size_t>(start)] != 0 || visit_stamp_[static_cast<size_t>(start)] >= first_stamp) {
+        continue;  // already debris, or reached by an earlier flood of this cut (same piece)
+      }
+      const uint32_t mark = ++stamp_;  // one stamp per flood
+      flood_.clear();
+      flood_.push_back(start);
+      visit_stamp_[static_cast<size_t>(start)] = mark;
+      double mass = 0;
+      bool big = false;
+      for (size_t i = 0; i < flood_.size(); ++i) {
+        const int32_t t = flood_[i];
+        mass += static_cast<double>(model_.element_mass(t));
+        if (mass >= limit) {
+          big = true;
+          break;
+        }
+        for (int f = 0; f < 4; ++f) {
+          const int32_t u = neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)];
+          if (u >= 0 && visit_stamp_[static_cast<size_t>(u)] != mark) {
+            visit_stamp_[static_cast<size_t>(u)] = mark;
+            flood_.push_back(u);
+          }
+        }
+      }
+      if (big) continue;
+      for (const int32_t t : flood_) {
+        debris_tet_[static_cast<size_t>(t)] = 1;
+        for (int f = 0; f < 4; ++f) {
+          const int32_t slot = cut_->SurfaceSlot(t, f);
+          if (slot >= 0) debris_facet_[static_cast<size_t>(slot)] = 1;
+        }
+      }
+    }
   }
 
   mesh::Tets TetsMatrix() const {
@@ -598,19 +759,24 @@ class Engine final : public Simulation {
     return tets;
   }
 
+  /// world_ holds node_capacity rows (allocated once), the first
+  /// num_nodes() of them current.
   void CopyWorld() {
     const int32_t N = model_.num_nodes();
-    if (world_.rows() != N) world_.resize(N, 3);
-    for (int32_t i = 0; i < N; ++i) {
-      for (int k = 0; k < 3; ++k) world_(i, k) = static_cast<double>(state_.x[3 * static_cast<size_t>(i) + static_cast<size_t>(k)]);
-    }
+    if (world_.rows() < model_.node_capacity()) world_.resize(model_.node_capacity(), 3);
+    for (int32_t i = 0; i < N; ++i) CopyWorldRow(i);
+  }
+
+  void CopyWorldRow(int32_t i) {
+    for (int k = 0; k < 3; ++k) world_(i, k) = static_cast<double>(state_.x[3 * static_cast<size_t>(i) + static_cast<size_t>(k)]);
   }
 
   void FindContact() {
     CopyWorld();
-    bvh_.Refit(world_);
+    bvh_.Refit(world_, model_.num_nodes());
     facet_ = FindContactFacet(bvh_, world_, surface_, pose_.tip, pose_.blade_dir, blade_length_,
-                              mean_edge_, hits_scratch_, box_scratch_, debris_facet_);
+                              mean_edge_, hits_scratch_, box_scratch_, debris_facet_, in_cut_);
+    if (!facet_.touching) in_cut_ = false;  // the blade left the tissue (see tool_contact.h)
     if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
     report_.touching = facet_.touching;
     report_.pose = pose_;
@@ -640,6 +806,30 @@ class Engine final : public Simulation {
     report_.normal = facet_.normal;
   }
 
+  /// The penalty spring is stiffness the FEM's stable-step estimate does
+  /// not see: K_c = k·(b ⊗ b)·n nᵀ on the facet nodes. Its largest
+  /// frequency is ω_c² ≤ k·Σ bᵢ²/mᵢ; with the elastic one, ω² ≤ ω_e² + ω_c²
+  /// (Weyl: both parts are positive semi-definite), ω_e taken as
+  /// 2·safety/dt_max (conservative: dt_max is at most safety × the limit).
+  /// The approach damper c adds dt ≤ min mᵢ/(c·bᵢ). On a finely cut body the
+  /// facet nodes are split copies of a few milligrams, where a spring sized
+  /// for the body (E·h̄) otherwise sets the limit (random-cut stress test).
+  double ContactLimitedStep(double dt_max) const {
+    double w2 = 0;
+    double damper_limit = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < 3; ++i) {
+      const double b = facet_.bary[i];
+      const double m = static_cast<double>(model_.node_mass(facet_.nodes[static_cast<size_t>(i)]));
+      if (!(m > 0) || b <= 0) continue;
+      w2 += contact_stiffness_ * b * b / m;
+      if (contact_damping_ > 0) damper_limit = std::min(damper_limit, m / (contact_damping_ * b));
+    }
+    const double safety = std::min(1.0, step_options_.safety_factor);
+    const double we = 2.0 * safety / dt_max;
+    const double limited = 2.0 * safety / std::sqrt(we * we + w2);
+    return std::min({dt_max, limited, safety * damper_limit});
+  }
+
   void ClearContactForce() {
     if (!facet_.touching) return;
     for (const int32_t n : facet_.nodes) {
@@ -649,10 +839,9 @@ class Engine final : public Simulation {
 
   /// nᵀKᵢᵢn for one node: central differences of its incident element forces.
   double NodeNormalStiffness(int32_t node, const Eigen::Vector3d& n) const {
-    const int32_t* off = model_.incidence_offsets();
     const int32_t* slots = model_.incidence_slots();
     double k = 0;
-    for (int32_t s = off[node]; s < off[node + 1]; ++s) {
+    for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) {
       const int32_t t = slots[s] / 12;
       const int corner = (slots[s] % 12) / 3;
       fem::Mat34<double> x;
@@ -696,6 +885,8 @@ class Engine final : public Simulation {
     const double d_v = (world_access_.Get(attempt.v1) - world_access_.Get(attempt.v0)).norm();
     if (tangential.norm() < 0.5 * d_v) return;
     ++cut_attempts_;
+    timing_ = {};
+    Stopwatch phase;
     const std::vector<int32_t> candidates = cut_->ContactElements(attempt.v1, attempt.facet_tet);
     const cutting::CriterionResult crit = cutting::EvaluateCriterion(
         candidates,
@@ -704,6 +895,7 @@ class Engine final : public Simulation {
         },
         params_);
     report_.sigma_c = crit.sigma_c;
+    timing_.criterion = phase.ElapsedSeconds();
     if (!crit.cut) return;
     const int32_t room = model_.node_capacity() - model_.num_nodes();
     if (room < 64) {
@@ -720,17 +912,23 @@ class Engine final : public Simulation {
     step.normal = attempt.normal;
     // The blade's swept plane (tip at t0 → tip now) is the cut plane.
     step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_, anchor_tip_};
+    Stopwatch topology_watch;
     cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_);
+    timing_.topology = topology_watch.ElapsedSeconds();
     if (outcome.status != cutting::CutStatus::kExecuted) {
       ++cuts_rejected_;
       return;
     }
     tracker_->OnCutExecuted();
+    in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
     anchor_tip_ = pose_.tip;  // t0 := t: the next step sweeps from here
     Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
                 cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
                 outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
     if (!outcome.event.empty()) ApplyEvent(outcome.event);
+    timing_.splits = static_cast<int32_t>(outcome.event.splits.size());
+    timing_.touched_tets = static_cast<int32_t>(outcome.event.touched_tets.size());
+    cut_timings_.push_back(timing_);
     ++cuts_;
     report_.cuts = cuts_;
     report_.cut_this_frame = true;
@@ -744,6 +942,7 @@ class Engine final : public Simulation {
   /// Applies a cut's topology event to the FEM in the order the cut code
   /// documents (topology_event.h), then refreshes what depends on topology.
   void ApplyEvent(const cutting::TopologyEvent& event) {
+    Stopwatch watch;
     for (const cutting::Split& split : event.splits) {
       const int32_t copy = model_.AddNodeCopy(split.node, state_);
       CUTSIM_CHECK(copy == split.new_node, "FEM and cut complex disagree on new node ids");
@@ -764,7 +963,13 @@ class Engine final : public Simulation {
     fem::UpdateStableStep(model_, state_, event.touched_tets,
                           step_options_.viscous == fem::ViscousTreatment::kExplicit);
     events_.push_back(event);
-    RebuildSurface();
+    timing_.fem = watch.ElapsedSeconds();
+    if (has_tool_) {
+      Stopwatch surface_watch;
+      UpdateSurface();
+      FlagDebrisNear(event);
+      timing_.surface = surface_watch.ElapsedSeconds();
+    }
   }
 
   LoadedScene scene_;
@@ -793,11 +998,23 @@ class Engine final : public Simulation {
   double contact_damping_ = 0;     // N·s/m
   double indent_limit_ = 0;        // m
   double mean_edge_ = 0;           // m
-  mesh::Positions world_;          // #N×3 double copy for the BVH
-  mesh::Triangles surface_;        // #F×3
-  std::vector<uint8_t> opened_;    // #F
-  std::vector<int32_t> surface_tet_;  // #F owning tet
-  std::vector<uint8_t> debris_facet_; // #F (or empty): facet of a debris piece
+  mesh::Positions world_;          // #N_cap×3 double copy for the BVH (first #N rows current)
+  // Surface by slot (cutting: CutMesh surface slots, stable ids; else the
+  // extracted surface's rows). #S rows of capacity, the first num_slots_
+  // used; dead slots are rows of −1 (not in the BVH).
+  mesh::Triangles surface_;        // #S×3
+  int32_t num_slots_ = 0;
+  std::vector<uint8_t> opened_;    // #S
+  std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
+  std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
+  std::vector<uint8_t> debris_tet_;   // #T (or empty): tet of a debris piece
+  std::vector<int32_t> neighbor_;     // #T×4 face neighbour across local face f (−1: none)
+  std::vector<uint32_t> visit_stamp_; // #T flood-fill marks
+  uint32_t stamp_ = 0;
+  double total_mass_ = 0;             // kg
+  std::vector<int32_t> changed_slots_, starts_, affected_, flood_;  // scratch
+  CutStepTiming timing_;              // the cut step in progress
+  std::vector<CutStepTiming> cut_timings_;
   static constexpr double kDebrisMassFraction = 0.01;
   mesh::TriangleBvh bvh_;
   std::vector<mesh::SegmentHit> hits_scratch_;
@@ -816,6 +1033,144 @@ class Engine final : public Simulation {
   uint64_t cuts_rejected_ = 0;
   double cut_wall_time_ = 0;
   bool warned_capacity_ = false;
+  bool in_cut_ = false;  // a cut executed since the blade last lost contact
+
+  // ---- checkpoints (engineer ops; common/sim/checkpoint.h) ---------------
+ public:
+  v1::CheckpointBody CheckpointState() const override {
+    v1::CheckpointBody b;
+    b.set_scene_name(scene_.scene.name());
+    b.set_scene_fingerprint(SceneFingerprint());
+    b.set_precision(precision_name());
+    b.set_initial_nodes(mesh_.mesh.num_nodes());
+    b.set_initial_tets(mesh_.mesh.num_tets());
+    b.set_sim_time(state_.time);
+    b.set_steps(state_.step);
+    b.set_frames(frames_);
+    b.set_cuts(cuts_);
+    b.set_topology_version(cut_ ? cut_->version() : 0);
+    for (const cutting::TopologyEvent& e : events_) *b.add_events() = EventToProto(e);
+    const size_t n3 = 3 * static_cast<size_t>(model_.num_nodes());
+    b.mutable_positions()->Reserve(static_cast<int>(n3));
+    b.mutable_velocities()->Reserve(static_cast<int>(n3));
+    for (size_t i = 0; i < n3; ++i) {
+      b.add_positions(static_cast<double>(state_.x[i]));
+      b.add_velocities(static_cast<double>(state_.v[i]));
+    }
+    return b;
+  }
+
+  void RestoreCheckpointState(const v1::CheckpointBody& b, const std::string& source) override {
+    auto fail = [&](const std::string& field, const std::string& why) {
+      ThrowInputError({.file = source, .field = field}, why);
+    };
+    if (frames_ != 0 || !events_.empty()) fail("", "restore needs a freshly created simulation");
+    if (b.scene_name() != scene_.scene.name()) {
+      fail("scene_name", fmt::format("checkpoint of scene '{}', this server runs '{}'", b.scene_name(),
+                                     scene_.scene.name()));
+    }
+    if (b.scene_fingerprint() != SceneFingerprint() || b.initial_nodes() != mesh_.mesh.num_nodes() ||
+        b.initial_tets() != mesh_.mesh.num_tets()) {
+      fail("scene_fingerprint", fmt::format("checkpoint of another mesh of scene '{}' ({} nodes, {} tets; "
+                                            "this one has {} nodes, {} tets, or its mesh/settings changed)",
+                                            b.scene_name(), b.initial_nodes(), b.initial_tets(),
+                                            mesh_.mesh.num_nodes(), mesh_.mesh.num_tets()));
+    }
+    if (b.precision() != precision_name()) {
+      fail("precision", fmt::format("checkpoint written in {} precision, this server runs {} "
+                                    "(use --precision {})", b.precision(), precision_name(), b.precision()));
+    }
+    if (!std::isfinite(b.sim_time()) || b.sim_time() < 0 || b.steps() < 0 || b.frames() < 0) {
+      fail("sim_time", "negative or non-finite time or counters");
+    }
+    if (b.events_size() > 0 && !cut_) fail("events", "the scene has no cutting but the checkpoint has cuts");
+    // Dry run: convert and replay every event on a copy of the cut complex,
+    // so a bad event is reported before the real mesh or the FEM changes.
+    std::vector<cutting::TopologyEvent> events;
+    events.reserve(static_cast<size_t>(b.events_size()));
+    int32_t num_nodes = model_.num_nodes();
+    if (cut_) {
+      cutting::CutMesh trial = *cut_;
+      for (int i = 0; i < b.events_size(); ++i) {
+        const std::string field = fmt::format("events[{}]", i);
+        events.push_back(EventFromProto(b.events(i), source, field));
+        const cutting::TopologyEvent& e = events.back();
+        if (e.version <= trial.version()) fail(field + ".version", "versions must increase");
+        try {
+          ReplayEvent(trial, e);
+        } catch (const InputError& err) {
+          fail(field + "." + err.source().field, err.message());
+        }
+        const int32_t tets = model_.num_tets();
+        for (const int32_t t : e.touched_tets) {
+          if (t < 0 || t >= tets) fail(field + ".touched_tets", fmt::format("tet {} out of range", t));
+        }
+        for (const int32_t n : e.touched_nodes) {
+          if (n < 0 || n >= trial.num_nodes()) fail(field + ".touched_nodes", fmt::format("node {} out of range", n));
+        }
+      }
+      if (b.topology_version() < trial.version()) {
+        fail("topology_version", fmt::format("{} is below the last event's version {}", b.topology_version(),
+                                             trial.version()));
+      }
+      num_nodes = trial.num_nodes();
+    }
+    if (num_nodes > model_.node_capacity()) {
+      fail("events", fmt::format("{} nodes exceed the node capacity {}", num_nodes, model_.node_capacity()));
+    }
+    const int n3 = 3 * num_nodes;
+    if (b.positions_size() != n3) {
+      fail("positions", fmt::format("{} values, the replayed mesh needs {} (3 per node)", b.positions_size(), n3));
+    }
+    if (b.velocities_size() != n3) {
+      fail("velocities", fmt::format("{} values, the replayed mesh needs {} (3 per node)", b.velocities_size(), n3));
+    }
+    for (int i = 0; i < n3; ++i) {
+      if (!std::isfinite(b.positions(i))) fail(fmt::format("positions[{}]", i), "non-finite");
+      if (!std::isfinite(b.velocities(i))) fail(fmt::format("velocities[{}]", i), "non-finite");
+    }
+
+    // Apply for real: the cut complex, then the FEM (the same ApplyEvent as a live cut).
+    for (const cutting::TopologyEvent& e : events) {
+      ReplayEvent(*cut_, e);
+      ApplyEvent(e);
+    }
+    for (size_t i = 0; i < static_cast<size_t>(n3); ++i) {
+      state_.x[i] = static_cast<T>(b.positions(static_cast<int>(i)));
+      state_.v[i] = static_cast<T>(b.velocities(static_cast<int>(i)));
+    }
+    state_.time = b.sim_time();
+    state_.step = b.steps();
+    state_.dt_refreshed_step = -1;  // positions changed: refresh the stable step
+    frames_ = b.frames();
+    cuts_ = b.cuts();
+    report_.cuts = cuts_;
+    if (has_tool_) pose_ = SamplePath(state_.time);
+    RebuildSurface();
+  }
+
+ private:
+  /// Identity of the uncut scene: name, node capacity and the reordered mesh.
+  uint64_t SceneFingerprint() const {
+    uint64_t h = Fnv1a64(scene_.scene.name().data(), scene_.scene.name().size());
+    const int32_t cap = model_.node_capacity();
+    h = Fnv1a64(&cap, sizeof(cap), h);
+    const mesh::Positions& p = mesh_.mesh.nodes;
+    h = Fnv1a64(p.data(), static_cast<size_t>(p.size()) * sizeof(double), h);
+    const mesh::Tets& t = mesh_.mesh.tets;
+    return Fnv1a64(t.data(), static_cast<size_t>(t.size()) * sizeof(t(0, 0)), h);
+  }
+
+  /// Applies `e` to a cut complex, first bumping its version across cut
+  /// steps that changed nothing (their empty events are not recorded).
+  static void ReplayEvent(cutting::CutMesh& cut, const cutting::TopologyEvent& e) {
+    while (cut.version() + 1 < e.version) {
+      cutting::TopologyEvent empty;
+      empty.version = cut.version() + 1;
+      cut.ApplyEvent(empty);
+    }
+    cut.ApplyEvent(e);
+  }
 };
 
 }  // namespace

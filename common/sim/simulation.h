@@ -9,11 +9,16 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/scene_loader.h"
+
+namespace cutsim::v1 {
+class CheckpointBody;
+}  // namespace cutsim::v1
 
 namespace cutsim::sim {
 
@@ -85,6 +90,17 @@ struct ToolReport {
   double sigma_c = 0.0;          ///< last evaluated cutting stress (eq. 10), Pa
 };
 
+/// Wall time of one executed cut step by phase, s (the cut benchmark's
+/// split). The step's total is their sum.
+struct CutStepTiming {
+  double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
+  double topology = 0;   ///< CutMesh::ExecuteCut: plane, splits, singularities, remeshing
+  double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
+  double surface = 0;    ///< surface slots + BVH update + debris flags
+  int32_t splits = 0;        ///< vertex splits in the event
+  int32_t touched_tets = 0;  ///< tets whose geometry or nodes changed
+};
+
 /// The observable mesh (for viewers): world positions, tets, boundary
 /// surface and which of its faces a cut opened.
 struct MeshView {
@@ -118,6 +134,8 @@ class Simulation {
   /// zero without contact. Computed on demand (only a haptic client needs it).
   [[nodiscard]] virtual Eigen::Matrix3d ContactStiffness() const = 0;
   [[nodiscard]] virtual uint64_t topology_version() const = 0;
+  /// Per executed cut step, its phases' wall times (empty without cutting).
+  [[nodiscard]] virtual const std::vector<CutStepTiming>& CutTimings() const = 0;
   /// Copies the observable mesh into `view` (reusing its storage).
   virtual void FillMeshView(MeshView& view) const = 0;
 
@@ -140,6 +158,16 @@ class Simulation {
   /// stress, element quality, fixed-node markers, and per tet the number of
   /// its faces opened by cuts, `cut_faces`, so ParaView can show the cut).
   virtual void WriteVtu(const std::filesystem::path& path) const = 0;
+
+  // ---- checkpoints (common/sim/checkpoint.h writes and reads the files) ----
+  /// The state a checkpoint keeps: scene identity, every topology event so
+  /// far in order, time and counters, world positions and velocities.
+  [[nodiscard]] virtual v1::CheckpointBody CheckpointState() const = 0;
+  /// Brings a Simulation freshly created from the same scene to `body`:
+  /// replays its events through the cut complex and the FEM, then sets
+  /// positions and velocities. Everything is checked first: on an InputError
+  /// (naming `source` and the field) nothing has been applied.
+  virtual void RestoreCheckpointState(const v1::CheckpointBody& body, const std::string& source) = 0;
 };
 
 }  // namespace cutsim::sim

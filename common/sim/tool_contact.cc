@@ -46,7 +46,7 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
-                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored) {
+                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored, bool in_cut) {
   ContactFacet best;
   auto skip = [&](int32_t f) { return !ignored.empty() && ignored[static_cast<size_t>(f)] != 0; };
   // 1. Where the blade enters: crossing nearest the handle, facing it.
@@ -72,6 +72,34 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     const mesh::ClosestPointHit hit = mesh::ClosestPointOnTriangle(tip, facet.p0, facet.p1, facet.p2);
     if (hit.distance > near_radius || hit.distance >= best_distance) continue;
     if ((hit.point - tip).dot(facet.n) <= 0.0) continue;  // tip above this facet
+    best_distance = hit.distance;
+    Fill(best, surface, f, facet, hit.point, hit.bary, tip);
+  }
+  if (best.touching || !in_cut) return best;
+  // 3. Inside its own cut: the blade lies in the slit it opened and crosses
+  // no facing facet. Take the facing facet nearest to the blade segment
+  // (the lips of the slit around the cut front).
+  const Eigen::Vector3d lo = tip.cwiseMin(handle) - r, hi = tip.cwiseMax(handle) + r;
+  bvh.QueryBox(lo, hi, boxes);
+  const Eigen::Vector3d seg = handle - tip;
+  const double seg2 = seg.squaredNorm();
+  auto on_segment = [&](const Eigen::Vector3d& q) {
+    const double s = seg2 > 0.0 ? std::clamp((q - tip).dot(seg) / seg2, 0.0, 1.0) : 0.0;
+    return Eigen::Vector3d(tip + s * seg);
+  };
+  for (const int32_t f : boxes) {
+    if (skip(f)) continue;
+    const Facet facet = LoadFacet(world, surface, f);
+    if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine) continue;
+    // Closest pair segment–triangle by two alternations from the centroid
+    // (exact enough at the scale of near_radius).
+    Eigen::Vector3d p = on_segment((facet.p0 + facet.p1 + facet.p2) / 3.0);
+    mesh::ClosestPointHit hit = mesh::ClosestPointOnTriangle(p, facet.p0, facet.p1, facet.p2);
+    for (int k = 0; k < 2; ++k) {
+      p = on_segment(hit.point);
+      hit = mesh::ClosestPointOnTriangle(p, facet.p0, facet.p1, facet.p2);
+    }
+    if (hit.distance > near_radius || hit.distance >= best_distance) continue;
     best_distance = hit.distance;
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }

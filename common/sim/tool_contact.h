@@ -61,13 +61,15 @@ struct ContactFacet {
 
 /// Finds the contact facet of the blade (tip, unit direction tip → handle,
 /// length) on a surface (see file comment). `near_radius` is the reach of
-/// the tip-only test; `hits` and `boxes` are scratch; `ignored` (empty, or
-/// one flag per surface triangle) marks facets never taken.
+/// the tip-only test and of the in-cut test; `hits` and `boxes` are
+/// scratch; `ignored` (empty, or one flag per surface triangle) marks facets
+/// never taken; `in_cut` enables the in-cut test (file comment).
 ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
-                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored = {});
+                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored = {},
+                              bool in_cut = false);
 
 /// Penalty force on the tissue at the facet for the current facet node
 /// positions: returns F (the force on the tissue, N, to be split as bᵢF) and

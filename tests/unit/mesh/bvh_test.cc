@@ -42,6 +42,7 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     double best = radius;
     int32_t best_f = -1;
     for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      if (s.tris(f, 0) < 0) continue;  // dead id
       const double d = ClosestPointOnTriangle(p, corner(f, 0), corner(f, 1), corner(f, 2)).distance;
       if (d <= best) {
         best = d;
@@ -63,6 +64,7 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     std::vector<int32_t> brute;
     double first_t = 2.0;
     for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      if (s.tris(f, 0) < 0) continue;
       if (auto h = IntersectSegmentTriangle(a, b, corner(f, 0), corner(f, 1), corner(f, 2))) {
         brute.push_back(static_cast<int32_t>(f));
         first_t = std::min(first_t, h->t);
@@ -82,6 +84,7 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     const Vector3d lo = p - Vector3d::Constant(0.2), hi = p + Vector3d::Constant(0.25);
     std::vector<int32_t> brute_box;
     for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
+      if (s.tris(f, 0) < 0) continue;
       const Vector3d tl = corner(f, 0).cwiseMin(corner(f, 1)).cwiseMin(corner(f, 2));
       const Vector3d th = corner(f, 0).cwiseMax(corner(f, 1)).cwiseMax(corner(f, 2));
       if ((tl.array() <= hi.array()).all() && (lo.array() <= th.array()).all()) brute_box.push_back(static_cast<int32_t>(f));
@@ -117,6 +120,44 @@ TEST(TriangleBvh, RefitTracksMovedNodes) {
   bvh.Refit(s.x);
   EXPECT_EQ(bvh.num_nodes(), nodes_before);
   CheckAgainstBruteForce(s, bvh, rng);
+}
+
+// Local edits (what a cut does to the surface): random removals and
+// insertions by id, reusing freed ids and growing the id space, enough to
+// split full leaves and trigger the amortised rebuild; queries must match
+// brute force over the live ids after every batch, with and without a refit.
+TEST(TriangleBvh, InsertRemoveMatchBruteForce) {
+  std::mt19937 rng(11);
+  const Scene all = RandomSoup(rng, 900);
+  Scene s = all;
+  for (Eigen::Index f = 300; f < s.tris.rows(); ++f) s.tris.row(f).setConstant(-1);  // ids 300+ dead
+  const Triangles first = s.tris.topRows(400);  // the tree starts with 400 ids, 300 live
+  TriangleBvh bvh(s.x, first);
+  EXPECT_EQ(bvh.num_live_triangles(), 300);
+  std::uniform_int_distribution<int> pick(0, 899), coin(0, 2);
+  for (int batch = 0; batch < 12; ++batch) {
+    for (int op = 0; op < 40; ++op) {
+      const int f = pick(rng);
+      if (s.tris(f, 0) >= 0 && coin(rng) == 0) {
+        bvh.Remove(f);
+        s.tris.row(f).setConstant(-1);
+        EXPECT_FALSE(bvh.alive(f));
+      } else if (s.tris(f, 0) < 0) {
+        s.tris.row(f) = all.tris.row(f);
+        bvh.Insert(f, {s.tris(f, 0), s.tris(f, 1), s.tris(f, 2)}, s.x);
+        EXPECT_TRUE(bvh.alive(f));
+      }
+    }
+    if (batch % 3 == 2) {  // move the nodes too, as physics does between cuts
+      s.x.array() += 0.01;
+      bvh.Refit(s.x);
+    }
+    int live = 0;
+    for (Eigen::Index f = 0; f < s.tris.rows(); ++f) live += s.tris(f, 0) >= 0 ? 1 : 0;
+    EXPECT_EQ(bvh.num_live_triangles(), live);
+    CheckAgainstBruteForce(s, bvh, rng);
+  }
+  EXPECT_GT(bvh.rebuilds(), 0) << "enough insertions to rebuild at least once";
 }
 
 TEST(ClosestPointOnTriangle, RegionsAndDegenerate) {

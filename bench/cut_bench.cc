@@ -1,0 +1,222 @@
+// Cut benchmarks (issue 4). JSON on stdout (and --json FILE):
+//
+//  (a) "step": wall time per executed cut step at ~1k, 10k and 100k tets,
+//      median and p90, split into criterion / topology / FEM update /
+//      surface+BVH (Simulation::CutTimings). Boxes from mesh::MakeBox with
+//      the same element size (2 mm cells), so a cut step meets the same
+//      number of elements at every size and only the mesh size changes; a
+//      blade 5 mm deep (2.5 cells) is drawn straight across the top, 0.1 mm
+//      beside a row of nodes, at 1.25 m/s with one cut attempt every few
+//      frames. critical_stress is 1 Pa: every geometric attempt passes the
+//      stress test, so the steps measured are real cuts.
+//  (b) "block": scenes/block.pbtxt cut by parallel half-depth passes until
+//      100 cut steps executed; the stable time step (fem estimate, before
+//      the safety factor) as a ratio of the uncut mesh's, and the smallest
+//      mean-ratio quality of the world mesh.
+//  (c) "throughput": tet-steps/s of that cut block vs an uncut copy in the
+//      same process, tool lifted clear, alternating rounds (median ratio).
+//
+//   cut_bench [--json FILE] [--scene-dir scenes] [--max-tets 100000] [--cuts 100]
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include "common/core/clock.h"
+#include "common/core/log.h"
+#include "common/mesh/quality.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/simulation.h"
+
+namespace {
+
+using cutsim::Stopwatch;
+using cutsim::sim::CutStepTiming;
+using cutsim::sim::Simulation;
+using cutsim::sim::ToolPose;
+using Eigen::Vector3d;
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const double at = q * static_cast<double>(v.size() - 1);
+  const auto lo = static_cast<size_t>(std::floor(at));
+  const size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (at - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+std::string Stats(const std::vector<double>& seconds) {
+  return fmt::format("{{\"median_us\": {:.2f}, \"p90_us\": {:.2f}, \"max_us\": {:.2f}}}", 1e6 * Quantile(seconds, 0.5),
+                     1e6 * Quantile(seconds, 0.9), 1e6 * Quantile(seconds, 1.0));
+}
+
+// A box of nx × ny × nz 2 mm cells on a fixed base with a tool and cutting.
+std::string BoxScene(int nx, int ny, int nz) {
+  const double h = 0.002;
+  return fmt::format(R"pb(
+name: "cut-bench-box"
+mesh {{ box {{ min {{ x: 0 y: 0 z: 0 }} max {{ x: {} y: {} z: {} }} nx: {} ny: {} nz: {} }} }}
+materials {{ name: "tissue" young_poisson {{ youngs_modulus: 50000 poisson_ratio: 0.4 }} density: 1000 damping_psi: 0.05 }}
+boundary {{ plane {{ point {{ x: 0 y: 0 z: 0 }} normal {{ x: 0 y: 0 z: 1 }} }} kind: KIND_FIXED }}
+time_step {{ frame_dt: 0.0002 threads: 1 }}
+tool {{ blade_length: 0.025 keyframes {{ t: 0 tip {{ x: -0.003 y: 0 z: 0.1 }} blade_dir {{ z: 1 }} }} }}
+cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
+)pb",
+                     nx * h, ny * h, nz * h, nx, ny, nz);
+}
+
+struct StepResult {
+  int tets = 0;
+  std::vector<CutStepTiming> timings;
+  int64_t attempts = 0, rejected = 0;
+};
+
+StepResult RunStepBench(int nx, int ny, int nz) {
+  const cutsim::sim::LoadedScene scene = cutsim::sim::ParseScene(BoxScene(nx, ny, nz), "cut_bench box", ".");
+  auto sim = Simulation::Create(scene);
+  const double h = 0.002;
+  const double y = (ny / 2) * h + 0.0001;  // 0.1 mm beside a row of nodes
+  const double top = nz * h;
+  const double x_end = std::min(nx * h + 0.003, 0.030);  // ≤ 30 mm of path: same work at every size
+  const double speed = 0.00025;                          // m per frame
+  ToolPose pose;
+  pose.blade_dir = Vector3d::UnitZ();
+  const double depth = 0.005;
+  for (double x = -0.003; x <= x_end; x += speed) {
+    pose.tip = Vector3d(x, y, top - depth);
+    sim->SetToolPose(pose);
+    if (sim->AdvanceFrame() != cutsim::sim::SimStatus::kOk) break;
+  }
+  StepResult r;
+  const auto s = sim->QuickSummary();
+  std::fprintf(stderr, "step bench: %d tets, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s\n", s.num_tets,
+               static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time, s.stable_dt);
+  r.tets = s.num_tets;
+  r.timings = sim->CutTimings();
+  r.attempts = static_cast<int64_t>(s.cut_attempts);
+  r.rejected = static_cast<int64_t>(s.cuts_rejected);
+  return r;
+}
+
+double MinQuality(const Simulation& sim) {
+  const cutsim::mesh::TetQuality q = cutsim::mesh::ComputeTetQuality(sim.WorldMesh());
+  return *std::min_element(q.mean_ratio.begin(), q.mean_ratio.end());
+}
+
+// Frames with the tool lifted clear: wall seconds and tet-steps.
+std::pair<double, double> Rounds(Simulation& sim, int frames) {
+  const int64_t steps0 = sim.QuickSummary().steps;
+  Stopwatch watch;
+  for (int i = 0; i < frames; ++i) (void)sim.AdvanceFrame();
+  const double wall = watch.ElapsedSeconds();
+  const auto s = sim.QuickSummary();
+  return {wall, static_cast<double>(s.steps - steps0) * s.num_tets};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string json_path;
+  std::string scene_dir = "scenes";
+  int max_tets = 100000;
+  int target_cuts = 100;
+  CLI::App app{"cut step time, stable step and throughput after cuts (issue 4)"};
+  app.add_option("--json", json_path, "Also write the JSON here");
+  app.add_option("--scene-dir", scene_dir, "Where block.pbtxt is");
+  app.add_option("--max-tets", max_tets, "Skip step sizes above this");
+  app.add_option("--cuts", target_cuts, "Cut steps on block for (b) and (c)");
+  CLI11_PARSE(app, argc, argv);
+  cutsim::InitLogging("cut_bench", "warn");
+
+  std::string json = "{\n  \"step\": [";
+  // (a) ~1k, 10k, 100k tets, 2 mm cells.
+  const int sizes[][3] = {{8, 5, 4}, {17, 10, 10}, {37, 22, 20}};
+  bool first = true;
+  for (const auto& n : sizes) {
+    if (6 * n[0] * n[1] * n[2] > max_tets) continue;
+    const StepResult r = RunStepBench(n[0], n[1], n[2]);
+    std::vector<double> total, criterion, topology, fem, surface, splits;
+    for (const CutStepTiming& t : r.timings) {
+      total.push_back(t.criterion + t.topology + t.fem + t.surface);
+      criterion.push_back(t.criterion);
+      topology.push_back(t.topology);
+      fem.push_back(t.fem);
+      surface.push_back(t.surface);
+      splits.push_back(t.splits);
+    }
+    json += fmt::format(
+        "{}\n    {{\"tets\": {}, \"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, \"median_splits\": {:.1f},\n"
+        "     \"total\": {},\n     \"criterion\": {},\n     \"topology\": {},\n     \"fem_update\": {},\n"
+        "     \"surface_bvh\": {}}}",
+        first ? "" : ",", r.tets, r.timings.size(), r.attempts, r.rejected, Quantile(splits, 0.5), Stats(total),
+        Stats(criterion), Stats(topology), Stats(fem), Stats(surface));
+    first = false;
+    std::fflush(stdout);
+  }
+  json += "\n  ],\n";
+
+  // (b) block: parallel half-depth passes 0.1 mm beside the node rows (2.5 mm apart).
+  const cutsim::sim::LoadedScene block = cutsim::sim::LoadScene(scene_dir + "/block.pbtxt");
+  auto uncut = Simulation::Create(block);
+  auto cut = Simulation::Create(block);
+  ToolPose lifted;
+  lifted.tip = Vector3d(0.02, 0.01, 0.05);
+  uncut->SetToolPose(lifted);
+  (void)uncut->AdvanceFrame();
+  const double dt_uncut = uncut->Summary().stable_dt;
+  const double q_uncut = MinQuality(*uncut);
+  ToolPose pose;
+  const double speed = 0.0005;  // m per 10 ms frame
+  auto glide = [&](const Vector3d& to, double step) {
+    const Vector3d from = pose.tip;
+    const int frames = std::max(1, static_cast<int>(std::ceil((to - from).norm() / step)));
+    for (int i = 1; i <= frames; ++i) {
+      pose.tip = from + (to - from) * (static_cast<double>(i) / frames);
+      cut->SetToolPose(pose);
+      (void)cut->AdvanceFrame();
+      if (static_cast<int>(cut->QuickSummary().cuts) >= target_cuts) return true;
+    }
+    return false;
+  };
+  pose.tip = Vector3d(-0.003, 0.0026, 0.05);
+  bool done = false;
+  for (int pass = 0; pass < 7 && !done; ++pass) {
+    const double y = 0.0026 + 0.0025 * pass;
+    done = glide(Vector3d(-0.003, y, 0.05), 0.002) || glide(Vector3d(-0.003, y, 0.005), 0.002) ||
+           glide(Vector3d(0.043, y, 0.005), speed) || glide(Vector3d(0.043, y, 0.05), 0.002);
+  }
+  (void)glide(Vector3d(0.02, 0.01, 0.05), 0.002);
+  for (int i = 0; i < 20; ++i) (void)cut->AdvanceFrame();  // settle, tool clear
+  const auto cs = cut->Summary();
+  std::fprintf(stderr, "block: %llu cuts after %lld steps\n", static_cast<unsigned long long>(cs.cuts),
+               static_cast<long long>(cs.steps));
+  const double q_cut = MinQuality(*cut);
+  json += fmt::format(
+      "  \"block\": {{\"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, \"tets\": {}, \"nodes_uncut\": {}, "
+      "\"nodes_cut\": {}, \"components\": {},\n            \"stable_dt_uncut\": {:.4g}, \"stable_dt_cut\": {:.4g}, "
+      "\"stable_dt_ratio\": {:.3f}, \"min_quality_uncut\": {:.3f}, \"min_quality_cut\": {:.3f}, \"status\": \"{}\"}},\n",
+      cs.cuts, cs.cut_attempts, cs.cuts_rejected, cs.num_tets, uncut->Summary().num_nodes, cs.num_nodes,
+      cs.components, dt_uncut, cs.stable_dt, cs.stable_dt / dt_uncut, q_uncut, q_cut, cs.status);
+
+  // (c) throughput, alternating rounds of 10 frames.
+  std::vector<double> ratios, rate_uncut, rate_cut;
+  for (int round = 0; round < 7; ++round) {
+    const auto [wu, su] = Rounds(*uncut, 10);
+    const auto [wc, sc] = Rounds(*cut, 10);
+    rate_uncut.push_back(su / wu);
+    rate_cut.push_back(sc / wc);
+    ratios.push_back((sc / wc) / (su / wu));
+  }
+  json += fmt::format(
+      "  \"throughput\": {{\"tet_steps_per_s_uncut\": {:.4g}, \"tet_steps_per_s_cut\": {:.4g}, \"ratio\": {:.3f}, "
+      "\"rounds\": {}}}\n}}\n",
+      Quantile(rate_uncut, 0.5), Quantile(rate_cut, 0.5), Quantile(ratios, 0.5), ratios.size());
+  std::fputs(json.c_str(), stdout);
+  if (!json_path.empty()) std::ofstream(json_path) << json;
+  return 0;
+}

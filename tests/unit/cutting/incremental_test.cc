@@ -1,0 +1,134 @@
+// The cut step's local bookkeeping against whole-mesh recomputation:
+// the FEM's node → element incidence after splits (including its
+// compaction), and the simulation's slot-indexed surface (fed to the BVH
+// by Insert/Remove) after real cuts, compared with a fresh extraction.
+#include <algorithm>
+#include <array>
+#include <random>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/fem/model.h"
+#include "common/fem/state.h"
+#include "common/mesh/generators.h"
+#include "common/mesh/surface.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/simulation.h"
+
+namespace cutsim {
+namespace {
+
+// Incidence as the gather loop reads it, per node, sorted.
+std::vector<std::vector<int32_t>> Incidence(const fem::Model<double>& model) {
+  std::vector<std::vector<int32_t>> out(static_cast<size_t>(model.num_nodes()));
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    for (int32_t k = model.incidence_begin(n); k < model.incidence_end(n); ++k) {
+      out[static_cast<size_t>(n)].push_back(model.incidence_slots()[k]);
+    }
+    EXPECT_TRUE(std::is_sorted(out[static_cast<size_t>(n)].begin(), out[static_cast<size_t>(n)].end()))
+        << "node " << n << ": slots must stay ascending";
+  }
+  return out;
+}
+
+std::vector<std::vector<int32_t>> BruteIncidence(const fem::Model<double>& model) {
+  std::vector<std::vector<int32_t>> out(static_cast<size_t>(model.num_nodes()));
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    for (int c = 0; c < 4; ++c) out[static_cast<size_t>(model.tet_node(t, c))].push_back(12 * t + 3 * c);
+  }
+  return out;  // tets ascending, so already sorted
+}
+
+TEST(IncrementalIncidence, RandomSplitsMatchRebuildAndKeepMass) {
+  const mesh::TetMesh box = mesh::MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d(0.02, 0.01, 0.01), 6, 3, 3);
+  fem::ModelOptions options;
+  options.node_capacity = 8 * box.num_nodes();  // room for many copies
+  const fem::Material tissue = fem::Material::FromYoungPoisson(5e4, 0.4, 1000);
+  fem::Model<double> model(box, std::span(&tissue, 1), options);
+  fem::State<double> state(model);
+  const double m0 = model.TotalMass();
+  std::mt19937 rng(3);
+  // Enough retargets to fill the append region (2·T slots) several times.
+  for (int round = 0; round < 600 && model.num_nodes() < model.node_capacity(); ++round) {
+    const int32_t t = std::uniform_int_distribution<int32_t>(0, model.num_tets() - 1)(rng);
+    const int corner = std::uniform_int_distribution<int>(0, 3)(rng);
+    const int32_t node = model.tet_node(t, corner);
+    const int32_t copy = model.AddNodeCopy(node, state);
+    // Move every tet of the node on one side of a random plane through it.
+    std::vector<int32_t> moved;
+    const Eigen::Vector3d axis = Eigen::Vector3d::Random().normalized();
+    const Eigen::Vector3d p = model.rest_position(node);
+    for (int32_t u = 0; u < model.num_tets(); ++u) {
+      for (int c = 0; c < 4; ++c) {
+        if (model.tet_node(u, c) != node) continue;
+        Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+        for (int k = 0; k < 4; ++k) centroid += model.rest_position(model.tet_node(u, k)) / 4;
+        if ((centroid - p).dot(axis) > 0) {
+          model.RetargetTet(u, c, copy);
+          moved.push_back(u);
+        }
+      }
+    }
+    const std::vector<int32_t> nodes = {node, copy};
+    model.RecomputeNodeMasses(nodes);
+    model.CommitTopology();
+    if (round % 50 == 0) {
+      ASSERT_EQ(Incidence(model), BruteIncidence(model)) << "round " << round;
+    }
+  }
+  EXPECT_EQ(Incidence(model), BruteIncidence(model));
+  EXPECT_GT(model.incidence_compactions(), 0) << "the append region filled up at least once";
+  EXPECT_NEAR(model.TotalMass(), m0, 1e-12 * m0);
+}
+
+// A block cut by a scripted blade: after every frame the simulation's
+// surface (kept by slot, edited locally) must equal the surface extracted
+// from its tets, and the opened flags must mark only faces absent from the
+// uncut surface.
+TEST(IncrementalSurface, MatchesExtractionAfterEveryCut) {
+  const char* kScene = R"pb(
+name: "incremental"
+mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.015 y: 0.01 z: 0.005 } nx: 6 ny: 4 nz: 2 } }
+materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
+boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
+time_step { frame_dt: 0.002 threads: 1 }
+tool {
+  blade_length: 0.025
+  keyframes { t: 0 tip { x: -0.002 y: 0.0051 z: -0.001 } blade_dir { z: 1 } }
+  keyframes { t: 0.12 tip { x: 0.017 y: 0.0051 z: -0.001 } blade_dir { z: 1 } }
+}
+cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }
+)pb";
+  const sim::LoadedScene scene = sim::ParseScene(kScene, "incremental.pbtxt", ".");
+  auto sim = sim::Simulation::Create(scene);
+  auto sorted_rows = [](const mesh::Triangles& tris) {
+    std::vector<std::array<int32_t, 3>> rows;
+    for (Eigen::Index f = 0; f < tris.rows(); ++f) {
+      std::array<int32_t, 3> r = {tris(f, 0), tris(f, 1), tris(f, 2)};
+      std::rotate(r.begin(), std::min_element(r.begin(), r.end()), r.end());  // keep orientation
+      rows.push_back(r);
+    }
+    std::sort(rows.begin(), rows.end());
+    return rows;
+  };
+  sim::MeshView view;
+  sim->FillMeshView(view);
+  const size_t uncut_faces = static_cast<size_t>(view.surface.rows());
+  for (int frame = 0; frame < 60; ++frame) {
+    ASSERT_EQ(sim->AdvanceFrame(), sim::SimStatus::kOk);
+    if (!sim->Tool().cut_this_frame) continue;
+    sim->FillMeshView(view);
+    const mesh::Surface fresh = mesh::ExtractSurface(view.tets);
+    ASSERT_EQ(sorted_rows(view.surface), sorted_rows(fresh.tris)) << "frame " << frame;
+    const auto opened = static_cast<size_t>(std::count(view.opened.begin(), view.opened.end(), uint8_t{1}));
+    EXPECT_EQ(opened, static_cast<size_t>(view.surface.rows()) - uncut_faces)
+        << "a cut only adds faces, and exactly those are opened";
+  }
+  EXPECT_GE(sim->Summary().cuts, 4u);
+  EXPECT_GE(sim->Summary().components, 2) << "the blade reaches below the block: through-cut";
+  EXPECT_EQ(sim->CutTimings().size(), sim->Summary().cuts);
+}
+
+}  // namespace
+}  // namespace cutsim
