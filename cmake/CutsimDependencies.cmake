@@ -22,6 +22,9 @@ add_library(cutsim::lcm_c ALIAS cutsim_lcm)
 target_include_directories(cutsim_lcm SYSTEM INTERFACE ${LCM_INCLUDE_DIR})
 target_link_libraries(cutsim_lcm INTERFACE ${LCM_LIBRARY})
 
+# OpenSSL's libcrypto (libssl-dev): HMAC-SHA256 of tool messages (issue 7).
+find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
+
 # gmsh (libgmsh-dev): .msh reading/writing and surface tetrahedralisation.
 find_path(GMSH_INCLUDE_DIR gmsh.h REQUIRED)
 find_library(GMSH_LIBRARY gmsh REQUIRED)

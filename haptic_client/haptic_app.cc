@@ -27,6 +27,7 @@
 #include "common/transport/channels.h"
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/tool_auth.h"
 #include "haptic_client/loop_stats.h"
 #include "haptic_client/virtual_devices.h"
 
@@ -254,6 +255,18 @@ int RunHapticApp(const HapticAppOptions& o) {
     link_options.receive_faults.seed = o.faults.seed + 1;  // independent fates per direction
   }
   if (o.faults.active()) Log().info("fault injection ({}): {}", o.fault_direction, transport::Describe(o.faults));
+  // Access control: sign every tool message when the session has a key.
+  std::unique_ptr<transport::HmacToolAuthenticator> authenticator;
+  if (const auto key = transport::LoadSessionKey(o.key_file)) {
+    authenticator = std::make_unique<transport::HmacToolAuthenticator>(*key, o.session);
+    link_options.authenticator = authenticator.get();
+    Log().info("session '{}': tool messages are signed (HMAC-SHA256, key from {})", o.session,
+               o.key_file.empty() ? std::string("$") + transport::kSessionKeyEnv : o.key_file);
+  } else {
+    Log().warn("session '{}': no session key (--key-file or ${}): tool messages are NOT signed; "
+               "a server with a key will ignore them",
+               o.session, transport::kSessionKeyEnv);
+  }
   transport::LcmBus bus(o.lcm_url);
   transport::HapticClientLink link(bus, o.session, link_options);
 

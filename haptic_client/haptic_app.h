@@ -53,6 +53,7 @@ struct HapticAppOptions {
   std::string fault_direction = "both";  ///< both | tool | model
   bool realtime = true;               ///< --no-rt: do not try SCHED_FIFO / mlockall
   int rt_priority = 80;
+  std::string key_file;               ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else unsigned
 };
 
 /// Validates the options (throws `InputError` naming the flag).

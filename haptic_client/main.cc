@@ -38,6 +38,9 @@ int main(int argc, char** argv) {
   cutsim::transport::AddFaultFlags(app, &o.faults);
   app.add_option("--fault-direction", o.fault_direction, "Where faults apply: both | tool | model")
       ->group("Fault injection")->capture_default_str();
+  app.add_option("--key-file", o.key_file,
+                 "Session key (hex, 16-64 bytes) to sign tool messages; default $CUTSIM_SESSION_KEY")
+      ->check(CLI::ExistingFile);
   app.add_flag("--no-rt", no_rt, "Do not try SCHED_FIFO and mlockall");
   app.add_option("--rt-priority", o.rt_priority, "SCHED_FIFO priority of the servo loop")->capture_default_str();
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();

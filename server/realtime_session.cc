@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <memory>
+#include <optional>
 #include <vector>
 
 #include <fmt/format.h>
@@ -15,6 +17,7 @@
 #include "common/core/error.h"
 #include "common/core/log.h"
 #include "common/haptics/local_model.h"
+#include "common/sim/checkpoint.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 #include "common/transport/channels.h"
@@ -22,6 +25,7 @@
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
 #include "common/transport/mesh_stream.h"
+#include "server/recorder.h"
 #include "server/server_app.h"
 
 namespace cutsim::server {
@@ -65,20 +69,35 @@ struct SessionCounters {
   uint64_t viewer_frames = 0;
 };
 
+/// Latencies of the tool pose behind each published local model.
+struct LatencyStats {
+  /// Client's device read (ToolSample::stamp_ns) → model published: what the
+  /// haptic side measures minus the model's LCM hop. Same CLOCK_MONOTONIC
+  /// only on one host; across machines read receive_to_model instead.
+  FrameStats pose_to_model{1 << 16};
+  FrameStats receive_to_model{1 << 16};  ///< Pose accepted by the server → model published.
+};
+
 std::string StatsJson(const ServerOptions& o, const sim::SimulationSummary& s, const SessionCounters& c,
-                      const FrameStats& frame_time, const transport::HapticServerLinkStats& link,
-                      const transport::MeshStreamStats& mesh) {
+                      const FrameStats& frame_time, const LatencyStats& latency,
+                      const transport::HapticServerLinkStats& link, const transport::MeshStreamStats& mesh) {
   return fmt::format(
       "{{\"session\": \"{}\", \"frames\": {}, \"sim_time\": {:.6g}, \"frame_overruns\": {}, "
       "\"frame_time_p50_ms\": {:.4g}, \"frame_time_p99_ms\": {:.4g}, \"frame_time_max_ms\": {:.4g}, "
+      "\"pose_to_model_p50_ms\": {:.4g}, \"pose_to_model_p99_ms\": {:.4g}, \"pose_to_model_max_ms\": {:.4g}, "
+      "\"receive_to_model_p50_ms\": {:.4g}, \"receive_to_model_p99_ms\": {:.4g}, "
       "\"tool_messages\": {}, \"tool_rejected\": {}, \"models_published\": {}, "
       "\"viewer_frames\": {}, \"viewer_frames_without_reader\": {}, \"snapshots\": {}, \"deltas\": {}, "
+      "\"tool_unsigned\": {}, \"tool_forged\": {}, \"tool_replayed\": {}, "
       "\"cuts\": {}, \"topology_version\": {}, \"components\": {}, \"status\": \"{}\"}}",
       o.session, c.frames, s.sim_time, c.overruns, 1e3 * frame_time.Percentile(0.5),
-      1e3 * frame_time.Percentile(0.99), 1e3 * frame_time.max(), link.accepted,
+      1e3 * frame_time.Percentile(0.99), 1e3 * frame_time.max(), 1e3 * latency.pose_to_model.Percentile(0.5),
+      1e3 * latency.pose_to_model.Percentile(0.99), 1e3 * latency.pose_to_model.max(),
+      1e3 * latency.receive_to_model.Percentile(0.5), 1e3 * latency.receive_to_model.Percentile(0.99), link.accepted,
       link.foreign_session + link.stale + link.duplicate + link.invalid + link.decode_errors +
           link.unauthenticated,
-      c.models_published, mesh.frames, mesh.skipped_no_reader, mesh.snapshots, mesh.deltas, s.cuts,
+      c.models_published, mesh.frames, mesh.skipped_no_reader, mesh.snapshots, mesh.deltas,
+      link.auth_unsigned, link.auth_forged, link.auth_replayed, s.cuts,
       s.topology_version, s.components, s.status);
 }
 
@@ -89,10 +108,17 @@ int ServerApp::RunRealtime() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision});
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);  // checkpoints
+  if (options_.resume) (void)checkpointer.Resume(*simulation);
   const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();
 
   transport::LcmBus bus(options_.lcm_url);
-  transport::HapticServerLink link(bus, options_.session);
+  // Access control and recording (issue 7): null when not asked for.
+  const auto authenticator = MakeToolAuthenticator(options_);
+  transport::HapticServerLink link(bus, options_.session, {.authenticator = authenticator.get()});
+  auto recorder = options_.record.empty() ? nullptr
+                                          : std::make_unique<SessionRecorder>(
+                                                options_.record, options_.session, options_.scene, *simulation);
   std::string dds_config;
   if (!options_.dds_config.empty()) {
     dds_config = "file://" + std::filesystem::absolute(options_.dds_config).string();
@@ -107,6 +133,7 @@ int ServerApp::RunRealtime() {
 
   SessionCounters counters;
   FrameStats frame_time(1 << 16);
+  LatencyStats latency;
   sim::MeshView view;
   const int64_t frame_ns = static_cast<int64_t>(std::llround(frame_dt * 1e9));
   const int64_t viewer_period_ns = static_cast<int64_t>(std::llround(1e9 / options_.viewer_fps));
@@ -117,18 +144,28 @@ int ServerApp::RunRealtime() {
   int64_t next_status_ns = start_ns;
   int64_t last_tool_ns = -client_timeout_ns;
   uint64_t last_tool_seq = 0;
-  uint64_t last_cuts = 0;
+  int64_t last_tool_stamp_ns = 0;
+  int64_t last_tool_receive_ns = 0;
+  uint64_t last_cuts = simulation->Tool().cuts;  // not 0 after --resume
   int exit_code = 0;
 
   while (!g_stop) {
     if (options_.duration && simulation->sim_time() >= *options_.duration - 1e-9) break;
     const int64_t frame_start = MonotonicNs();
 
+    // Frame order, for the pose-to-model latency: the newest tool pose is
+    // taken right before the step (after the pacing sleep, so a pose that
+    // arrived while we slept is not a frame late), the local model goes out
+    // right after the step, and only then recording, viewers and status.
     // Tool poses: the newest valid one drives the blade (stale ones dropped).
+    std::optional<sim::ToolPose> applied;
     if (const auto tool = link.PollTool()) {
-      simulation->SetToolPose({tool->tip, tool->blade_dir});
+      applied = sim::ToolPose{tool->tip, tool->blade_dir};
+      simulation->SetToolPose(*applied);
       last_tool_ns = frame_start;
       last_tool_seq = tool->seq;
+      last_tool_stamp_ns = tool->stamp_ns;
+      last_tool_receive_ns = tool->receive_ns;
       ++counters.tool_messages;
     }
     const bool client_present = frame_start - last_tool_ns < client_timeout_ns;
@@ -160,9 +197,13 @@ int ServerApp::RunRealtime() {
         contact.stiffness = simulation->ContactStiffness();
       }
       link.PublishModel(haptics::BuildLocalModel(header, contact), last_tool_seq);
+      const int64_t published_ns = MonotonicNs();
+      latency.pose_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_stamp_ns));
+      latency.receive_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_receive_ns));
       ++counters.models_published;
       last_cuts = tool.cuts;
     }
+    if (recorder) recorder->Frame(frame_dt, applied, *simulation);  // after the model: off the latency path
 
     // Viewers at their own rate; nothing is encoded while none is matched.
     if (frame_start >= next_viewer_ns) {
@@ -205,12 +246,16 @@ int ServerApp::RunRealtime() {
     }
     if (g_print_stats) {
       g_print_stats = 0;
-      Log().info("stats: {}", StatsJson(options_, simulation->Summary(), counters, frame_time,
+      Log().info("stats: {}", StatsJson(options_, simulation->Summary(), counters, frame_time, latency,
                                         link.stats(), publisher.stats()));
     }
 
-    // Pace to the wall clock on absolute deadlines; an overrun does not try
-    // to catch up (the physics would only fall further behind).
+    checkpointer.MaybeSave(*simulation);
+
+    // Pace to the wall clock on absolute deadlines. An overrun drops the
+    // missed slot instead of catching up: the next frame starts at once and
+    // the deadlines restart from now, so a slow frame never leaves a backlog
+    // of frames run back to back.
     const int64_t end = MonotonicNs();
     frame_time.Add(1e-9 * static_cast<double>(end - frame_start));
     deadline += frame_ns;
@@ -222,7 +267,12 @@ int ServerApp::RunRealtime() {
     }
   }
 
-  const std::string json = StatsJson(options_, simulation->Summary(), counters, frame_time,
+  if (recorder) {
+    const uint64_t hash = recorder->Finish(*simulation);
+    Log().info("recorded {} frames to {} (final mesh hash {:016x})", recorder->frames(), options_.record, hash);
+  }
+  if (exit_code == 0) (void)checkpointer.Save(*simulation);  // clean exit, SIGTERM included
+  const std::string json = StatsJson(options_, simulation->Summary(), counters, frame_time, latency,
                                      link.stats(), publisher.stats());
   Log().info("session ended: {}", json);
   std::printf("%s\n", json.c_str());

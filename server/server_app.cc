@@ -13,8 +13,10 @@
 #include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/log.h"
+#include "common/sim/checkpoint.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
+#include "server/recorder.h"
 
 namespace cutsim::server {
 volatile std::sig_atomic_t g_stop = 0;
@@ -48,8 +50,8 @@ std::string SummaryJson(const sim::SimulationSummary& s) {
 
 int ServerApp::ParseArgs(int argc, char** argv) {
   CLI::App app{"cutsim-server: owns the tissue FEM model and every cut"};
-  app.add_option("--scene", options_.scene, "Scene file (protobuf text format)")
-      ->required()
+  app.add_option("--scene", options_.scene,
+                 "Scene file (protobuf text format); with --replay, overrides the recorded one")
       ->check(CLI::ExistingFile);
   app.add_flag("--headless", options_.headless,
                "Run as fast as possible with no transport, then print a JSON summary");
@@ -80,10 +82,53 @@ int ServerApp::ParseArgs(int argc, char** argv) {
                  "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
       ->check(CLI::Range(1.0, 10000.0));
   app.add_option("--stats-json", options_.stats_json, "Also write the exit statistics to this file");
+  app.add_option("--record", options_.record,
+                 "Record the session's inputs (tool poses applied, frame times, cuts, final mesh "
+                 "hash) to this LCM log");
+  app.add_option("--replay", options_.replay,
+                 "With --headless: re-run a recording and check its cuts and final mesh hash "
+                 "(exit 4 on a mismatch)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--key-file", options_.key_file,
+                 "Session key (hex, 16-64 bytes): accept only tool messages signed with it; "
+                 "default $CUTSIM_SESSION_KEY, else an open session")
+      ->check(CLI::ExistingFile);
+  app.add_option("--auth-window", options_.auth_window,
+                 "Seconds a signed tool message's timestamp may differ from this host's clock")
+      ->check(CLI::Range(0.001, 3600.0));
+  app.add_option("--checkpoint", options_.checkpoint,
+                 "Save the tissue (every cut, positions, velocities) to this file every "
+                 "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace");
+  app.add_option("--checkpoint-every", options_.checkpoint_every,
+                 "Wall seconds between checkpoints (0: only at exit)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--resume", options_.resume,
+               "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an error)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  if (options_.resume && options_.checkpoint.empty()) {
+    std::fprintf(stderr, "--resume needs --checkpoint FILE\n");
+    return 2;
+  }
+  if (options_.scene.empty() && options_.replay.empty()) {
+    std::fprintf(stderr, "--scene is required (unless --headless --replay FILE)\n");
+    return 2;
+  }
+  if (!options_.replay.empty() && !options_.headless) {
+    std::fprintf(stderr, "--replay needs --headless\n");
+    return 2;
+  }
+  if (!options_.record.empty() && options_.headless) {
+    std::fprintf(stderr, "--record records a real-time session: drop --headless\n");
+    return 2;
+  }
+  if (!options_.record.empty() && options_.resume) {
+    // A replay starts from the scene, not from a checkpoint.
+    std::fprintf(stderr, "--record cannot be combined with --resume (a replay starts from the scene)\n");
+    return 2;
   }
   return -1;
 }
@@ -93,13 +138,49 @@ int ServerApp::Run() {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnStatsSignal);
+  if (!options_.replay.empty()) return RunReplay();
   return options_.headless ? RunHeadless() : RunRealtime();
+}
+
+std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const ServerOptions& o) {
+  const auto key = transport::LoadSessionKey(o.key_file);
+  if (!key) {
+    Log().warn("session '{}' is OPEN: no session key (--key-file or ${}), so anyone who can reach "
+               "the LCM group can drive the tool. Use a key whenever the session leaves this machine.",
+               o.session, transport::kSessionKeyEnv);
+    return nullptr;
+  }
+  Log().info("session '{}': tool messages must be signed (HMAC-SHA256, key from {}, window {} s)",
+             o.session, o.key_file.empty() ? std::string("$") + transport::kSessionKeyEnv : o.key_file,
+             o.auth_window);
+  return std::make_unique<transport::HmacToolAuthenticator>(
+      *key, o.session, static_cast<int64_t>(std::llround(o.auth_window * 1e9)));
+}
+
+int ServerApp::RunReplay() {
+  const ReplayResult r = ReplayRecording(options_.replay, options_.scene);
+  const std::string json = fmt::format(
+      "{{\"replay\": \"{}\", \"session\": \"{}\", \"scene\": \"{}\", \"match\": {}, \"frames\": {}, "
+      "\"cut_frames\": {}, \"cuts\": {}, \"topology_version\": {}, \"sim_time\": {:.9g}, "
+      "\"mesh_hash\": \"{:016x}\", \"recorded_mesh_hash\": \"{:016x}\", \"build\": \"{}\"}}",
+      options_.replay, r.session, r.scene, r.match ? "true" : "false", r.frames, r.cut_frames, r.cuts,
+      r.topology_version, r.sim_time, r.mesh_hash, r.recorded_mesh_hash, BuildClass());
+  std::printf("%s\n", json.c_str());
+  if (!r.match) {
+    Log().error("replay of {} does NOT match the recording: {}", options_.replay, r.mismatch);
+    return 4;
+  }
+  Log().info("replay of {} matches: {} frames, {} cut frames, final mesh hash {:016x}", options_.replay,
+             r.frames, r.cut_frames, r.mesh_hash);
+  return 0;
 }
 
 int ServerApp::RunHeadless() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision});
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);  // checkpoints
+  if (options_.resume) (void)checkpointer.Resume(*simulation);
   // The run ends at --duration, else when the tool path ends, else (with
   // --until-rest) at rest or --max-time.
   double end_time = options_.max_time;
@@ -125,6 +206,7 @@ int ServerApp::RunHeadless() {
       exit_code = 3;
       break;
     }
+    checkpointer.MaybeSave(*simulation);
     if (since_report.ElapsedSeconds() > (tty ? 0.2 : 5.0)) {
       since_report.Reset();
       const double frac = std::min(1.0, simulation->sim_time() / end_time);
@@ -142,6 +224,7 @@ int ServerApp::RunHeadless() {
     }
   }
   if (tty) std::fprintf(stderr, "\n");
+  if (exit_code == 0) (void)checkpointer.Save(*simulation);  // not over a good one after a blow-up
   if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !g_stop) {
     Log().warn("did not reach rest within {} s of simulated time", end_time);
   }

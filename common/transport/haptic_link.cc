@@ -168,9 +168,31 @@ void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns)
     ++stats_.foreign_session;
     return;
   }
-  if (options_.authenticator != nullptr && !options_.authenticator->Verify(msg)) {
-    ++stats_.unauthenticated;
-    return;
+  if (options_.authenticator != nullptr) {
+    switch (options_.authenticator->Verify(msg)) {
+      case AuthVerdict::kOk:
+        break;
+      case AuthVerdict::kNewEpoch:
+        // The sender restarted (authenticated): its new stream starts afresh.
+        if (sequencer_.has_value()) ++stats_.restarts;
+        sequencer_.Reset();
+        break;
+      case AuthVerdict::kUnsigned:
+        ++stats_.unauthenticated;
+        ++stats_.auth_unsigned;
+        return;
+      case AuthVerdict::kForged:
+        ++stats_.unauthenticated;
+        ++stats_.auth_forged;
+        return;
+      case AuthVerdict::kOutsideWindow:
+        ++stats_.auth_outside_window;
+        [[fallthrough]];
+      case AuthVerdict::kReplayed:
+        ++stats_.unauthenticated;
+        ++stats_.auth_replayed;
+        return;
+    }
   }
   ToolSample sample = FromProto(msg);
   if (!ValidTool(&sample)) {

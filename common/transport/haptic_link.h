@@ -35,8 +35,10 @@
 ///   call for the link, at the cost of up to one LCM-thread period (1 ms) of
 ///   extra tool-pose latency.
 ///
-/// Access control (issue 7): `ToolAuthenticator` is the hook for the HMAC of
-/// `ToolState.hmac`; with none configured, messages are not authenticated.
+/// Access control (issue 7): with a `ToolAuthenticator` (tool_auth.h) the
+/// client signs every tool message and the server drops and counts unsigned,
+/// forged and replayed ones before anything else looks at them; with none
+/// configured, messages are not authenticated (an open session).
 
 #include <atomic>
 #include <cstdint>
@@ -89,16 +91,27 @@ class StreamSequencer {
   int64_t stamp_ns_ = 0;
 };
 
-/// Hook for authenticating tool messages (issue 7: HMAC in `ToolState.hmac`,
-/// computed over the message with that field empty). Called on the sending
-/// and receiving threads; implementations must not throw or allocate.
+/// Outcome of authenticating one tool message.
+enum class AuthVerdict : uint8_t {
+  kOk,             ///< Valid tag, newer than the held message.
+  kNewEpoch,       ///< Valid tag, a newer sender epoch (the sender restarted).
+  kUnsigned,       ///< No tag.
+  kForged,         ///< Tag of the wrong size or not matching (wrong key, altered, other session).
+  kReplayed,       ///< Valid tag, but not newer than the held message.
+  kOutsideWindow,  ///< Valid tag, but its timestamp is far from our clock (an old recording).
+};
+
+/// Authenticates tool messages (HMAC in `ToolState.hmac`; the implementation
+/// is `HmacToolAuthenticator` in tool_auth.h). Called on the sending and
+/// receiving threads; implementations must not throw.
 class ToolAuthenticator {
  public:
   virtual ~ToolAuthenticator() = default;
-  /// Fills `msg->hmac` (the other fields are final).
+  /// Fills `msg->hmac` and the fields it needs (epoch, wall stamp); the other
+  /// fields are final.
   virtual void Sign(v1::ToolState* msg) noexcept = 0;
-  /// True if `msg.hmac` is valid for the rest of the message.
-  [[nodiscard]] virtual bool Verify(const v1::ToolState& msg) noexcept = 0;
+  /// Checks `msg` (tag and freshness) and, if accepted, remembers it.
+  [[nodiscard]] virtual AuthVerdict Verify(const v1::ToolState& msg) noexcept = 0;
 };
 
 /// Options shared by both ends.
@@ -119,7 +132,11 @@ struct HapticServerLinkStats {
   uint64_t stale = 0;            ///< Out of order (older than the held one).
   uint64_t duplicate = 0;        ///< Same seq as the held one.
   uint64_t invalid = 0;          ///< Non-finite or absurd pose.
-  uint64_t unauthenticated = 0;  ///< Failed `ToolAuthenticator::Verify`.
+  uint64_t unauthenticated = 0;  ///< Failed `ToolAuthenticator::Verify` (sum of the next four).
+  uint64_t auth_unsigned = 0;    ///< No tag while a key is configured.
+  uint64_t auth_forged = 0;      ///< Bad tag.
+  uint64_t auth_replayed = 0;    ///< Valid tag, sequence not newer (or timestamp outside the window).
+  uint64_t auth_outside_window = 0;  ///< Of `auth_replayed`: timestamp outside the window.
   uint64_t restarts = 0;         ///< Client restarts detected (included in accepted).
   uint64_t models_published = 0;
   uint64_t models_not_sent = 0;  ///< Over one datagram or LCM refused.

@@ -1,6 +1,7 @@
 #include "common/transport/mesh_stream.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -164,7 +165,15 @@ MeshStreamPublisher::MeshStreamPublisher(DdsParticipant& participant, std::strin
       status_topic_(participant, EnvelopeKind::kStatus),
       snapshot_writer_(snapshot_topic_),
       delta_writer_(delta_topic_),
-      status_writer_(status_topic_) {}
+      status_writer_(status_topic_) {
+  // A restarted server must continue above the sequence numbers of the one
+  // it replaces, or viewers holding a newer replica ignore its snapshots as
+  // stale: start at the wall clock in ms (frames go out at ≤ 240 Hz, so a
+  // later start is always ahead). (ops, issue 7: server restart.)
+  seq_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(
+                                   std::chrono::system_clock::now().time_since_epoch())
+                                   .count());
+}
 
 MeshStreamPublisher::~MeshStreamPublisher() = default;
 

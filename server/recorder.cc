@@ -1,0 +1,260 @@
+#include "server/recorder.h"
+
+#include <csignal>
+#include <fstream>
+#include <iterator>
+#include <span>
+
+#include <fmt/format.h>
+
+#include "common/core/error.h"
+#include "common/core/log.h"
+#include "common/sim/scene_loader.h"
+#include "common/transport/codec.h"
+
+namespace cutsim::server {
+extern volatile std::sig_atomic_t g_stop;  // server_app.cc: SIGINT/SIGTERM
+namespace {
+
+std::string Channel(const std::string& session, const char* kind) {
+  return fmt::format("CUTSIM_{}_REC_{}", session, kind);
+}
+
+int64_t RealtimeUs() {
+  timespec ts{};
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return static_cast<int64_t>(ts.tv_sec) * 1'000'000 + ts.tv_nsec / 1000;
+}
+
+uint64_t FileHash(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) ThrowFileError(path.string(), "cannot read the scene file");
+  uint64_t h = 0xcbf29ce484222325ULL;  // FNV-1a 64
+  for (std::istreambuf_iterator<char> it(in), end; it != end; ++it) {
+    h ^= static_cast<uint8_t>(*it);
+    h *= 0x100000001b3ULL;
+  }
+  return h;
+}
+
+void SetVec3(const Eigen::Vector3d& e, v1::Vec3* v) {
+  v->set_x(e.x());
+  v->set_y(e.y());
+  v->set_z(e.z());
+}
+
+uint64_t TopologyDigest(const sim::Simulation& simulation, sim::MeshView* view) {
+  simulation.FillMeshView(*view);
+  return transport::TopologyHash(simulation.topology_version(), view->tets, view->surface,
+                                 view->opened);
+}
+
+template <class Msg>
+Msg Parse(const transport::LcmLogEvent& e, const std::filesystem::path& path) {
+  Msg msg;
+  transport::DecodeError err;
+  if (!transport::DecodeInto(std::span<const uint8_t>(e.data), msg, e.channel, &err)) {
+    ThrowInputError({.file = path.string(), .line = e.eventnum + 1, .field = e.channel},
+                    "recording: " + err.Message());
+  }
+  return msg;
+}
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+}  // namespace
+
+const char* BuildClass() {
+#if defined(__FMA__) || defined(__AVX2__) || defined(__AVX__)
+  return "native-fma";
+#else
+  return "portable";
+#endif
+}
+
+uint64_t FinalMeshHash(const sim::Simulation& simulation, double quantum, sim::MeshView* view) {
+  simulation.FillMeshView(*view);
+  const auto quantise = [quantum](const mesh::Positions& p) {
+    transport::QuantisedPositions q(p.rows(), 3);
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+      for (int c = 0; c < 3; ++c) q(i, c) = transport::Quantise(p(i, c), quantum);
+    }
+    return q;
+  };
+  const uint64_t state = transport::MeshHash(simulation.topology_version(), quantise(view->world),
+                                             view->tets, view->surface, view->opened);
+  return transport::CombineHashes(state, transport::PositionsHash(quantise(view->rest)));
+}
+
+// ---- SessionRecorder ------------------------------------------------------------
+
+SessionRecorder::SessionRecorder(const std::filesystem::path& path, const std::string& session,
+                                 const std::string& scene_path, const sim::Simulation& simulation)
+    : log_(path),
+      frame_channel_(Channel(session, "FRAME")),
+      end_channel_(Channel(session, "END")),
+      last_version_(simulation.topology_version()) {
+  const sim::SimulationSummary s = simulation.QuickSummary();
+  v1::RecordHeader header;
+  header.set_session(session);
+  header.set_scene(scene_path);
+  header.set_precision(s.precision);
+  header.set_threads(s.threads);
+  header.set_quantum(kRecordQuantum);
+  header.set_build(BuildClass());
+  header.set_scene_hash(FileHash(scene_path));
+  header.set_frame_dt(simulation.frame_dt());
+  Write(Channel(session, "HEADER"), header);
+}
+
+void SessionRecorder::Write(const std::string& channel, const google::protobuf::MessageLite& msg) {
+  buffer_.clear();
+  msg.AppendToString(&buffer_);
+  log_.Write(channel,
+             std::span<const uint8_t>(reinterpret_cast<const uint8_t*>(buffer_.data()), buffer_.size()),
+             RealtimeUs());
+}
+
+void SessionRecorder::Frame(double frame_time, const std::optional<sim::ToolPose>& applied,
+                            const sim::Simulation& simulation) {
+  frame_msg_.Clear();
+  frame_msg_.set_frame(++frames_);
+  frame_msg_.set_frame_time(frame_time);
+  if (applied) {
+    frame_msg_.set_has_tool(true);
+    SetVec3(applied->tip, frame_msg_.mutable_tip());
+    SetVec3(applied->blade_dir, frame_msg_.mutable_blade_dir());
+  }
+  const uint64_t version = simulation.topology_version();
+  frame_msg_.set_topology_version(version);
+  frame_msg_.set_cuts(simulation.has_tool() ? simulation.Tool().cuts : 0);
+  if (version != last_version_) {
+    frame_msg_.set_topology_hash(TopologyDigest(simulation, &view_));
+    last_version_ = version;
+  }
+  Write(frame_channel_, frame_msg_);
+}
+
+uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
+  v1::RecordEnd end;
+  end.set_frames(frames_);
+  end.set_topology_version(simulation.topology_version());
+  end.set_cuts(simulation.has_tool() ? simulation.Tool().cuts : 0);
+  end.set_mesh_hash(FinalMeshHash(simulation, kRecordQuantum, &view_));
+  end.set_sim_time(simulation.sim_time());
+  Write(end_channel_, end);
+  return end.mesh_hash();
+}
+
+// ---- Replay ------------------------------------------------------------------------
+
+ReplayResult ReplayRecording(const std::filesystem::path& path, const std::string& scene_override) {
+  transport::LcmLogReader reader(path);
+  const std::string file = path.string();
+  auto first = reader.Next();
+  if (!first || !EndsWith(first->channel, "_REC_HEADER")) {
+    ThrowInputError({.file = file, .line = 1},
+                    "not a cutsim recording: the first event must be on CUTSIM_<session>_REC_HEADER");
+  }
+  const auto header = Parse<v1::RecordHeader>(*first, path);
+  ReplayResult result;
+  result.session = header.session();
+
+  // The scene: the override, else as recorded, else next to the recording.
+  std::filesystem::path scene = scene_override.empty() ? header.scene() : scene_override;
+  if (scene_override.empty() && !std::filesystem::exists(scene)) {
+    scene = path.parent_path() / std::filesystem::path(header.scene()).filename();
+  }
+  if (!std::filesystem::exists(scene)) {
+    ThrowInputError({.file = file, .field = "RecordHeader.scene"},
+                    fmt::format("scene \"{}\" not found (give --scene)", header.scene()));
+  }
+  result.scene = scene.string();
+  if (FileHash(scene) != header.scene_hash()) {
+    ThrowInputError({.file = file, .field = "RecordHeader.scene_hash"},
+                    fmt::format("scene {} differs from the recorded one", scene.string()));
+  }
+  if (header.build() != BuildClass()) {
+    Log().warn("{}: recorded by a {} build, replayed by a {} build: floating-point rounding differs "
+               "and the replay may not match",
+               file, header.build(), BuildClass());
+  }
+  const sim::LoadedScene loaded = sim::LoadScene(scene);
+  auto simulation = sim::Simulation::Create(
+      loaded, {.threads = header.threads(), .precision = header.precision()});
+
+  sim::MeshView view;
+  uint64_t last_version = simulation->topology_version();
+  bool ended = false;
+  const auto fail = [&](std::string what) {
+    if (result.mismatch.empty()) result.mismatch = std::move(what);
+  };
+  while (auto e = reader.Next()) {
+    if (g_stop) {
+      fail(fmt::format("interrupted after {} frames", result.frames));
+      break;
+    }
+    if (EndsWith(e->channel, "_REC_FRAME")) {
+      if (ended) ThrowInputError({.file = file, .line = e->eventnum + 1}, "frame after the end event");
+      const auto f = Parse<v1::RecordFrame>(*e, path);
+      if (f.frame() != result.frames + 1) {
+        ThrowInputError({.file = file, .line = e->eventnum + 1, .field = "RecordFrame.frame"},
+                        fmt::format("frame {} follows frame {}: the recording is incomplete",
+                                    f.frame(), result.frames));
+      }
+      if (f.has_tool()) {
+        simulation->SetToolPose({{f.tip().x(), f.tip().y(), f.tip().z()},
+                                 {f.blade_dir().x(), f.blade_dir().y(), f.blade_dir().z()}});
+      }
+      if (simulation->AdvanceFrame(f.frame_time()) != sim::SimStatus::kOk) {
+        fail(fmt::format("frame {}: the simulation stopped: {}", f.frame(),
+                         simulation->Summary().diagnosis));
+        break;
+      }
+      ++result.frames;
+      const uint64_t version = simulation->topology_version();
+      if (version != f.topology_version()) {
+        fail(fmt::format("frame {}: topology version {}, recorded {} (a cut decision differs)",
+                         f.frame(), version, f.topology_version()));
+        break;
+      }
+      if (version != last_version) {
+        ++result.cut_frames;
+        last_version = version;
+        const uint64_t digest = TopologyDigest(*simulation, &view);
+        if (f.topology_hash() != 0 && digest != f.topology_hash()) {
+          fail(fmt::format("frame {}: topology digest {:016x}, recorded {:016x} (the cut split "
+                           "different nodes)",
+                           f.frame(), digest, f.topology_hash()));
+          break;
+        }
+      }
+    } else if (EndsWith(e->channel, "_REC_END")) {
+      const auto end = Parse<v1::RecordEnd>(*e, path);
+      ended = true;
+      result.recorded_mesh_hash = end.mesh_hash();
+      if (end.frames() != result.frames) {
+        fail(fmt::format("{} frames replayed, {} recorded", result.frames, end.frames()));
+      }
+    }
+    // Other channels (e.g. a tool stream logged alongside) are ignored.
+  }
+  if (!ended && result.mismatch.empty() && !g_stop) {
+    ThrowInputError({.file = file, .field = "RecordEnd"},
+                    "the recording has no end event (the server did not finish it)");
+  }
+  result.topology_version = simulation->topology_version();
+  result.cuts = simulation->has_tool() ? simulation->Tool().cuts : 0;
+  result.sim_time = simulation->sim_time();
+  result.mesh_hash = FinalMeshHash(*simulation, header.quantum() > 0 ? header.quantum() : kRecordQuantum, &view);
+  if (result.mismatch.empty() && result.mesh_hash != result.recorded_mesh_hash) {
+    fail(fmt::format("final mesh hash {:016x}, recorded {:016x}", result.mesh_hash,
+                     result.recorded_mesh_hash));
+  }
+  result.match = result.mismatch.empty();
+  return result;
+}
+
+}  // namespace cutsim::server

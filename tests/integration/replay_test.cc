@@ -1,0 +1,195 @@
+// Record and replay (issue 7). The shipped recording scenes/ligament-cut.lcm
+// (a real-time session: scripted haptic client cutting the ligament over LCM)
+// replays to the recorded cuts and final mesh hash, twice; a tampered
+// recording is reported as a mismatch; and LCM's own tools read and write the
+// format (lcm-logplayer plays it, lcm-logger records it, the copy replays).
+//
+// The LCM-tools case uses udpm, so ctest runs it inside a private network
+// namespace (deploy/netns-run.sh); the others need no network.
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/transport/codec.h"
+#include "common/transport/lcm_log.h"
+#include "cutsim/v1/wire.pb.h"
+#include "tests/integration/subprocess.h"
+
+namespace cutsim {
+namespace {
+
+using testing::BinPath;
+using testing::JsonNumber;
+using testing::RunProcess;
+using testing::Subprocess;
+using testing::TempDir;
+using namespace std::chrono_literals;
+
+const std::string kRecording = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament-cut.lcm";
+
+/// The string value of "key" in one-line JSON.
+std::string JsonString(const std::string& json, const std::string& key) {
+  const std::string needle = "\"" + key + "\": \"";
+  const auto at = json.find(needle);
+  if (at == std::string::npos) return "";
+  const auto start = at + needle.size();
+  return json.substr(start, json.find('"', start) - start);
+}
+
+std::vector<transport::LcmLogEvent> ReadAll(const std::string& path) {
+  transport::LcmLogReader reader(path);
+  std::vector<transport::LcmLogEvent> events;
+  while (auto e = reader.Next()) events.push_back(std::move(*e));
+  return events;
+}
+
+template <class Msg>
+Msg Parse(const transport::LcmLogEvent& e) {
+  Msg m;
+  EXPECT_TRUE(transport::DecodeInto(std::span<const uint8_t>(e.data), m, e.channel));
+  return m;
+}
+
+bool EndsWith(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+/// Writes `events` to `path`, letting `edit` change each one first.
+template <class Edit>
+void WriteEdited(const std::vector<transport::LcmLogEvent>& events, const std::string& path, Edit edit) {
+  transport::LcmLogWriter writer(path);
+  for (transport::LcmLogEvent e : events) {
+    edit(e);
+    writer.Write(e.channel, e.data, e.timestamp_us);
+  }
+}
+
+template <class Msg>
+void Reencode(const Msg& m, transport::LcmLogEvent* e) {
+  std::string bytes;
+  m.SerializeToString(&bytes);
+  e->data.assign(bytes.begin(), bytes.end());
+}
+
+testing::RunResult Replay(const std::string& path) {
+  return RunProcess({BinPath("cutsim-server"), "--headless", "--replay", path, "--scene",
+                     std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt", "--log-level", "warn"},
+                    120s);
+}
+
+TEST(ReplayTest, ShippedRecordingReplaysToTheRecordedHashTwice) {
+  // What the recording itself says, read independently of the server.
+  const auto events = ReadAll(kRecording);
+  ASSERT_GE(events.size(), 3u);
+  ASSERT_TRUE(EndsWith(events.front().channel, "_REC_HEADER"));
+  ASSERT_TRUE(EndsWith(events.back().channel, "_REC_END"));
+  const auto end = Parse<v1::RecordEnd>(events.back());
+  uint64_t cut_frames = 0;
+  uint64_t tool_frames = 0;
+  for (const auto& e : events) {
+    if (!EndsWith(e.channel, "_REC_FRAME")) continue;
+    const auto f = Parse<v1::RecordFrame>(e);
+    if (f.topology_hash() != 0) ++cut_frames;
+    if (f.has_tool()) ++tool_frames;
+  }
+  ASSERT_GE(cut_frames, 1u) << "the shipped recording should contain a cut";
+  ASSERT_GT(tool_frames, 0u);
+  char recorded[17];
+  std::snprintf(recorded, sizeof(recorded), "%016llx", static_cast<unsigned long long>(end.mesh_hash()));
+
+  std::string first_hash;
+  for (int run = 0; run < 2; ++run) {
+    const auto r = Replay(kRecording);
+    ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("\"match\": true"), std::string::npos) << r.out;
+    EXPECT_EQ(JsonString(r.out, "mesh_hash"), recorded) << r.out;
+    EXPECT_EQ(JsonNumber(r.out, "cut_frames"), static_cast<double>(cut_frames)) << r.out;
+    EXPECT_EQ(JsonNumber(r.out, "topology_version"), static_cast<double>(end.topology_version()));
+    if (run == 0) first_hash = JsonString(r.out, "mesh_hash");
+    EXPECT_EQ(JsonString(r.out, "mesh_hash"), first_hash) << "replay is not deterministic run to run";
+  }
+}
+
+TEST(ReplayTest, TamperedRecordingsAreReportedAsMismatches) {
+  const auto events = ReadAll(kRecording);
+  TempDir dir("cutsim-replay");
+
+  // (a) A different final hash: the whole replay runs, then the hash differs.
+  const std::string bad_hash = dir.path() + "/bad-hash.lcm";
+  WriteEdited(events, bad_hash, [](transport::LcmLogEvent& e) {
+    if (!EndsWith(e.channel, "_REC_END")) return;
+    auto end = Parse<v1::RecordEnd>(e);
+    end.set_mesh_hash(end.mesh_hash() ^ 1);
+    Reencode(end, &e);
+  });
+  auto r = Replay(bad_hash);
+  EXPECT_EQ(r.exit_code, 4) << r.out << r.err;
+  EXPECT_NE(r.err.find("final mesh hash"), std::string::npos) << r.err;
+  EXPECT_NE(r.out.find("\"match\": false"), std::string::npos) << r.out;
+
+  // (b) The tool kept 5 mm higher: it no longer cuts where the recording did.
+  const std::string lifted = dir.path() + "/lifted.lcm";
+  WriteEdited(events, lifted, [](transport::LcmLogEvent& e) {
+    if (!EndsWith(e.channel, "_REC_FRAME")) return;
+    auto f = Parse<v1::RecordFrame>(e);
+    if (!f.has_tool()) return;
+    f.mutable_tip()->set_z(f.tip().z() + 0.005);
+    Reencode(f, &e);
+  });
+  r = Replay(lifted);
+  EXPECT_EQ(r.exit_code, 4) << r.out << r.err;
+  EXPECT_NE(r.err.find("a cut decision differs"), std::string::npos) << r.err;
+
+  // (c) A truncated recording (no end event) is bad input, not a mismatch.
+  const std::string truncated = dir.path() + "/truncated.lcm";
+  {
+    transport::LcmLogWriter writer(truncated);
+    for (size_t i = 0; i + 1 < events.size() && i < 20; ++i) {
+      writer.Write(events[i].channel, events[i].data, events[i].timestamp_us);
+    }
+  }
+  r = Replay(truncated);
+  EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+  EXPECT_NE(r.err.find("no end event"), std::string::npos) << r.err;
+}
+
+// lcm-logplayer (Debian liblcm-bin) plays the recording on udpm; lcm-logger
+// records it; the copy has the same events and replays to the same hash.
+TEST(ReplayTest, LcmLoggerAndLogplayerReadAndWriteTheFormat) {
+  if (std::system("command -v lcm-logger >/dev/null && command -v lcm-logplayer >/dev/null") != 0) {
+    GTEST_SKIP() << "lcm-logger/lcm-logplayer not installed (Debian package liblcm-bin)";
+  }
+  TempDir dir("cutsim-replay-lcm");
+  const std::string url = "udpm://239.255.76.67:" + std::to_string(7990 + testing::UniqueTestIndex() % 9) +
+                          "?ttl=0";
+  const std::string copy = dir.path() + "/copy.lcm";
+  Subprocess logger({"/usr/bin/lcm-logger", "--lcm-url=" + url, "-q", "-f", "--flush-interval=10", copy});
+  std::this_thread::sleep_for(500ms);  // subscribed before the player starts
+  const auto played =
+      RunProcess({"/usr/bin/lcm-logplayer", "--lcm-url=" + url, "--speed=4", kRecording}, 60s);
+  ASSERT_EQ(played.exit_code, 0) << played.err;
+  std::this_thread::sleep_for(500ms);  // flushed
+  logger.Signal(SIGINT);
+  ASSERT_TRUE(logger.Wait(10s).has_value());
+
+  const auto original = ReadAll(kRecording);
+  const auto copied = ReadAll(copy);
+  ASSERT_EQ(copied.size(), original.size()) << "events lost on loopback";
+  for (size_t i = 0; i < original.size(); ++i) {
+    EXPECT_EQ(copied[i].channel, original[i].channel) << "event " << i;
+    EXPECT_EQ(copied[i].data, original[i].data) << "event " << i;
+  }
+  const auto r = Replay(copy);
+  EXPECT_EQ(r.exit_code, 0) << r.out << r.err;
+}
+
+}  // namespace
+}  // namespace cutsim
