@@ -69,6 +69,24 @@ echo "== headless cut of scenes/block.pbtxt (time per cut step, components)"
 "$bin/cutsim-server" --headless --scene scenes/block.pbtxt --no-progress > "$out/block_cut.json" 2>"$out/block_cut.log" \
   || echo "block run failed (see $out/block_cut.log)"
 
+echo "== cut_bench (cut step by phase at 1k/10k/100k tets; block after 100 cuts: stable step, quality, throughput)"
+"$bin/cut_bench" --scene-dir scenes --json "$out/cut_bench.json" > /dev/null 2>"$out/cut_bench.log" \
+  || echo "cut_bench failed (see $out/cut_bench.log)"
+cat "$out/cut_bench.json" 2>/dev/null || true
+
+echo "== accuracy_bench (run time against error: cantilever statics/dynamics, scripted cut; ~8 min)"
+# The beam part is written to accuracy.json before the cutting part starts;
+# the timeout guards against a hang in the cutting path.
+timeout "${ACCURACY_TIMEOUT:-1800}" "$bin/accuracy_bench" --repeats "${ACCURACY_REPETITIONS:-1}" \
+  --out "$out/accuracy.json" 2>"$out/accuracy.log" || echo "accuracy_bench failed or timed out (see $out/accuracy.log)"
+
+echo "== stability_bench (stress suite: Markdown table in stability.md; ~3-4 min)"
+# Rows are written as cases finish; the timeout guards the random-cuts case
+# (last) against a hang in the cutting path.
+timeout "${STABILITY_TIMEOUT:-900}" "$bin/stability_bench" --out "$out/stability.json" > "$out/stability.md" \
+  2>"$out/stability.log" || echo "stability_bench failed or timed out (see $out/stability.log)"
+cat "$out/stability.md" 2>/dev/null || true
+
 echo "== plots"
 /usr/bin/python3 bench/plot.py "$out"
 

@@ -12,6 +12,8 @@ packages=(
   # wire: schema, haptic link, observers
   libprotobuf-dev protobuf-compiler
   liblcm-dev liblcm-bin libglib2.0-dev
+  # access control: HMAC-SHA256 of tool messages (libcrypto)
+  libssl-dev
   cyclonedds-dev cyclonedds-tools
   # meshes: gmsh for .msh I/O and for tetrahedralising surfaces
   libgmsh-dev gmsh

@@ -1,0 +1,77 @@
+#pragma once
+/// @file
+/// Checkpoint files of the server: the cut tissue (every topology event in
+/// order, replayed on the uncut scene mesh) plus positions, velocities, time
+/// and counters, in a framed protobuf (proto/cutsim/v1/checkpoint.proto).
+/// Writes are atomic (temporary file, fsync, rename), so a crash while
+/// writing leaves the previous checkpoint intact. Reads reject a corrupted,
+/// truncated or foreign file with an InputError naming the file and field,
+/// before anything is applied.
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+#include "common/cutting/topology_event.h"
+#include "common/sim/simulation.h"
+#include "cutsim/v1/checkpoint.pb.h"
+
+namespace cutsim::sim {
+
+/// FNV-1a 64 of `size` bytes, continuing from `seed` (the offset basis by
+/// default): integrity and identity against mistakes, not an attacker.
+[[nodiscard]] uint64_t Fnv1a64(const void* data, size_t size, uint64_t seed = 0xcbf29ce484222325ULL);
+
+/// Topology event ⇄ its checkpoint message. EventFromProto checks the shape
+/// (3 coordinates per move, finite values) and throws InputError naming
+/// `source` and `field` (e.g. "events[3].moves[0].rest").
+[[nodiscard]] v1::CheckpointEvent EventToProto(const cutting::TopologyEvent& event);
+[[nodiscard]] cutting::TopologyEvent EventFromProto(const v1::CheckpointEvent& event, const std::string& source,
+                                                    const std::string& field);
+
+/// Frames and writes `body` atomically: `path`.tmp, fsync, rename onto
+/// `path`. Throws InputError (file error) when the directory is not writable.
+void WriteCheckpointFile(const std::filesystem::path& path, const v1::CheckpointBody& body);
+
+/// Reads and checks a checkpoint file (magic, format version, checksum,
+/// body). Throws InputError naming the file and field.
+[[nodiscard]] v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path);
+
+/// Saves `sim` to `path` (CheckpointState + WriteCheckpointFile).
+void SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path);
+
+/// Restores `path` into `sim`, freshly created from the checkpoint's scene.
+/// On an InputError nothing has been applied.
+void RestoreCheckpoint(Simulation& sim, const std::filesystem::path& path);
+
+/// What the server does with `--checkpoint FILE --checkpoint-every S
+/// --resume`: restore at start when asked and the file exists, save every
+/// `every` wall seconds and at a clean exit. A failed periodic save is logged
+/// and retried at the next period (a full disk must not stop the session).
+class PeriodicCheckpointer {
+ public:
+  /// An empty `path` disables everything; `every` ≤ 0 saves only at exit.
+  PeriodicCheckpointer(std::filesystem::path path, double every);
+
+  [[nodiscard]] bool enabled() const { return !path_.empty(); }
+  /// Restores `path` into the fresh `sim` if it exists; returns whether it
+  /// did. Throws InputError for a corrupted or foreign file (the server
+  /// must not silently start over an operator's checkpoint).
+  bool Resume(Simulation& sim);
+  /// Saves when the period has elapsed since the last save.
+  void MaybeSave(const Simulation& sim);
+  /// Saves now (clean exit); logs and returns false on failure.
+  bool Save(const Simulation& sim);
+  [[nodiscard]] uint64_t saves() const { return saves_; }
+  [[nodiscard]] uint64_t failures() const { return failures_; }
+
+ private:
+  std::filesystem::path path_;
+  int64_t period_ns_ = 0;
+  int64_t next_ns_ = 0;
+  uint64_t saves_ = 0;
+  uint64_t failures_ = 0;
+};
+
+}  // namespace cutsim::sim

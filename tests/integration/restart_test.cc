@@ -1,0 +1,125 @@
+// A server restart mid-session (issue 7): the real server on the ligament
+// with checkpoints, the scripted haptic client cutting it and a viewer. The
+// server is killed with SIGKILL after it has cut and checkpointed, then
+// started again with --resume: the haptic client fades its force and resumes,
+// the viewer resyncs, and the tissue keeps its cuts. Runs inside its own
+// network namespace (deploy/netns-run.sh).
+#include <chrono>
+#include <cstdio>
+#include <csignal>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/sim/checkpoint.h"
+#include "tests/integration/subprocess.h"
+
+namespace cutsim {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::BinPath;
+using testing::JsonNumber;
+using testing::ReadTextFile;
+using testing::Subprocess;
+using testing::TempDir;
+using testing::UniqueTestIndex;
+
+// scenes/ligament-cut.path stretched: the blade is drawn across the
+// ligament for 5 s, so the server can be killed in the middle of the cut.
+constexpr const char* kPath = R"(# t  tip x y z  blade dir
+0.00    0.0151 -0.0080 0.0100       0 0 1
+0.50    0.0151 -0.0080 -0.0060      0 0 1
+5.50    0.0151 0.0080 -0.0060       0 0 1
+6.00    0.0151 0.0080 0.0100        0 0 1
+)";
+
+/// The checkpoint's topology version, or nullopt while there is none.
+std::optional<uint64_t> CheckpointVersion(const std::string& path) {
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  try {
+    return sim::ReadCheckpointFile(path).topology_version();
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
+TEST(RestartTest, KilledServerResumesTheCutTissue) {
+  TempDir dir("cutsim-restart");
+  const int k = UniqueTestIndex();
+  const std::string session = "r" + std::to_string(k);
+  const std::string lcm = "udpm://239.255.76.67:" + std::to_string(7950 + k) + "?ttl=0";
+  const std::string domain = std::to_string(20 + k);
+  const std::string scene = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt";
+  const std::string d = dir.path();
+  const std::string ckpt = d + "/ligament.ckpt";
+  { std::ofstream(d + "/cut.path") << kPath; }
+
+  auto server_argv = [&](const std::string& stats) {
+    return std::vector<std::string>{BinPath("cutsim-server"), "--scene", scene, "--session", session,
+                                    "--lcm-url", lcm, "--dds-domain", domain, "--checkpoint", ckpt,
+                                    "--checkpoint-every", "0.2", "--resume", "--stats-json", d + "/" + stats};
+  };
+  auto server = std::make_unique<Subprocess>(server_argv("first.json"));
+  Subprocess viewer({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain, "--frames",
+                     d + "/frames", "--exit-when-idle", "5", "--summary", d + "/viewer.json", "--fps", "5"});
+  Subprocess haptic({BinPath("cutsim-haptic"), "--device", "scripted", "--path", d + "/cut.path", "--session",
+                     session, "--lcm-url", lcm, "--csv", d + "/haptic.csv", "--no-rt"});
+
+  // Kill once a checkpoint holds a cut (or give up after 10 s; slower under ASan).
+  uint64_t version_before = 0;
+  for (int i = 0; i < 200; ++i) {
+    std::this_thread::sleep_for(50ms);
+    const auto v = CheckpointVersion(ckpt);
+    if (v && *v >= 1) {
+      version_before = *v;
+      break;
+    }
+  }
+  ASSERT_GE(version_before, 1u) << "no cut was checkpointed before the kill\n" << server->Stderr();
+  server->Kill();  // SIGKILL: no final checkpoint, no goodbye
+  ASSERT_TRUE(server->Wait(10s).has_value());
+  const auto at_kill = CheckpointVersion(ckpt);
+  ASSERT_TRUE(at_kill.has_value()) << "the checkpoint must survive a kill (atomic replace)";
+  version_before = *at_kill;
+  server.reset();
+  std::this_thread::sleep_for(600ms);
+
+  Subprocess restarted(server_argv("second.json"));
+  ASSERT_EQ(haptic.Wait(60s), std::optional<int>(0)) << haptic.Stderr();
+  std::this_thread::sleep_for(1s);  // a few more viewer frames after the cut
+  restarted.Signal(SIGTERM);        // clean exit: final checkpoint and stats
+  ASSERT_EQ(restarted.Wait(30s), std::optional<int>(0)) << restarted.Stderr();
+  ASSERT_EQ(viewer.Wait(30s), std::optional<int>(0)) << viewer.Stderr();
+
+  // The restarted server resumed the cut tissue.
+  EXPECT_NE(restarted.Stderr().find("resumed from checkpoint"), std::string::npos) << restarted.Stderr();
+  const std::string s = ReadTextFile(d + "/second.json");
+  EXPECT_GE(JsonNumber(s, "topology_version"), static_cast<double>(version_before)) << s;
+  EXPECT_GT(JsonNumber(s, "tool_messages"), 5) << s;
+  EXPECT_GE(CheckpointVersion(ckpt).value_or(0), version_before) << "final checkpoint at SIGTERM";
+
+  // The haptic client noticed the restart, faded (watchdog) and resumed.
+  const std::string h = haptic.Stdout();
+  EXPECT_GE(JsonNumber(h, "restarts"), 1) << h;
+  EXPECT_GE(JsonNumber(h, "watchdog_trips"), 1) << h;
+  EXPECT_GT(JsonNumber(h, "models_accepted"), 10) << h;
+
+  // The viewer lost the old server and resynced on the new one's snapshot,
+  // every frame hash-verified.
+  const std::string v = ReadTextFile(d + "/viewer.json");
+  EXPECT_EQ(JsonNumber(v, "hash_mismatches"), 0) << v;
+  EXPECT_GE(JsonNumber(v, "snapshots"), 2) << v;
+  EXPECT_GT(JsonNumber(v, "verified_frames"), 5) << v;
+  std::printf("restart_test: topology version %llu at the kill; after restart %s\nviewer %s\n",
+              static_cast<unsigned long long>(version_before), s.c_str(), v.c_str());
+}
+
+}  // namespace
+}  // namespace cutsim

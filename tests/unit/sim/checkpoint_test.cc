@@ -1,0 +1,229 @@
+// Checkpoints: a cut tissue saved and restored in a fresh Simulation is the
+// same tissue (positions, topology, surface, mass), keeps evolving the same
+// way, and corrupted or foreign checkpoints are refused before anything is
+// applied.
+#include "common/sim/checkpoint.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "common/core/error.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/simulation.h"
+
+namespace cutsim::sim {
+namespace {
+
+// A coarse copy of scenes/block.pbtxt cut by a scalpel dragged along y = 10 mm.
+std::string BlockScene(const std::string& name = "checkpoint-block", int nx = 10) {
+  return R"pb(name: ")pb" + name + R"pb("
+mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.04 y: 0.02 z: 0.01 } nx: )pb" + std::to_string(nx) + R"pb( ny: 5 nz: 2 } }
+materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
+boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
+gravity { z: -9.81 }
+time_step { frame_dt: 0.01 threads: 1 }
+tool {
+  blade_length: 0.025
+  keyframes { t: 0 tip { x: -0.003 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
+  keyframes { t: 0.8 tip { x: 0.043 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
+}
+cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 10000 }
+)pb";
+}
+
+std::unique_ptr<Simulation> Make(const std::string& text) {
+  return Simulation::Create(ParseScene(text, "checkpoint-test.pbtxt", std::filesystem::temp_directory_path()));
+}
+
+class CheckpointTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("cutsim-checkpoint-test-" + std::to_string(::getpid()) + "-" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  /// A simulation that has made at least two cut steps, computed once for
+  /// the suite (the slow part) and never advanced by a test.
+  static void SetUpTestSuite() {
+    cut_sim_ = Make(BlockScene());
+    while (cut_sim_->QuickSummary().cuts < 2 && cut_sim_->sim_time() < 0.8) {
+      ASSERT_EQ(cut_sim_->AdvanceFrame(), SimStatus::kOk);
+    }
+  }
+  static void TearDownTestSuite() { cut_sim_.reset(); }
+  static const Simulation& CutSim() { return *cut_sim_; }
+
+  static inline std::unique_ptr<Simulation> cut_sim_;
+  std::filesystem::path dir_;
+};
+
+void ExpectSameTissue(const Simulation& a, const Simulation& b) {
+  MeshView va, vb;
+  a.FillMeshView(va);
+  b.FillMeshView(vb);
+  ASSERT_EQ(va.world.rows(), vb.world.rows());
+  EXPECT_TRUE(va.world == vb.world) << "world positions differ";
+  EXPECT_TRUE(va.rest == vb.rest) << "rest positions differ";
+  EXPECT_TRUE(va.tets == vb.tets) << "tets differ";
+  ASSERT_EQ(va.surface.rows(), vb.surface.rows());
+  EXPECT_TRUE(va.surface == vb.surface) << "surface differs";
+  EXPECT_EQ(va.opened, vb.opened);
+  const SimulationSummary sa = a.Summary(), sb = b.Summary();
+  EXPECT_EQ(a.topology_version(), b.topology_version());
+  EXPECT_EQ(sa.total_mass, sb.total_mass);
+  EXPECT_EQ(sa.cuts, sb.cuts);
+  EXPECT_EQ(sa.sim_time, sb.sim_time);
+  EXPECT_EQ(sa.components, sb.components);
+  EXPECT_EQ(sa.opened_faces, sb.opened_faces);
+  EXPECT_EQ(sa.kinetic_energy, sb.kinetic_energy);
+}
+
+TEST_F(CheckpointTest, RoundTripRestoresTheCutTissueAndItsFuture) {
+  const Simulation& original = CutSim();
+  ASSERT_GE(original.Summary().cuts, 2u) << "the scalpel should have cut by now";
+  ASSERT_GT(original.topology_version(), 0u);
+  const auto file = dir_ / "block.ckpt";
+  SaveCheckpoint(original, file);
+  EXPECT_FALSE(std::filesystem::exists(file.string() + ".tmp"));
+
+  auto restored = Make(BlockScene());
+  ASSERT_EQ(restored->topology_version(), 0u);
+  RestoreCheckpoint(*restored, file);
+  ExpectSameTissue(original, *restored);
+  EXPECT_GT(restored->Summary().opened_faces, 0);
+
+  // The restored tissue goes on (the tool keeps cutting). Not bit-identical
+  // to the original's future: the cut tracker's anchor and the stable-step
+  // estimator restart, as after a real server restart.
+  const uint64_t version = restored->topology_version();
+  for (int i = 0; i < 30; ++i) ASSERT_EQ(restored->AdvanceFrame(), SimStatus::kOk);
+  EXPECT_GE(restored->topology_version(), version);
+  EXPECT_GE(restored->QuickSummary().cuts, original.QuickSummary().cuts);
+
+  // A checkpoint of the restored simulation carries every event again.
+  SaveCheckpoint(*restored, dir_ / "again.ckpt");
+  const v1::CheckpointBody a = ReadCheckpointFile(dir_ / "again.ckpt");
+  EXPECT_GE(a.events_size(), original.CheckpointState().events_size());
+}
+
+TEST_F(CheckpointTest, UncutSceneRoundTrips) {
+  auto sim = Make(BlockScene());
+  for (int i = 0; i < 3; ++i) ASSERT_EQ(sim->AdvanceFrame(), SimStatus::kOk);
+  SaveCheckpoint(*sim, dir_ / "uncut.ckpt");
+  auto restored = Make(BlockScene());
+  RestoreCheckpoint(*restored, dir_ / "uncut.ckpt");
+  ExpectSameTissue(*sim, *restored);
+}
+
+/// The error of `fn`, or "" if it did not throw InputError.
+template <typename Fn>
+InputError ErrorOf(Fn fn) {
+  try {
+    fn();
+  } catch (const InputError& e) {
+    return e;
+  }
+  ADD_FAILURE() << "no InputError";
+  return InputError({}, "none");
+}
+
+TEST_F(CheckpointTest, CorruptedFilesAreRefusedNamingFileAndField) {
+  const Simulation& original = CutSim();
+  const auto good = dir_ / "good.ckpt";
+  SaveCheckpoint(original, good);
+  std::ifstream in(good, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GT(bytes.size(), 100u);
+
+  auto fresh = Make(BlockScene());
+  const auto flipped = dir_ / "flipped.ckpt";
+  std::string f = bytes;
+  f[f.size() / 2] = static_cast<char>(f[f.size() / 2] ^ 0x10);
+  std::ofstream(flipped, std::ios::binary) << f;
+  InputError e = ErrorOf([&] { RestoreCheckpoint(*fresh, flipped); });
+  EXPECT_EQ(e.source().file, flipped.string());
+  EXPECT_EQ(e.source().field, "body_fnv1a64") << e.what();
+
+  const auto truncated = dir_ / "truncated.ckpt";
+  std::ofstream(truncated, std::ios::binary) << bytes.substr(0, bytes.size() - 40);
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, truncated); });
+  EXPECT_EQ(e.source().file, truncated.string());
+  EXPECT_NE(std::string(e.what()).find("truncated.ckpt"), std::string::npos) << e.what();
+
+  const auto text = dir_ / "text.ckpt";
+  std::ofstream(text) << "name: \"not a checkpoint\"\n";
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, text); });
+  EXPECT_EQ(e.source().file, text.string());
+
+  EXPECT_EQ(fresh->topology_version(), 0u) << "nothing applied";
+  EXPECT_EQ(fresh->sim_time(), 0.0);
+  RestoreCheckpoint(*fresh, good);  // still usable
+  ExpectSameTissue(original, *fresh);
+}
+
+TEST_F(CheckpointTest, BadEventsAreRefusedBeforeAnythingIsApplied) {
+  const Simulation& original = CutSim();
+  v1::CheckpointBody body = original.CheckpointState();
+  ASSERT_GE(body.events_size(), 2);
+  // The last event retargets a tet that does not use the split node: the
+  // earlier, valid events must not be applied either.
+  v1::CheckpointBody bad = body;
+  auto* last = bad.mutable_events(bad.events_size() - 1);
+  bool tampered = false;
+  for (auto& split : *last->mutable_splits()) {
+    if (split.tets_size() > 0) {
+      split.set_tets(0, bad.initial_tets() + 5);
+      tampered = true;
+      break;
+    }
+  }
+  ASSERT_TRUE(tampered);
+  WriteCheckpointFile(dir_ / "bad-event.ckpt", bad);
+  auto fresh = Make(BlockScene());
+  InputError e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "bad-event.ckpt"); });
+  EXPECT_EQ(e.source().file, (dir_ / "bad-event.ckpt").string());
+  EXPECT_EQ(e.source().field.rfind("events[" + std::to_string(bad.events_size() - 1) + "].", 0), 0u)
+      << e.source().field;
+  EXPECT_EQ(fresh->topology_version(), 0u);
+  EXPECT_EQ(fresh->Summary().opened_faces, 0);
+
+  v1::CheckpointBody short_state = body;
+  short_state.mutable_positions()->RemoveLast();
+  WriteCheckpointFile(dir_ / "short.ckpt", short_state);
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "short.ckpt"); });
+  EXPECT_EQ(e.source().field, "positions") << e.what();
+  EXPECT_EQ(fresh->topology_version(), 0u);
+  RestoreCheckpoint(*fresh, [&] {
+    WriteCheckpointFile(dir_ / "ok.ckpt", body);
+    return dir_ / "ok.ckpt";
+  }());
+  ExpectSameTissue(original, *fresh);
+}
+
+TEST_F(CheckpointTest, ForeignScenesAreRefused) {
+  const Simulation& original = CutSim();
+  const auto file = dir_ / "block.ckpt";
+  SaveCheckpoint(original, file);
+
+  auto renamed = Make(BlockScene("another-scene"));
+  InputError e = ErrorOf([&] { RestoreCheckpoint(*renamed, file); });
+  EXPECT_EQ(e.source().field, "scene_name") << e.what();
+  EXPECT_NE(std::string(e.what()).find("checkpoint-block"), std::string::npos) << e.what();
+
+  auto other_mesh = Make(BlockScene("checkpoint-block", 9));
+  e = ErrorOf([&] { RestoreCheckpoint(*other_mesh, file); });
+  EXPECT_EQ(e.source().field, "scene_fingerprint") << e.what();
+  EXPECT_EQ(other_mesh->topology_version(), 0u);
+}
+
+}  // namespace
+}  // namespace cutsim::sim
