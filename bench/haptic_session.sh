@@ -31,3 +31,27 @@ sleep 0.5
 kill -TERM "$server"; wait "$server" || true
 # The bare loop with a busy thread on the other core, for reference.
 "$bin/cutsim-haptic-loop-bench" --seconds "$seconds" --hog >"$out/haptic_bare.json" 2>"$out/haptic_bare.log"
+# One JSON line: the numbers bench/README.md quotes (client-side latency is
+# the target's; the server's own view of it beside it).
+/usr/bin/python3 - "$out" <<'PY'
+import json, sys
+out = sys.argv[1]
+srv = json.load(open(f"{out}/haptic_server.json"))
+hap = json.load(open(f"{out}/haptic_loop.json"))
+bare = json.load(open(f"{out}/haptic_bare.json"))
+def q(d, k):
+    v = d.get(k, {})
+    return {p: v.get(p) for p in ("p50", "p99", "max") if isinstance(v, dict)}
+frames = max(1, srv["frames"])
+print(json.dumps({
+    "kind": "haptic_session",
+    "pose_to_model_ms": q(hap, "pose_to_model_ms"),
+    "model_age_ms": q(hap, "model_age_ms"),
+    "server_pose_to_model_ms": {"p50": srv.get("pose_to_model_p50_ms"), "p99": srv.get("pose_to_model_p99_ms")},
+    "server_frame_ms": {"p50": srv["frame_time_p50_ms"], "p99": srv["frame_time_p99_ms"], "max": srv["frame_time_max_ms"]},
+    "overrun_percent": round(100.0 * srv["frame_overruns"] / frames, 2),
+    "haptic_jitter_us": q(hap, "jitter_us"),
+    "bare_jitter_us": q(bare, "jitter_us"),
+    "missed_deadlines": hap.get("missed_deadlines"),
+}))
+PY

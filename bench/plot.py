@@ -123,5 +123,192 @@ def main(folder):
     print("\n".join(lines))
 
 
+def pareto_front(points):
+    """Indices of the non-dominated (wall, error) points: no other point is
+    both faster and at least as accurate."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
+    front, best = [], float("inf")
+    for i in order:
+        if points[i][1] < best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def plot_accuracy(folder):
+    """accuracy_bench (issue #8): error vs wall time with the Pareto frontier,
+    the beam convergence against beam theory, the buffer-model rate panel, and
+    the recommended settings per target error (appended to summary.md)."""
+    path = os.path.join(folder, "accuracy.json")
+    if not os.path.exists(path):
+        return
+    acc = load(path)
+    beam = acc["beam"]
+    runs = [r for r in beam["runs"] if r["ok"]]
+    cut = [r for r in acc["cut"]["runs"] if r["tag"] != "reference" and r["status"] == "ok"]
+    block = acc["cut"]["block_length_m"]
+    panels = [
+        ("static: tip deflection", runs, "static_wall_s", lambda r: r["tip_rel_error"]),
+        ("dynamic: first bending frequency", runs, "dynamic_wall_s", lambda r: r["frequency_rel_error"]),
+        ("dynamic: amplitude decay rate", runs, "dynamic_wall_s", lambda r: r["decay_rel_error"]),
+        ("cut: mean surface distance / block length", cut, "wall_s", lambda r: r["mean_distance_m"] / block),
+    ]
+    markers = {"default": "o", "dt0.5": "v", "dt1.0": "^", "float": "s", "explicit": "D", "float,dt1.0": "P"}
+
+    def label(r):
+        size = f"L{r['level']}" if "level" in r else f"x{r['scale']:g}"
+        return f"{size} {r['tag']}"
+
+    lines = ["\n## Run time against error (accuracy_bench; errors vs the converged reference)\n"]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 9))
+    for ax, (title, rs, wall_key, err) in zip(axes.flat, panels):
+        pts = [(max(r[wall_key], 1e-4), max(err(r), 1e-7)) for r in rs]
+        if not pts:
+            ax.set_title(title + " (no runs)", fontsize=10)
+            ax.axis("off")
+            continue
+        for tag in markers:
+            sel = [(p, r) for p, r in zip(pts, rs) if r["tag"] == tag]
+            if sel:
+                ax.scatter([p[0] for p, _ in sel], [p[1] for p, _ in sel], marker=markers[tag], label=tag, s=30)
+        front = pareto_front(pts)
+        ax.plot([pts[i][0] for i in front], [pts[i][1] for i in front], "k-", lw=1, label="Pareto frontier")
+        for i in front:
+            ax.annotate(label(rs[i]), pts[i], fontsize=6, xytext=(3, 3), textcoords="offset points")
+        for target in (0.1, 0.01, 0.001):
+            ax.axhline(target, color="grey", lw=0.6, ls=":")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time, s (1 thread)")
+        ax.set_ylabel("relative error")
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6)
+        lines.append(f"**{title}** — cheapest run on the frontier per target:\n")
+        lines.append("| target | setting | tets | wall s | error |\n|---|---|---|---|---|")
+        # A run on the reference's own finest mesh has no meaningful error when
+        # the extrapolation was not valid (the reference is then that mesh).
+        ref_key = {"static: tip deflection": "tip_m", "dynamic: first bending frequency": "frequency_hz",
+                   "dynamic: amplitude decay rate": "decay_rate_per_s"}.get(title)
+        finest = max((r.get("level", 0) for r in rs), default=0)
+        usable = [i for i in range(len(rs))
+                  if not (ref_key and not beam["reference"][ref_key]["valid"] and rs[i].get("level") == finest)]
+        if ref_key and not beam["reference"][ref_key]["valid"]:
+            lines.append(f"(reference not extrapolated — differences do not shrink monotonically; the finest mesh "
+                         f"L{finest} is the reference and its own runs are excluded)\n")
+        for target in (0.1, 0.01, 0.001):
+            ok = [i for i in usable if pts[i][1] <= target]
+            if ok:
+                i = min(ok, key=lambda i: pts[i][0])
+                r = rs[i]
+                setting = f"{label(r)}, {r['precision']}, safety {r['safety']:g}"
+                if "viscous" in r:
+                    setting += f", viscous {r['viscous']}"
+                lines.append(f"| {100 * target:g}% | {setting} | {r['tets']} | {pts[i][0]:.3g} | {pts[i][1]:.2e} |")
+            else:
+                lines.append(f"| {100 * target:g}% | not reached by any run | | | |")
+        lines.append("")
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "accuracy_pareto.png"), dpi=120)
+
+    # Convergence of the default runs against the reference and beam theory.
+    ref = beam["reference"]
+    theory = beam["theory"]
+    default = sorted((r for r in runs if r["tag"] == "default"), key=lambda r: r["level"])
+    if default:
+        fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+        h = [1e3 * beam["geometry"]["section_m"] / r["level"] for r in default]
+        axes[0].plot(h, [-1e3 * r["tip_m"] for r in default], "o-", label="FEM (default settings)")
+        axes[0].axhline(-1e3 * ref["tip_m"]["value"], color="k", ls="--", label="Richardson reference")
+        axes[0].axhline(-1e3 * theory["euler_bernoulli_tip_m"], color="C1", ls=":", label="Euler–Bernoulli")
+        axes[0].axhline(-1e3 * theory["timoshenko_tip_m"], color="C2", ls=":", label="Timoshenko")
+        axes[0].set_ylabel("tip deflection, mm")
+        axes[1].plot(h, [r["frequency_hz"] for r in default], "o-", label="FEM")
+        axes[1].axhline(ref["frequency_hz"]["value"], color="k", ls="--", label="Richardson reference")
+        axes[1].axhline(theory["euler_bernoulli_f1_hz"], color="C1", ls=":", label="Euler–Bernoulli")
+        axes[1].set_ylabel("first bending frequency, Hz")
+        axes[2].plot(h, [r["decay_rate_per_s"] for r in default], "o-", label="FEM (energy fit)")
+        axes[2].axhline(ref["decay_rate_per_s"]["value"], color="k", ls="--", label="Richardson reference")
+        axes[2].set_ylabel("amplitude decay rate, 1/s")
+        for ax in axes:
+            ax.set_xlabel("element size h, mm")
+            ax.invert_xaxis()
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(folder, "accuracy_convergence.png"), dpi=120)
+        lines.append("| quantity | reference (Richardson) | observed order | coarser-triple value | beam theory |")
+        lines.append("|---|---|---|---|---|")
+        lines.append(f"| tip deflection, mm | {-1e3 * ref['tip_m']['value']:.4f} | {ref['tip_m']['observed_order']:.2f} | "
+                     f"{-1e3 * ref['tip_m']['coarse_triple_value']:.4f} | EB {-1e3 * theory['euler_bernoulli_tip_m']:.4f}, "
+                     f"Timoshenko {-1e3 * theory['timoshenko_tip_m']:.4f} |")
+        lines.append(f"| f1, Hz | {ref['frequency_hz']['value']:.4f} | {ref['frequency_hz']['observed_order']:.2f} | "
+                     f"{ref['frequency_hz']['coarse_triple_value']:.4f} | EB {theory['euler_bernoulli_f1_hz']:.4f} |")
+        lines.append(f"| decay rate, 1/s | {ref['decay_rate_per_s']['value']:.4f} | "
+                     f"{ref['decay_rate_per_s']['observed_order']:.2f} | "
+                     f"{ref['decay_rate_per_s']['coarse_triple_value']:.4f} | – |")
+
+    # Physics frame rate vs buffer-model rate (buffer_model_bench).
+    bm_path = os.path.join(folder, "buffer_model.jsonl")
+    if os.path.exists(bm_path):
+        rows = [json.loads(x) for x in open(bm_path) if x.strip().startswith("{")]
+        if rows:
+            rows.sort(key=lambda r: r["frame_rate_hz"])
+            fig, ax = plt.subplots(figsize=(6, 4))
+            ax.plot([r["frame_rate_hz"] for r in rows], [r["rms_error_buffer_model"] for r in rows], "o-",
+                    label="buffer model F = f0 − K(x − x0)")
+            ax.plot([r["frame_rate_hz"] for r in rows], [r["rms_error_zero_order_hold"] for r in rows], "s--",
+                    label="zero-order hold of f0")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlabel("physics frame rate, Hz (haptic loop 1 kHz)")
+            ax.set_ylabel("RMS force error / peak force")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+            fig.tight_layout()
+            fig.savefig(os.path.join(folder, "accuracy_frame_rate.png"), dpi=120)
+    stab = os.path.join(folder, "stability.md")
+    if os.path.exists(stab):
+        lines.append("\n## Stability stress suite (stability_bench)\n")
+        lines.append(open(stab).read())
+    with open(os.path.join(folder, "summary.md"), "a") as f:
+        f.write("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def plot_cut(folder):
+    """cut_bench: cut step time by phase against mesh size (stacked medians)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    path = os.path.join(folder, "cut_bench.json")
+    if not os.path.exists(path):
+        return
+    data = load(path)
+    steps = data.get("step", [])
+    if not steps:
+        return
+    phases = [("criterion", "criterion"), ("topology", "topology (CutMesh)"),
+              ("fem_update", "FEM update"), ("surface_bvh", "surface + BVH + debris")]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x = list(range(len(steps)))
+    bottom = [0.0] * len(steps)
+    for key, label in phases:
+        values = [s[key]["median_us"] for s in steps]
+        ax.bar(x, values, bottom=bottom, label=label)
+        bottom = [b + v for b, v in zip(bottom, values)]
+    ax.plot(x, [s["total"]["p90_us"] for s in steps], "k^", label="total p90")
+    ax.axhline(50.0, color="r", ls="--", label="target 50 µs")
+    ax.set_xticks(x)
+    ax.set_xticklabels([f"{s['tets']} tets" for s in steps])
+    ax.set_ylabel("wall time per cut step, µs (median by phase)")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "cut_step.png"), dpi=120)
+
+
 if __name__ == "__main__":
     main(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
+    plot_accuracy(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
+    plot_cut(sys.argv[1] if len(sys.argv) > 1 else "out/bench")

@@ -1,0 +1,110 @@
+// Short version of the stability stress suite (bench/stability_bench.cc,
+// cases in bench/stability_cases.h): the same cases on a 3×3×3-cell cube,
+// 10⁴ steps for the long run, a handful of random cuts. Each case must end
+// with a finite state and unchanged mass, without a guard stop where the
+// bench holds, and past the stable limit the guard must stop the run before
+// it writes a non-finite state. Whether the end state is physical (no
+// inverted element) is reported by the bench, not asserted: StVK has no
+// valid equilibrium under ×3 stretch at ν ≈ 0.46 or past the compressive
+// stress peak, and the guards only keep such runs finite.
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "bench/stability_cases.h"
+
+namespace cutsim::bench::stability {
+namespace {
+
+const std::string kBlock = std::string(CUTSIM_SOURCE_DIR) + "/scenes/block.pbtxt";
+
+void ExpectHolds(const Result& r) {
+  SCOPED_TRACE(r.name);
+  EXPECT_TRUE(r.finite);
+  EXPECT_LT(r.mass_rel_change, 1e-9);
+  EXPECT_TRUE(r.holds) << r.reason;
+  EXPECT_GT(r.steps, 0);
+}
+
+TEST(Stability, StretchTimesThree) {
+  const Result r = StretchX3(Size::Test());
+  ExpectHolds(r);
+}
+
+TEST(Stability, CompressionToTenPercentVolume) {
+  const Result r = CompressVolume10(Size::Test());
+  ExpectHolds(r);
+  // Every element is at det F ≈ 0.1: the inversion guard's path must be active.
+  EXPECT_LT(r.min_det_f, 0.3);
+  EXPECT_GT(r.max_inverted, 0);
+}
+
+TEST(Stability, UniaxialCompressionToTenPercentLength) { ExpectHolds(CompressUniaxial10(Size::Test())); }
+
+TEST(Stability, NearIncompressible) {
+  ExpectHolds(NearIncompressible(Size::Test(), 0.45));
+  ExpectHolds(NearIncompressible(Size::Test(), 0.49));
+}
+
+TEST(Stability, StiffnessContrastThousand) { ExpectHolds(StiffnessContrast(Size::Test())); }
+
+TEST(Stability, AdvanceKeepsEnergyBoundedAtEverySafetyFactor) {
+  const Size size = Size::Test();
+  for (const double frac : {0.5, 0.75, 1.0}) {
+    const Result r = FixedStep("advance", size.cells, size.dt_steps, frac, false, /*adaptive=*/true);
+    ExpectHolds(r);
+    EXPECT_LT(r.energy_drift, 0.05) << frac;
+  }
+}
+
+// A fixed step at a fraction of the Lanczos limit of the start state: 0.5
+// holds; at 0.75 and 1.0 the bench shows the nonlinear oscillation visiting
+// stiffer states than the start (1.0 diverges within ~10 steps), so here
+// only the guard is checked: the run either holds or is stopped by the speed
+// guard with the last state finite.
+TEST(Stability, FixedStepsUpToTheLimitHoldOrAreStoppedCleanly) {
+  const Size size = Size::Test();
+  ExpectHolds(FixedStep("fixed dt 0.5", size.cells, size.dt_steps, 0.5, false));
+  for (const double frac : {0.75, 1.0}) {
+    const Result r = FixedStep("fixed dt", size.cells, size.dt_steps, frac, false);
+    SCOPED_TRACE(frac);
+    EXPECT_TRUE(r.finite);
+    EXPECT_LT(r.mass_rel_change, 1e-9);
+    if (r.step_status != "ok") {
+      EXPECT_EQ(r.step_status, "runaway (speed guard)");
+    }
+  }
+}
+
+TEST(Stability, BeyondTheLimitTheGuardStopsBeforeNaN) {
+  const Result r = FixedStep("beyond", Size::Test().cells, 20000, 1.5, true);
+  EXPECT_TRUE(r.finite);
+  EXPECT_FALSE(r.holds) << "1.5 x the Lanczos limit should diverge: " << r.reason;
+  EXPECT_NE(r.step_status, "ok");
+}
+
+// With a fixed step (0.5 × the Lanczos limit). Through fem::Advance the same
+// cube gains ~9% energy in 10⁴ steps at any safety factor (the step changes
+// between frames and variable-step symplectic Euler is not symplectic) and
+// the speed guard stops it after ~4·10⁵: reported as failing by the bench,
+// not asserted here.
+TEST(Stability, LongRunEnergyBounded) {
+  const Result r = FixedStep("long", 2, Size::Test().long_steps, 0.5, false);
+  ExpectHolds(r);
+  EXPECT_GE(r.steps, Size::Test().long_steps);
+  EXPECT_LT(r.energy_drift, 0.05);
+}
+
+TEST(Stability, RandomCutsThenDynamics) {
+  const Result r = RandomCuts(Size::Test(), kBlock);
+  ExpectHolds(r);
+  EXPECT_GT(r.cuts, 0u);
+}
+
+TEST(Stability, ToolJammedDeepInside) {
+  ExpectHolds(ToolJammed(Size::Test(), kBlock, false));
+  ExpectHolds(ToolJammed(Size::Test(), kBlock, true));
+}
+
+}  // namespace
+}  // namespace cutsim::bench::stability
