@@ -26,6 +26,8 @@ packages=(
   python3 python3-meshio python3-numpy python3-matplotlib
   # multi-host tests: namespaces, veth, packet loss
   iproute2 nftables
+  # deploy files: `systemd-analyze verify` of the shipped units (tests)
+  systemd
 )
 
 missing=()
