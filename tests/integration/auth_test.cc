@@ -95,6 +95,17 @@ class AuthIntegrationTest : public ::testing::Test {
     return std::make_unique<Subprocess>(argv);
   }
 
+  /// Counts the server's local models: how many, how many in contact, and
+  /// the highest topology version they carry. Keep the result alive.
+  auto WatchModels(transport::LcmBus& bus, ModelWatch& watch) const {
+    return bus.Subscribe<v1::HapticModel>(
+        transport::LcmChannelName(session_, transport::LcmChannel::kModel), [&watch](const v1::HapticModel& m) {
+          ++watch.models;
+          if (m.contact()) ++watch.contact;
+          watch.max_topology_version = std::max(watch.max_topology_version, m.topology_version());
+        });
+  }
+
   TempDir dir_{"cutsim-auth"};
   std::string url_;
   std::string session_;
@@ -106,12 +117,7 @@ TEST_F(AuthIntegrationTest, ForgedReplayedAndUnsignedToolMessagesHaveNoEffect) {
   transport::LcmBus bus(url_);
   const std::string tool_channel = transport::LcmChannelName(session_, transport::LcmChannel::kTool);
   ModelWatch watch;
-  auto sub = bus.Subscribe<v1::HapticModel>(
-      transport::LcmChannelName(session_, transport::LcmChannel::kModel), [&](const v1::HapticModel& m) {
-        ++watch.models;
-        if (m.contact()) ++watch.contact;
-        watch.max_topology_version = std::max(watch.max_topology_version, m.topology_version());
-      });
+  auto sub = WatchModels(bus, watch);
 
   const auto key = transport::ParseSessionKey(kKeyHex, "test");
   const auto wrong = transport::ParseSessionKey(kWrongKeyHex, "test");
@@ -204,12 +210,7 @@ TEST_F(AuthIntegrationTest, ControlOpenServerIsCutByTheSameUnsignedPoses) {
   transport::LcmBus bus(url_);
   const std::string tool_channel = transport::LcmChannelName(session_, transport::LcmChannel::kTool);
   ModelWatch watch;
-  auto sub = bus.Subscribe<v1::HapticModel>(
-      transport::LcmChannelName(session_, transport::LcmChannel::kModel), [&](const v1::HapticModel& m) {
-        ++watch.models;
-        if (m.contact()) ++watch.contact;
-        watch.max_topology_version = std::max(watch.max_topology_version, m.topology_version());
-      });
+  auto sub = WatchModels(bus, watch);
   v1::ToolState attack;
   attack.set_session(session_);
   uint64_t seq = 0;
