@@ -99,8 +99,19 @@ def main(folder):
             lines.append(f"| {names[c]} | {skip[(c, 0)] / 1e6:.1f} | {skip[(c, 1)] / 1e6:.1f} | {100 * s:.0f}% |")
             labels.append(names[c].split(" (")[0])
             saves.append(100 * s)
+    # Session-level skips (skip_bench): the same scene per row, work off vs on.
+    session_path = os.path.join(folder, "skip.json")
+    if os.path.exists(session_path):
+        lines.append("\n## Skip table, session level (skip_bench; µs per physics frame, medians)\n")
+        lines.append("| skip | scene | skipped | µs/frame | forced on | µs/frame | saving |")
+        lines.append("|---|---|---|---|---|---|---|")
+        for r in load(session_path)["rows"]:
+            lines.append(f"| {r['skip']} | {r['scene']} | {r['skipped']} | {r['skipped_us_per_frame']:.1f} | "
+                         f"{r['forced_on']} | {r['forced_on_us_per_frame']:.1f} | {100 * r['saving']:.0f}% |")
+            labels.append(f"{r['skip']} ({r['scene']}: {r['forced_on']})")
+            saves.append(100 * r["saving"])
     if labels:
-        fig, ax = plt.subplots(figsize=(7, 3))
+        fig, ax = plt.subplots(figsize=(9, 0.4 * len(labels) + 1.2))
         ax.barh(labels, saves)
         ax.set_xlabel("time saved by the skip, %")
         fig.tight_layout()

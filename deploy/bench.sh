@@ -42,6 +42,11 @@ echo "== fem_bench (force kernel, full step, skip table, STREAM triad)"
   --benchmark_report_aggregates_only=true \
   --benchmark_out="$out/fem_bench.json" --benchmark_out_format=json >/dev/null
 
+echo "== skip_bench (session-level skips: no tool, cutting off, no haptic client, no viewer)"
+"$bin/skip_bench" --scene-dir scenes --json "$out/skip.json" > /dev/null 2>"$out/skip.log" \
+  || echo "skip_bench failed (see $out/skip.log)"
+cat "$out/skip.log"
+
 echo "== organ_mesh (sliver cleanup and stable step of the organ)"
 "$bin/organ_mesh" > "$out/organ_mesh.json"
 cat "$out/organ_mesh.json"
