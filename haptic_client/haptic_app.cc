@@ -14,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -27,6 +28,7 @@
 #include "common/transport/channels.h"
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/realtime_thread.h"
 #include "common/transport/tool_auth.h"
 #include "haptic_client/loop_stats.h"
 #include "haptic_client/virtual_devices.h"
@@ -267,8 +269,15 @@ int RunHapticApp(const HapticAppOptions& o) {
                "a server with a key will ignore them",
                o.session, transport::kSessionKeyEnv);
   }
+  // The LCM threads run SCHED_FIFO below the servo loop, so a pose is sent
+  // and a model taken in while other load runs. LCM's own udpm receive
+  // thread starts on the first subscription and inherits the scope's policy.
+  const int lcm_priority = o.realtime ? std::min(transport::kLcmThreadPriority, o.rt_priority - 1) : 0;
+  std::optional<transport::ScopedThreadFifo> lcm_scope;
+  if (lcm_priority > 0) lcm_scope.emplace(lcm_priority);
   transport::LcmBus bus(o.lcm_url);
   transport::HapticClientLink link(bus, o.session, link_options);
+  lcm_scope.reset();
 
   // ---- Preallocate everything the loop touches. --------------------------
   const int64_t period_ns = std::llround(1e9 / o.rate);
@@ -277,7 +286,8 @@ int RunHapticApp(const HapticAppOptions& o) {
   Histogram jitter_us(1.0, 20000);     // |period − nominal|
   Histogram lateness_us(1.0, 20000);   // wake-up past the deadline
   Histogram model_age_ms(0.01, 200000);  // 10 µs bins to 2 s
-  Histogram latency_ms(0.01, 200000);    // tool pose sent → model using it received
+  Histogram latency_ms(0.01, 200000);    // device read of a pose → model computed from it received (LCM thread)
+  Histogram use_latency_ms(0.01, 200000);  // the same, to the first tick that renders that model
   constexpr size_t kSendRing = 4096;
   std::array<int64_t, kSendRing> send_ns{};
   std::array<uint64_t, kSendRing> send_seq{};
@@ -290,7 +300,7 @@ int RunHapticApp(const HapticAppOptions& o) {
   std::signal(SIGTERM, OnStopSignal);
 
   // Helper threads first (they inherit SCHED_OTHER), then our priority.
-  link.Start(1);
+  link.Start(100, lcm_priority);
   RealtimeStatus rt;
   if (o.realtime) rt = TryEnableRealtime(o.rt_priority);
   PrefaultStack();
@@ -344,6 +354,7 @@ int RunHapticApp(const HapticAppOptions& o) {
       const uint64_t ts = received.tool_seq;
       if (ts != 0 && send_seq[ts % kSendRing] == ts) {
         latency_ms.Add(1e-6 * static_cast<double>(received.receive_ns - send_ns[ts % kSendRing]));
+        use_latency_ms.Add(1e-6 * static_cast<double>(now - send_ns[ts % kSendRing]));
       }
     }
     const Eigen::Vector3d force = renderer.Tick(state.position, state.velocity, now, dt);
@@ -418,9 +429,10 @@ int RunHapticApp(const HapticAppOptions& o) {
   const transport::FaultStats fr = link.receive_fault_stats();
   std::string json = fmt::format(
       R"({{"kind":"haptic_stats","end":"{}","ticks":{},"missed_deadlines":{},"rate_hz":{},"sched_fifo":{},"mlocked":{},)"
-      R"("period_us":{},"jitter_us":{},"lateness_us":{},"model_age_ms":{},"pose_to_model_ms":{},)",
+      R"("period_us":{},"jitter_us":{},"lateness_us":{},"model_age_ms":{},"pose_to_model_ms":{},"pose_to_use_ms":{},)",
       end_reason, ticks, missed, o.rate, rt.fifo, rt.mlocked, Quantiles(period_us, 1.0), Quantiles(jitter_us, 1.0),
-      Quantiles(lateness_us, 1.0), Quantiles(model_age_ms, 1.0), Quantiles(latency_ms, 1.0));
+      Quantiles(lateness_us, 1.0), Quantiles(model_age_ms, 1.0), Quantiles(latency_ms, 1.0),
+      Quantiles(use_latency_ms, 1.0));
   json += fmt::format(
       R"("models_accepted":{},"models_rejected":{},"models_stale":{},"watchdog_trips":{},"cut_decays":{},)"
       R"("non_finite_inputs":{},"passivity_dissipated_j":{:.9g},"observed_energy_j":{:.9g},"min_observed_energy_j":{:.9g},)"

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -25,6 +26,7 @@
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
 #include "common/transport/mesh_stream.h"
+#include "common/transport/realtime_thread.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 
@@ -112,10 +114,15 @@ int ServerApp::RunRealtime() {
   if (options_.resume) (void)checkpointer.Resume(*simulation);
   const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();
 
-  transport::LcmBus bus(options_.lcm_url);
   // Access control and recording (issue 7): null when not asked for.
   const auto authenticator = MakeToolAuthenticator(options_);
+  // LCM's udpm receive thread starts on the first subscription and inherits
+  // this scope's SCHED_FIFO priority (when permitted): poses then reach the
+  // link's receive thread while the physics computes.
+  std::optional<transport::ScopedThreadFifo> lcm_scope(std::in_place, transport::kLcmThreadPriority);
+  transport::LcmBus bus(options_.lcm_url);
   transport::HapticServerLink link(bus, options_.session, {.authenticator = authenticator.get()});
+  lcm_scope.reset();
   auto recorder = options_.record.empty() ? nullptr
                                           : std::make_unique<SessionRecorder>(
                                                 options_.record, options_.session, options_.scene, *simulation);
@@ -125,6 +132,30 @@ int ServerApp::RunRealtime() {
   }
   transport::DdsParticipant participant(options_.dds_domain, dds_config);
   transport::MeshStreamPublisher publisher(participant, options_.session);
+
+  // Tool poses are received on their own thread as they arrive; the physics
+  // takes the newest right before each step (see the frame order below).
+  link.StartReceiving(transport::kLcmThreadPriority);
+  // The physics thread itself runs SCHED_FIFO below the LCM threads and the
+  // haptic loop (realtime_thread.h), set after every helper thread (DDS, LCM)
+  // exists so none inherits it.
+  const int fifo_error = transport::SetCurrentThreadFifo(transport::kServerPhysicsPriority);
+  bool physics_fifo = fifo_error == 0;
+  if (!physics_fifo) {
+    Log().warn("SCHED_FIFO priority {} not permitted for the physics thread ({}): it runs as a normal "
+               "thread and other load can delay frames and the local model (grant CAP_SYS_NICE or an "
+               "rtprio limit)",
+               transport::kServerPhysicsPriority, std::strerror(fifo_error));
+  }
+  // A SCHED_FIFO loop that cannot keep up never sleeps: it would starve the
+  // normal threads on its core and run into the kernel's RT throttling
+  // (which also stalls the haptic loop if it shares the core). Fall back to
+  // SCHED_OTHER when the frames kept the thread busy for more than
+  // kMaxFifoBusy of a window of wall time.
+  constexpr int64_t kFifoWindowNs = 1'000'000'000;
+  constexpr double kMaxFifoBusy = 0.8;
+  int64_t window_start_ns = MonotonicNs();
+  int64_t window_busy_ns = 0;
 
   const auto& hp = scene.scene.haptics();
   Log().info("session '{}': physics {:.0f} Hz, viewers {:.0f} Hz, LCM {}, DDS domain {}",
@@ -259,6 +290,21 @@ int ServerApp::RunRealtime() {
     const int64_t end = MonotonicNs();
     frame_time.Add(1e-9 * static_cast<double>(end - frame_start));
     deadline += frame_ns;
+    if (physics_fifo) {
+      window_busy_ns += end - frame_start;
+      if (end - window_start_ns >= kFifoWindowNs) {
+        const double busy = static_cast<double>(window_busy_ns) / static_cast<double>(end - window_start_ns);
+        if (busy > kMaxFifoBusy) {
+          physics_fifo = false;
+          (void)transport::SetCurrentThreadNormal();
+          Log().warn("the physics kept its thread {:.0f}% busy over the last second: leaving SCHED_FIFO so "
+                     "it cannot starve other threads (lower the frame rate or the mesh size)",
+                     100.0 * busy);
+        }
+        window_start_ns = end;
+        window_busy_ns = 0;
+      }
+    }
     if (end > deadline) {
       ++counters.overruns;
       deadline = end;
@@ -266,6 +312,7 @@ int ServerApp::RunRealtime() {
       SleepUntilNs(deadline);
     }
   }
+  link.StopReceiving();
 
   if (recorder) {
     const uint64_t hash = recorder->Finish(*simulation);

@@ -1,15 +1,18 @@
 #include "common/transport/haptic_link.h"
 
+#include <poll.h>
 #include <pthread.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <exception>
 #include <limits>
 
 #include "common/core/clock.h"
 #include "common/core/log.h"
 #include "common/transport/channels.h"
+#include "common/transport/realtime_thread.h"
 
 namespace cutsim::transport {
 namespace {
@@ -29,6 +32,33 @@ std::unique_ptr<FaultInjector> MakeReceiveFaults(const FaultConfig& config) {
   ValidateFaultConfig(config);
   if (!config.active()) return nullptr;
   return std::make_unique<FaultInjector>(config);
+}
+
+/// Milliseconds from `now_ns` until `due_ns` (rounded up), capped at `cap_ms`.
+int WaitMs(int64_t now_ns, int64_t due_ns, int cap_ms) {
+  if (due_ns == std::numeric_limits<int64_t>::max()) return cap_ms;
+  const int64_t until_due_ms = std::max<int64_t>(0, (due_ns - now_ns + 999'999) / 1'000'000);
+  return static_cast<int>(std::min<int64_t>(cap_ms, until_due_ms));
+}
+
+/// Waits up to `timeout_ms` for LCM's descriptor or the wake-up eventfd.
+/// Returns whether LCM has something to dispatch (EINTR counts as "maybe").
+bool WaitLcmOrWake(int lcm_fd, const WakeFd& wake, int timeout_ms) {
+  pollfd fds[2] = {{.fd = lcm_fd, .events = POLLIN, .revents = 0},
+                   {.fd = wake.fd(), .events = POLLIN, .revents = 0}};
+  const int n = ::poll(fds, 2, timeout_ms);
+  if (n < 0) return true;
+  return (fds[0].revents & (POLLIN | POLLERR | POLLHUP)) != 0;
+}
+
+void RaiseLcmThread(int rt_priority, const char* which) {
+  if (rt_priority <= 0) return;
+  const int rc = SetCurrentThreadFifo(rt_priority);
+  if (rc != 0) {
+    Log().warn("SCHED_FIFO priority {} not permitted for the {} ({}): it runs as a normal thread and "
+               "other load can delay poses and models (grant CAP_SYS_NICE or an rtprio limit)",
+               rt_priority, which, std::strerror(rc));
+  }
 }
 
 /// A tool pose the server may use: finite, within any workspace, a usable blade.
@@ -151,7 +181,48 @@ HapticServerLink::HapticServerLink(LcmBus& bus, std::string session, HapticLinkO
                                                 [this](const v1::ToolState& msg) { OnTool(msg); });
 }
 
-HapticServerLink::~HapticServerLink() = default;
+HapticServerLink::~HapticServerLink() { StopReceiving(); }
+
+void HapticServerLink::StartReceiving(int rt_priority) {
+  if (receive_running_.exchange(true)) return;
+  receive_thread_ = std::thread([this, rt_priority] {
+    pthread_setname_np(pthread_self(), "cutsim-lcm-rx");
+    RaiseLcmThread(rt_priority, "server's LCM receive thread");
+    constexpr int kIdleWaitMs = 100;  // only bounds how long Stop waits
+    try {
+      const int lcm_fd = bus_.fileno();
+      while (receive_running_.load(std::memory_order_relaxed)) {
+        int64_t due = std::numeric_limits<int64_t>::max();
+        if (receive_faults_ != nullptr) due = receive_faults_->next_due_ns();
+        const bool lcm_ready = WaitLcmOrWake(lcm_fd, wake_, WaitMs(MonotonicNs(), due, kIdleWaitMs));
+        wake_.Drain();
+        if (lcm_ready || receive_faults_ != nullptr) ReceivePending();
+      }
+    } catch (const std::exception& e) {
+      Log().error("haptic link receive thread stopped: {}", e.what());
+    }
+  });
+}
+
+void HapticServerLink::StopReceiving() {
+  receive_running_.store(false);
+  wake_.Notify();
+  if (receive_thread_.joinable()) receive_thread_.join();
+}
+
+void HapticServerLink::ReceivePending() {
+  bus_.HandleTimeout(0);
+  const int64_t now = MonotonicNs();
+  if (receive_faults_ != nullptr) {
+    receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) {
+      if (DecodeInto(bytes, scratch_, subscription_.channel())) ProcessTool(scratch_, now);
+    });
+  }
+  const auto& sub = subscription_.stats();
+  stats_.received.store(sub.received, std::memory_order_relaxed);
+  stats_.superseded.store(sub.superseded, std::memory_order_relaxed);
+  stats_.decode_errors.store(sub.decode_errors, std::memory_order_relaxed);
+}
 
 void HapticServerLink::OnTool(const v1::ToolState& msg) {
   const int64_t now = MonotonicNs();
@@ -164,8 +235,9 @@ void HapticServerLink::OnTool(const v1::ToolState& msg) {
 }
 
 void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns) {
+  auto bump = [](std::atomic<uint64_t>& counter) { counter.fetch_add(1, std::memory_order_relaxed); };
   if (msg.session() != session_) {
-    ++stats_.foreign_session;
+    bump(stats_.foreign_session);
     return;
   }
   if (options_.authenticator != nullptr) {
@@ -174,61 +246,54 @@ void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns)
         break;
       case AuthVerdict::kNewEpoch:
         // The sender restarted (authenticated): its new stream starts afresh.
-        if (sequencer_.has_value()) ++stats_.restarts;
+        if (sequencer_.has_value()) bump(stats_.restarts);
         sequencer_.Reset();
         break;
       case AuthVerdict::kUnsigned:
-        ++stats_.unauthenticated;
-        ++stats_.auth_unsigned;
+        bump(stats_.unauthenticated);
+        bump(stats_.auth_unsigned);
         return;
       case AuthVerdict::kForged:
-        ++stats_.unauthenticated;
-        ++stats_.auth_forged;
+        bump(stats_.unauthenticated);
+        bump(stats_.auth_forged);
         return;
       case AuthVerdict::kOutsideWindow:
-        ++stats_.auth_outside_window;
+        bump(stats_.auth_outside_window);
         [[fallthrough]];
       case AuthVerdict::kReplayed:
-        ++stats_.unauthenticated;
-        ++stats_.auth_replayed;
+        bump(stats_.unauthenticated);
+        bump(stats_.auth_replayed);
         return;
     }
   }
   ToolSample sample = FromProto(msg);
   if (!ValidTool(&sample)) {
-    ++stats_.invalid;
+    bump(stats_.invalid);
     return;
   }
   switch (sequencer_.Offer(sample.seq, sample.stamp_ns)) {
     case StreamSequencer::Verdict::kDuplicate:
-      ++stats_.duplicate;
+      bump(stats_.duplicate);
       return;
     case StreamSequencer::Verdict::kStale:
-      ++stats_.stale;
+      bump(stats_.stale);
       return;
     case StreamSequencer::Verdict::kRestart:
-      ++stats_.restarts;
+      bump(stats_.restarts);
       break;
     case StreamSequencer::Verdict::kAccepted:
       break;
   }
   sample.receive_ns = receive_ns;
-  latest_ = sample;
-  fresh_ = true;
-  ++stats_.accepted;
+  tool_box_.Write(sample);
+  bump(stats_.accepted);
 }
 
 std::optional<ToolSample> HapticServerLink::PollTool() {
-  bus_.HandleTimeout(0);
-  const int64_t now = MonotonicNs();
-  if (receive_faults_ != nullptr) {
-    receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) {
-      if (DecodeInto(bytes, scratch_, subscription_.channel())) ProcessTool(scratch_, now);
-    });
-  }
-  publisher_->Poll(now);
-  if (!fresh_) return std::nullopt;
-  fresh_ = false;
+  if (!receiving()) ReceivePending();
+  publisher_->Poll(MonotonicNs());
+  if (!tool_box_.TakeFresh()) return std::nullopt;
+  latest_ = tool_box_.front();
   return latest_;
 }
 
@@ -237,25 +302,38 @@ void HapticServerLink::PublishModel(const haptics::LocalModel& model, uint64_t t
   try {
     ToProto(model, &model_msg_);
   } catch (...) {
-    ++stats_.models_not_sent;  // allocation failure on the first message only
+    stats_.models_not_sent.fetch_add(1, std::memory_order_relaxed);  // allocation failure, first message only
     return;
   }
   model_msg_.set_seq(++model_seq_);
   model_msg_.set_stamp_ns(now);
   model_msg_.set_tool_seq(tool_seq);
   if (publisher_->Publish(model_msg_, now) == PublishStatus::kOk) {
-    ++stats_.models_published;
+    stats_.models_published.fetch_add(1, std::memory_order_relaxed);
   } else {
-    ++stats_.models_not_sent;
+    stats_.models_not_sent.fetch_add(1, std::memory_order_relaxed);
   }
   publisher_->Poll(now);
 }
 
 HapticServerLinkStats HapticServerLink::stats() const {
-  HapticServerLinkStats s = stats_;
-  s.received = subscription_.stats().received;
-  s.superseded = subscription_.stats().superseded;
-  s.decode_errors = subscription_.stats().decode_errors;
+  HapticServerLinkStats s;
+  s.received = stats_.received.load();
+  s.superseded = stats_.superseded.load();
+  s.decode_errors = stats_.decode_errors.load();
+  s.accepted = stats_.accepted.load();
+  s.foreign_session = stats_.foreign_session.load();
+  s.stale = stats_.stale.load();
+  s.duplicate = stats_.duplicate.load();
+  s.invalid = stats_.invalid.load();
+  s.unauthenticated = stats_.unauthenticated.load();
+  s.auth_unsigned = stats_.auth_unsigned.load();
+  s.auth_forged = stats_.auth_forged.load();
+  s.auth_replayed = stats_.auth_replayed.load();
+  s.auth_outside_window = stats_.auth_outside_window.load();
+  s.restarts = stats_.restarts.load();
+  s.models_published = stats_.models_published.load();
+  s.models_not_sent = stats_.models_not_sent.load();
   return s;
 }
 
@@ -277,10 +355,11 @@ HapticClientLink::HapticClientLink(LcmBus& bus, std::string session, HapticLinkO
 
 HapticClientLink::~HapticClientLink() { Stop(); }
 
-void HapticClientLink::Start(int wait_ms) {
+void HapticClientLink::Start(int wait_ms, int rt_priority) {
   if (running_.exchange(true)) return;
-  thread_ = std::thread([this, wait_ms] {
+  thread_ = std::thread([this, wait_ms, rt_priority] {
     pthread_setname_np(pthread_self(), "cutsim-lcm");
+    RaiseLcmThread(rt_priority, "haptic client's LCM thread");
     try {
       while (running_.load(std::memory_order_relaxed)) RunOnce(wait_ms);
     } catch (const std::exception& e) {
@@ -291,28 +370,29 @@ void HapticClientLink::Start(int wait_ms) {
 
 void HapticClientLink::Stop() {
   running_.store(false);
+  wake_.Notify();
   if (thread_.joinable()) thread_.join();
 }
 
 int HapticClientLink::RunOnce(int wait_ms) {
   const uint64_t before = stats_.accepted.load(std::memory_order_relaxed);
   int64_t now = MonotonicNs();
+  // Drain the wake-up before taking the mailbox: a sample published after
+  // this point notifies again, so the wait below cannot sleep on it.
+  wake_.Drain();
   SendPendingTool(now);
   // Wake in time for the next fault-delayed message.
   int64_t due = publisher_->injector().next_due_ns();
   if (receive_faults_ != nullptr) due = std::min(due, receive_faults_->next_due_ns());
-  int wait = std::max(0, wait_ms);
-  if (due != std::numeric_limits<int64_t>::max()) {
-    const int64_t until_due_ms = std::max<int64_t>(0, (due - now + 999'999) / 1'000'000);
-    wait = static_cast<int>(std::min<int64_t>(wait, until_due_ms));
-  }
-  bus_.HandleTimeout(wait);
+  const bool lcm_ready = WaitLcmOrWake(bus_.fileno(), wake_, WaitMs(now, due, std::max(0, wait_ms)));
+  if (lcm_ready) bus_.HandleTimeout(0);
   now = MonotonicNs();
   if (receive_faults_ != nullptr) {
     receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) {
       if (DecodeInto(bytes, scratch_, subscription_.channel())) ProcessModel(scratch_, now);
     });
   }
+  wake_.Drain();
   SendPendingTool(now);
   const auto& sub = subscription_.stats();
   stats_.models_received.store(sub.received, std::memory_order_relaxed);
@@ -380,9 +460,11 @@ uint64_t HapticClientLink::PublishTool(const ToolSample& sample) noexcept {
   slot.seq = ++next_tool_seq_;
   if (slot.stamp_ns == 0) slot.stamp_ns = MonotonicNs();
   slot.receive_ns = 0;
+  const uint64_t seq = slot.seq;
   tool_box_.Publish();
   stats_.tools_written.fetch_add(1, std::memory_order_relaxed);
-  return slot.seq;
+  wake_.Notify();  // the LCM thread sends it now, not at its next timeout
+  return seq;
 }
 
 bool HapticClientLink::TakeModel(ReceivedModel* out) noexcept { return model_box_.Read(out); }

@@ -26,14 +26,26 @@
 /// malformed models; a model whose stiffness is not 3×3 is dropped here.
 ///
 /// Threading:
-/// * `HapticServerLink` lives on the server's physics thread, which owns the
-///   bus: `PollTool` handles pending LCM traffic with a 0 ms wait.
+/// * `HapticServerLink` lives on the server's physics thread. Without
+///   `StartReceiving`, `PollTool` handles pending LCM traffic with a 0 ms
+///   wait on that thread. That is not enough for a fresh pose: LCM keeps one
+///   message per subscription and drops *later* arrivals until it is
+///   handled, so polling once per 5 ms frame hands the physics the *oldest*
+///   pose since the previous frame (~3 ms old on average). With
+///   `StartReceiving` a receive thread dispatches every pose as it arrives
+///   into a wait-free mailbox, and `PollTool` only takes the newest one
+///   (late pose sampling: call it right before the step). Models are still
+///   published from the physics thread (see lcm_bus.h on concurrency).
 /// * `HapticClientLink` runs the bus on its own LCM thread (`Start`). The
 ///   1 kHz loop only touches two wait-free mailboxes (`PublishTool` writes
-///   the newest tool sample, the LCM thread sends it; `TakeModel` reads the
-///   newest model). So the loop never blocks, allocates or makes a system
-///   call for the link, at the cost of up to one LCM-thread period (1 ms) of
-///   extra tool-pose latency.
+///   the newest tool sample, `TakeModel` reads the newest model) and, per
+///   tool sample, one non-blocking `write` to an eventfd (`WakeFd`) that
+///   wakes the LCM thread, which sends the sample at once (it waits in
+///   `poll` on LCM's descriptor and the eventfd, not in a timed
+///   `lcm_handle_timeout` poll). So the loop never blocks or allocates for
+///   the link, and a pose leaves as soon as the LCM thread is scheduled.
+/// * Both ends' LCM threads can run SCHED_FIFO below the haptic loop
+///   (realtime_thread.h).
 ///
 /// Access control (issue 7): with a `ToolAuthenticator` (tool_auth.h) the
 /// client signs every tool message and the server drops and counts unsigned,
@@ -53,6 +65,7 @@
 #include "common/transport/fault_injection.h"
 #include "common/transport/lcm_bus.h"
 #include "common/transport/mailbox.h"
+#include "common/transport/wake_fd.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
@@ -147,18 +160,29 @@ class HapticServerLink {
  public:
   /// Subscribes to `CUTSIM_<session>_TOOL` on `bus`. Throws `InputError`
   /// (field "--session") on an invalid session name and for invalid fault
-  /// settings. `bus` must outlive the link and belongs to the caller's thread.
+  /// settings. `bus` must outlive the link and belongs to the caller's thread
+  /// (until `StartReceiving`).
   HapticServerLink(LcmBus& bus, std::string session, HapticLinkOptions options = {});
-  ~HapticServerLink();
+  ~HapticServerLink();  ///< Stops the receive thread.
   HapticServerLink(const HapticServerLink&) = delete;
   HapticServerLink& operator=(const HapticServerLink&) = delete;
 
-  /// Non-blocking: handles pending LCM traffic with a 0 ms wait (this
-  /// dispatches every subscription on the bus) and returns the newest valid
-  /// tool pose accepted since the previous call (also by another dispatch
-  /// of the same bus), or nullopt if none was.
-  /// The last accepted pose stays available as `latest_tool()`. Never throws
-  /// for anything received.
+  /// Starts the receive thread, which from now on owns the bus's receiving
+  /// side (it dispatches every subscription on the bus): each tool pose is
+  /// checked as it arrives and the newest valid one waits in a mailbox.
+  /// `rt_priority` > 0: the thread tries SCHED_FIFO at that priority and
+  /// logs a warning if not permitted. Idempotent.
+  void StartReceiving(int rt_priority = 0);
+  /// Stops and joins the receive thread (idempotent); `PollTool` polls again.
+  void StopReceiving();
+  [[nodiscard]] bool receiving() const { return receive_thread_.joinable(); }
+
+  /// Non-blocking: returns the newest valid tool pose accepted since the
+  /// previous call, or nullopt if none was. Without a receive thread it
+  /// first handles pending LCM traffic with a 0 ms wait (this dispatches
+  /// every subscription on the bus); with one it only reads the mailbox
+  /// (no system call). The last accepted pose stays available as
+  /// `latest_tool()`. Never throws for anything received.
   std::optional<ToolSample> PollTool();
 
   /// Publishes `model` on `CUTSIM_<session>_MODEL`. The link numbers the
@@ -169,6 +193,7 @@ class HapticServerLink {
   /// over one datagram is not sent and counted (cannot happen: ~400 bytes).
   void PublishModel(const haptics::LocalModel& model, uint64_t tool_seq);
 
+  /// Counters (each atomic; callable from the physics thread while receiving).
   [[nodiscard]] HapticServerLinkStats stats() const;
   [[nodiscard]] const std::optional<ToolSample>& latest_tool() const { return latest_; }
   [[nodiscard]] uint64_t last_model_seq() const { return model_seq_; }
@@ -177,21 +202,33 @@ class HapticServerLink {
  private:
   void OnTool(const v1::ToolState& msg);
   void ProcessTool(const v1::ToolState& msg, int64_t receive_ns);
+  /// Receiving side: handle LCM (0 ms), release fault-delayed poses, mirror counters.
+  void ReceivePending();
 
   LcmBus& bus_;
   std::string session_;
   HapticLinkOptions options_;
   std::string model_channel_;
+  // Receiving side (the receive thread, or the PollTool caller without one).
   StreamSequencer sequencer_;
-  std::optional<ToolSample> latest_;
-  bool fresh_ = false;
-  uint64_t model_seq_ = 0;
-  v1::HapticModel model_msg_;  // reused
   v1::ToolState scratch_;      // reused for fault-delayed messages
   Encoder encoder_;
   std::unique_ptr<FaultInjector> receive_faults_;  // null when inactive
+  // Physics-thread side.
+  std::optional<ToolSample> latest_;
+  uint64_t model_seq_ = 0;
+  v1::HapticModel model_msg_;  // reused
   std::unique_ptr<FaultyLcmPublisher> publisher_;
-  HapticServerLinkStats stats_;
+  // Shared.
+  Mailbox<ToolSample> tool_box_;
+  struct AtomicStats {
+    std::atomic<uint64_t> received{0}, superseded{0}, decode_errors{0}, accepted{0}, foreign_session{0},
+        stale{0}, duplicate{0}, invalid{0}, unauthenticated{0}, auth_unsigned{0}, auth_forged{0},
+        auth_replayed{0}, auth_outside_window{0}, restarts{0}, models_published{0}, models_not_sent{0};
+  } stats_;
+  WakeFd wake_;  // stops the receive thread's poll
+  std::atomic<bool> receive_running_{false};
+  std::thread receive_thread_;
   LcmSubscription subscription_;  // last: unsubscribes first
 };
 
@@ -231,19 +268,26 @@ class HapticClientLink {
   HapticClientLink(const HapticClientLink&) = delete;
   HapticClientLink& operator=(const HapticClientLink&) = delete;
 
-  /// Starts the LCM thread: sends tool samples, receives models, releases
-  /// fault-delayed messages; it waits at most `wait_ms` in LCM per round.
-  void Start(int wait_ms = 1);
+  /// Starts the LCM thread: sends each tool sample as soon as `PublishTool`
+  /// wakes it, receives models, releases fault-delayed messages; it waits
+  /// at most `wait_ms` per round (a bound for housekeeping, not a polling
+  /// period: poses and models wake it). `rt_priority` > 0: the thread tries
+  /// SCHED_FIFO at that priority (below the haptic loop's) and logs a
+  /// warning if not permitted.
+  void Start(int wait_ms = 100, int rt_priority = 0);
   /// Stops and joins the LCM thread (idempotent).
   void Stop();
   /// One round of the LCM thread (send the newest tool sample, wait up to
-  /// `wait_ms` for LCM, release delayed messages). For tests that drive the
-  /// link from their own thread instead of `Start`. Returns models accepted.
+  /// `wait_ms` for an LCM message or a `PublishTool` wake-up, dispatch,
+  /// release delayed messages, send the newest tool sample). For tests that
+  /// drive the link from their own thread instead of `Start`. Returns
+  /// models accepted.
   int RunOnce(int wait_ms);
 
-  // ---- Real-time side (one thread: the haptic loop). Wait-free. ---------
-  /// Hands a tool sample to the LCM thread; assigns and returns its seq
-  /// (`sample.seq` is ignored; `sample.stamp_ns` 0 means now).
+  // ---- Real-time side (one thread: the haptic loop). Never blocks. -------
+  /// Hands a tool sample to the LCM thread and wakes it (one non-blocking
+  /// eventfd write); assigns and returns its seq (`sample.seq` is ignored;
+  /// `sample.stamp_ns` 0 means now).
   uint64_t PublishTool(const ToolSample& sample) noexcept;
   /// If a model newer than the last taken one arrived, copies it to `*out`.
   bool TakeModel(ReceivedModel* out) noexcept;
@@ -275,6 +319,7 @@ class HapticClientLink {
   // Shared.
   Mailbox<ToolSample> tool_box_;
   Mailbox<ReceivedModel> model_box_;
+  WakeFd wake_;                 // PublishTool and Stop → LCM thread
   uint64_t next_tool_seq_ = 0;  // RT-thread only
   struct AtomicStats {
     std::atomic<uint64_t> tools_written{0}, tools_published{0}, tools_not_sent{0},

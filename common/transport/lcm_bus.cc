@@ -318,6 +318,8 @@ int LcmBus::HandleTimeout(int timeout_ms) {
   return delivered;
 }
 
+int LcmBus::fileno() const { return lcm_get_fileno(AsLcm(lcm_)); }
+
 uint64_t LcmBus::decode_errors() const {
   uint64_t n = closed_decode_errors_;
   for (const auto* s : subscriptions_) n += s->stats().decode_errors;

@@ -23,8 +23,13 @@
 /// reports on that interface. `LcmBus` logs a warning when it sees this; the
 /// fix is a host route (`ip route add 239.255.76.67/32 dev lo`).
 ///
-/// Threading: one thread owns a bus and its subscriptions; `Publish` and
-/// `HandleTimeout` must not run concurrently.
+/// Threading: one thread owns a bus and its subscriptions and calls
+/// `HandleTimeout`. At most one *other* thread may call `Publish` and
+/// `PublishBytes` concurrently (the server publishes local models from its
+/// physics thread while its LCM thread receives): `lcm_publish` is
+/// thread-safe, and the publishing state here (encoder, publish counters) is
+/// disjoint from the handling state. `Subscribe`, unsubscribing and `stats()`
+/// only while no other thread uses the bus.
 
 #include <cstddef>
 #include <cstdint>
@@ -197,6 +202,12 @@ class LcmBus {
   /// pending message of each subscription. Returns the number of callbacks
   /// run. Never blocks longer than `timeout_ms` plus the callbacks' time.
   int HandleTimeout(int timeout_ms);
+
+  /// LCM's notification descriptor (`lcm_get_fileno`): readable when a
+  /// message is queued, so that `HandleTimeout(0)` will dispatch it. For a
+  /// thread that waits in `poll` on it and on other descriptors (a
+  /// `WakeFd`) instead of in `HandleTimeout`. Owner thread only.
+  [[nodiscard]] int fileno() const;
 
   [[nodiscard]] const std::string& url() const { return url_; }
   [[nodiscard]] const LcmBusStats& stats() const { return stats_; }

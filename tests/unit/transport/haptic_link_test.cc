@@ -355,5 +355,80 @@ TEST(HapticClientLinkTest, StartStopRunsTheLcmThread) {
   EXPECT_EQ(client.stats().tools_written, 2U);
 }
 
+// The LCM thread waits for an hour per round here: a pose can only reach the
+// subscriber because PublishTool wakes the thread (eventfd), not because a
+// poll timed out. The bounded waits below only turn a hang into a failure.
+TEST(HapticClientLinkTest, PublishToolWakesTheLcmThreadInsteadOfWaitingForItsTimeout) {
+  LcmBus bus("memq://");
+  const std::string session = testing::UniqueSession("hcl");
+  std::atomic<uint64_t> heard{0};
+  std::atomic<uint64_t> last_seq{0};
+  auto sub = bus.Subscribe<v1::ToolState>(LcmChannelName(session, LcmChannel::kTool), [&](const v1::ToolState& m) {
+    last_seq.store(m.seq());
+    heard.fetch_add(1);
+  });
+  HapticClientLink client(bus, session);
+  constexpr int kHourMs = 3'600'000;
+  client.Start(kHourMs);
+  auto wait_for = [&](uint64_t n) {
+    const int64_t guard = MonotonicNs() + 30'000'000'000;  // far below the hour
+    while (heard.load() < n && MonotonicNs() < guard) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    return heard.load() >= n;
+  };
+  ToolSample t;
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));  // let the thread reach its wait
+  const uint64_t first = client.PublishTool(t);
+  ASSERT_TRUE(wait_for(1)) << "the pose waited for the LCM thread's timeout";
+  EXPECT_EQ(last_seq.load(), first);
+  const uint64_t second = client.PublishTool(t);
+  ASSERT_TRUE(wait_for(2)) << "the second pose waited for the LCM thread's timeout";
+  EXPECT_EQ(last_seq.load(), second);
+  client.Stop();  // also woken: must not wait out the hour
+  EXPECT_EQ(client.stats().tools_published, 2U);
+  EXPECT_EQ(client.stats().tools_coalesced, 0U);
+}
+
+// With a receive thread the physics side never handles LCM: each pose is
+// dispatched as it arrives and PollTool only takes the newest from a mailbox.
+TEST(HapticServerLinkTest, ReceiveThreadHandsOverTheNewestPoseWithoutPolling) {
+  LcmBus bus("memq://");
+  const std::string session = testing::UniqueSession("hsl");
+  const std::string channel = LcmChannelName(session, LcmChannel::kTool);
+  HapticServerLink link(bus, session);
+  link.StartReceiving();
+  EXPECT_TRUE(link.receiving());
+  auto wait_accepted = [&](uint64_t n) {
+    const int64_t guard = MonotonicNs() + 30'000'000'000;
+    while (link.stats().accepted < n && MonotonicNs() < guard) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    return link.stats().accepted >= n;
+  };
+  // Published from this thread while the receive thread handles the bus
+  // (one publishing thread besides the handling one is allowed).
+  for (uint64_t seq = 1; seq <= 5; ++seq) {
+    ASSERT_EQ(bus.Publish(channel, Tool(session, seq, 100 * static_cast<int64_t>(seq), 0.001 * static_cast<double>(seq))),
+              PublishStatus::kOk);
+    ASSERT_TRUE(wait_accepted(seq)) << "pose " << seq << " was not dispatched by the receive thread";
+  }
+  auto got = link.PollTool();
+  ASSERT_TRUE(got.has_value());
+  EXPECT_EQ(got->seq, 5U);  // the newest, not the first since the last poll
+  EXPECT_DOUBLE_EQ(got->tip.z(), 0.005);
+  EXPECT_GT(got->receive_ns, 0);
+  EXPECT_FALSE(link.PollTool().has_value());
+  // A stale pose is still dropped on the receive thread.
+  ASSERT_EQ(bus.Publish(channel, Tool(session, 4, 400)), PublishStatus::kOk);
+  const int64_t guard = MonotonicNs() + 30'000'000'000;
+  while (link.stats().stale == 0 && MonotonicNs() < guard) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  EXPECT_EQ(link.stats().stale, 1U);
+  EXPECT_FALSE(link.PollTool().has_value());
+  // Models go out from this (the "physics") thread meanwhile.
+  link.PublishModel(Plane(0.001), got->seq);
+  EXPECT_EQ(link.stats().models_published, 1U);
+  link.StopReceiving();
+  link.StopReceiving();  // idempotent
+  EXPECT_FALSE(link.receiving());
+  EXPECT_EQ(link.stats().received, 6U);  // tool messages: 5 + the stale one
+}
+
 }  // namespace
 }  // namespace cutsim::transport
