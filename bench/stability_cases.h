@@ -530,8 +530,9 @@ inline Result ToolJammed(const Size& size, const std::string& scene_path, bool c
   return r;
 }
 
-/// A scene with a tool but no path: the blade stays at its default pose,
-/// tip at the origin pointing +z, i.e. along the block's corner edge.
+/// The blade held with its tip at the origin pointing +z, i.e. along the
+/// block's corner edge (where a tool without a path used to sit): the
+/// penalty acts on a vertex and the edges shared by the top and side facets.
 inline Result ToolOnEdge(const Size& size, const std::string& scene_path) {
   Result r;
   r.name = "tool resting on the block's corner edge (no path)";
@@ -542,12 +543,18 @@ inline Result ToolOnEdge(const Size& size, const std::string& scene_path) {
   const double frame = 0.01;
   Stopwatch watch;
   const int frames = std::max(2, static_cast<int>(std::lround(size.jam_time / frame)));
+  // A tool without a path is parked clear of the body (ToolParked); put the
+  // blade where the old default pose left it: tip at the origin, along +z.
+  simulation->SetToolPose({Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ()});
+  int touching = 0;
   for (int f = 0; f < frames; ++f) {
     if (simulation->AdvanceFrame(frame) != sim::SimStatus::kOk) break;
+    touching += simulation->Tool().touching ? 1 : 0;
   }
   sim::MeshView view;
   FinishSim(*simulation, mass0, r, view);
   r.wall = watch.ElapsedSeconds();
+  r.reason += ", touching in " + std::to_string(touching) + " of " + std::to_string(frames) + " frames";
   return r;
 }
 

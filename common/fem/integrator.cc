@@ -16,6 +16,12 @@ namespace {
 
 int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
+// Step-size policy of Advance (State::dt_held): the held step is this
+// fraction of the estimate when set, and is re-set when the estimate falls
+// below it or exceeds it by this factor.
+constexpr double kDtHoldMargin = 0.85;
+constexpr double kDtGrowThreshold = 1.2 / 0.85;
+
 /// Block-Jacobi preconditioner of M + dt·C: for each free node the inverse
 /// of m·I + dt·Σ_e C_aa, with C_aa = vol·F[(φ+ψ)g gᵀ + ψ|g|²I]Fᵀ the damping
 /// force on node a per unit velocity of node a (Ḟ = u gᵀ, g = row of Dm⁻ᵀ
@@ -392,7 +398,7 @@ T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& opt
   // measured (stable_dt.h); otherwise the transient factor of the bound.
   const double bound = static_cast<double>(StableStepBound(state));
   state.dt_trusted = options.spectral_iterations > 0 && state.dt_ratio > 1.0 && state.dt_calm_refreshes >= 10 &&
-                     std::abs(bound / state.dt_bound_at_spectral - 1.0) <= 0.1;
+                     std::abs(bound / state.dt_bound_at_spectral - 1.0) <= 0.1 && state.dt_element_drift <= 0.1;
   if (options.spectral_iterations > 0 && !state.dt_trusted && state.dt_calm_refreshes >= 10 &&
       state.dt_spectral_step >= 0 && state.step - state.dt_spectral_step >= options.spectral_refresh_interval / 10) {
     // Calm again far from the last estimate: re-estimate now.
@@ -401,8 +407,13 @@ T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& opt
   }
   const double factor = state.dt_trusted ? options.safety_factor * state.dt_ratio
                                          : std::min(options.safety_factor, options.transient_safety_factor);
-  return std::min(static_cast<T>(factor * static_cast<double>(StableStepBound(state))),
-                  static_cast<T>(options.max_dt));
+  const double estimate = factor * static_cast<double>(StableStepBound(state));
+  // Hold the step between refreshes (State::dt_held): shrink at once, grow
+  // only past the dead band, so the step does not follow the oscillation.
+  if (!(state.dt_held > 0) || !(estimate >= state.dt_held) || estimate > kDtGrowThreshold * state.dt_held) {
+    state.dt_held = kDtHoldMargin * estimate;
+  }
+  return std::min(static_cast<T>(state.dt_held), static_cast<T>(options.max_dt));
 }
 
 template <typename T>

@@ -370,6 +370,7 @@ State<T>::State(const Model<T>& model) {
   lanczos_f0.assign(NC, T(0));
   element_force.assign(12 * static_cast<size_t>(model.padded_tets()), T(0));
   element_dt.assign(static_cast<size_t>(model.padded_tets()), std::numeric_limits<T>::infinity());
+  element_dt_at_spectral.assign(static_cast<size_t>(model.padded_tets()), std::numeric_limits<T>::infinity());
   dt_leaves = 1;
   while (dt_leaves < model.padded_tets()) dt_leaves *= 2;
   dt_tree.assign(2 * static_cast<size_t>(dt_leaves), std::numeric_limits<T>::infinity());

@@ -60,15 +60,27 @@ void RefreshStableStep(const Model<T>& model, State<T>& state, bool explicit_vis
   const T* x = state.x.data();
   T* leaves = state.dt_tree.data() + state.dt_leaves;
   T* elem = state.element_dt.data();
+  const T* at_spectral = state.element_dt_at_spectral.data();
+  double drift = 0;
 #pragma omp parallel num_threads(num_threads > 0 ? num_threads : omp_get_max_threads())
   {
-#pragma omp for schedule(static)
+#pragma omp for schedule(static) reduction(max : drift)
     for (int32_t t = 0; t < nt; ++t) {
       const T dt = ElementStableStep(model, x, t, explicit_viscous);
       elem[t] = dt;
       leaves[t] = dt;
+      // Relative change since the spectral refresh (inert elements: none;
+      // an element that appeared or changed state: +∞, i.e. not trusted).
+      const double now = static_cast<double>(dt), then = static_cast<double>(at_spectral[t]);
+      if (std::isfinite(now) || std::isfinite(then)) {
+        const double change = std::isfinite(now) && std::isfinite(then) && then > 0
+                                  ? std::abs(now / then - 1.0)
+                                  : std::numeric_limits<double>::infinity();
+        drift = std::max(drift, change);
+      }
     }
   }
+  state.dt_element_drift = drift;
   for (int32_t i = state.dt_leaves - 1; i >= 1; --i) {
     state.dt_tree[static_cast<size_t>(i)] =
         std::min(state.dt_tree[2 * static_cast<size_t>(i)], state.dt_tree[2 * static_cast<size_t>(i) + 1]);
@@ -277,6 +289,8 @@ template <typename T>
 void RefreshSpectralRatio(const Model<T>& model, State<T>& state, bool explicit_viscous, int iterations,
                           int num_threads) {
   RefreshStableStep(model, state, explicit_viscous, num_threads);
+  std::copy(state.element_dt.begin(), state.element_dt.end(), state.element_dt_at_spectral.begin());
+  state.dt_element_drift = 0;
   const double bound = static_cast<double>(StableStepBound(state));
   const SpectralEstimate e = EstimateStableStep(model, state, explicit_viscous, iterations, num_threads);
   double r = e.dt / bound;

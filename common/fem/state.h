@@ -55,6 +55,20 @@ struct State {
   double dt_ratio = 1.0;
   int64_t dt_spectral_step = -1;  ///< Step of the last spectral refresh.
   double dt_bound_at_spectral = 0;  ///< Per-element bound at that refresh, s.
+  /// Every element's bound at the last spectral refresh, s.  // #T_pad
+  std::vector<T> element_dt_at_spectral;
+  /// Largest relative change of one element's bound since the spectral
+  /// refresh, max_e |dt_e / dt_e(spectral) − 1|, at the last bound refresh.
+  /// The global minimum can stay put while another element stiffens past
+  /// it (a corner rattling under the tool), so the ratio is trusted only
+  /// while this is small.
+  double dt_element_drift = 0;
+  /// The step Advance holds between estimate refreshes (0: none yet), s:
+  /// 0.95 × the estimate when set, shrunk at once when the estimate falls
+  /// below it, grown only when the estimate exceeds it by 15%. A step that
+  /// follows the estimate's every wiggle is variable-step symplectic Euler,
+  /// which is not symplectic and pumps energy (integrator.h).
+  double dt_held = 0;
   int dt_calm_refreshes = 0;  ///< Consecutive bound refreshes that changed it ≤ 2%.
   bool dt_trusted = false;    ///< Whether the last CurrentTimeStep used the ratio.
   uint64_t dt_spectral_topology_version = 0;

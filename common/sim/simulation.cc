@@ -527,6 +527,22 @@ class Engine final : public Simulation {
     indent_limit_ = 0.5 * mean_edge_;
     if (blade_length_ <= 0) blade_length_ = 2.0 * mean_edge_;
     report_.present = true;
+    if (path_.empty()) {
+      // No path: until a client sets a pose the tool is parked clear of the
+      // tissue, blade vertical with its tip one blade length above the top
+      // of the body (the default pose, tip at the origin, would lie on the
+      // body of any scene built from the origin, e.g. along a box's edge).
+      Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+      Eigen::Vector3d hi = -lo;
+      for (int32_t n = 0; n < mesh_.mesh.num_nodes(); ++n) {
+        lo = lo.cwiseMin(mesh_.mesh.nodes.row(n).transpose());
+        hi = hi.cwiseMax(mesh_.mesh.nodes.row(n).transpose());
+      }
+      if (mesh_.mesh.num_nodes() > 0) {
+        pose_ = {Eigen::Vector3d(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z() + blade_length_),
+                 Eigen::Vector3d::UnitZ()};
+      }
+    }
     pose_ = SamplePath(0.0);
     report_.pose = pose_;
     if (scene.scene.has_cutting() && scene.scene.cutting().enabled()) {

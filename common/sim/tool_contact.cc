@@ -40,6 +40,43 @@ void Fill(ContactFacet& c, const mesh::Triangles& surface, int32_t f, const Face
   c.closest_node = c.nodes[static_cast<size_t>(k)];
 }
 
+/// Angle-weighted unit normal of the surface at `node` (the triangles of
+/// `surface` around it, found through the BVH; split copies of a cut are
+/// other nodes, so the two lips of a slit never mix). Zero if none.
+Eigen::Vector3d VertexNormal(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
+                             const mesh::Triangles& surface, int32_t node, std::vector<int32_t>& boxes) {
+  const Eigen::Vector3d p = world.row(node).transpose();
+  const Eigen::Vector3d r = Eigen::Vector3d::Constant(1e-9 + 1e-9 * p.cwiseAbs().maxCoeff());
+  bvh.QueryBox(p - r, p + r, boxes);
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const int32_t f : boxes) {
+    int corner = -1;
+    for (int k = 0; k < 3; ++k) corner = surface(f, k) == node ? k : corner;
+    if (corner < 0) continue;
+    const Facet facet = LoadFacet(world, surface, f);
+    if (!facet.ok) continue;
+    const Eigen::Vector3d q[3] = {facet.p0, facet.p1, facet.p2};
+    const Eigen::Vector3d e1 = q[(corner + 1) % 3] - q[corner], e2 = q[(corner + 2) % 3] - q[corner];
+    const double angle = std::atan2(e1.cross(e2).norm(), e1.dot(e2));  // in [0, π]
+    sum += angle * facet.n;
+  }
+  const double len = sum.norm();
+  return len > 0.0 ? Eigen::Vector3d(sum / len) : Eigen::Vector3d::Zero();
+}
+
+/// The contact normal of a chosen facet: barycentric blend of the
+/// angle-weighted vertex normals (continuous across edges and vertices, so
+/// which of the facets sharing an edge was taken does not matter); the
+/// facet's own normal if the blend degenerates. Updates the depth with it.
+void SmoothNormal(ContactFacet& c, const mesh::TriangleBvh& bvh, const mesh::Positions& world,
+                  const mesh::Triangles& surface, const Eigen::Vector3d& tip, std::vector<int32_t>& boxes) {
+  Eigen::Vector3d n = Eigen::Vector3d::Zero();
+  for (int i = 0; i < 3; ++i) n += c.bary[i] * VertexNormal(bvh, world, surface, c.nodes[static_cast<size_t>(i)], boxes);
+  const double len = n.norm();
+  if (len > 1e-6) c.normal = n / len;
+  c.depth = std::max(0.0, (c.point - tip).dot(c.normal));
+}
+
 }  // namespace
 
 ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
@@ -60,7 +97,10 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     best_t = h.t;
     Fill(best, surface, h.tri, facet, h.point, h.bary, tip);
   }
-  if (best.touching) return best;
+  if (best.touching) {
+    SmoothNormal(best, bvh, world, surface, tip, boxes);
+    return best;
+  }
   // 2. The tip just under a facing facet (no crossing, e.g. pressed flat).
   const Eigen::Vector3d r = Eigen::Vector3d::Constant(near_radius);
   bvh.QueryBox(tip - r, tip + r, boxes);
@@ -75,7 +115,10 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     best_distance = hit.distance;
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }
-  if (best.touching || !in_cut) return best;
+  if (best.touching || !in_cut) {
+    if (best.touching) SmoothNormal(best, bvh, world, surface, tip, boxes);
+    return best;
+  }
   // 3. Inside its own cut: the blade lies in the slit it opened and crosses
   // no facing facet. Take the facing facet nearest to the blade segment
   // (the lips of the slit around the cut front).
@@ -103,6 +146,7 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     best_distance = hit.distance;
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }
+  if (best.touching) SmoothNormal(best, bvh, world, surface, tip, boxes);
   return best;
 }
 
@@ -110,9 +154,7 @@ Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, con
                              const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
                              const Eigen::Vector3d& approach_velocity, double stiffness, double damping,
                              double indent_limit) {
-  const Eigen::Vector3d cross = (x1 - x0).cross(x2 - x0);
-  const double area2 = cross.norm();
-  if (area2 > 0.0) facet.normal = cross / area2;
+  // The normal stays as FindContactFacet set it for the frame (see the header).
   facet.point = facet.bary[0] * x0 + facet.bary[1] * x1 + facet.bary[2] * x2;
   facet.depth = std::clamp((facet.point - tip).dot(facet.normal), 0.0, indent_limit);
   if (facet.depth <= 0.0) return Eigen::Vector3d::Zero();

@@ -23,13 +23,22 @@
 /// - Indentation δ = (C_p − tip)·n, capped at `indent_limit` (one mean edge
 ///   length): a blade pushed deeper is inside the tissue (in its own cut),
 ///   where the cut, not the surface layer, carries it.
-/// - During the frame's substeps the facet and the barycentrics b of C_p
-///   stay fixed; C_p = Σ bᵢxᵢ and n follow the facet's nodes and the tip is
-///   interpolated over the frame. The tissue receives fᵢ = bᵢ·F with
-///   F = −(k δ + c·max(0, −v·n)) n (a spring along the normal and a damper
-///   that only resists approach, so the contact never pulls); the tool
-///   receives −F. Updating the spring every substep keeps the penalty
-///   stable at any frame rate.
+/// - One contact per tool: the normal n is not the facet's own but the
+///   barycentric blend at C_p of the angle-weighted vertex normals of the
+///   surface, so it is continuous across edges and vertices (the blade on
+///   an edge or corner gets the same push whichever facet was taken).
+/// - During the frame's substeps the facet, the barycentrics b of C_p and
+///   the normal n stay fixed; C_p = Σ bᵢxᵢ follows the facet's nodes and
+///   the tip is interpolated over the frame. The tissue receives fᵢ = bᵢ·F
+///   with F = −(k δ + c·max(0, −v·n)) n (a spring along the normal and a
+///   damper that only resists approach, so the contact never pulls); the
+///   tool receives −F. Updating the depth every substep keeps the penalty
+///   stable at any frame rate. With n fixed the spring is conservative,
+///   ½k((C_p − tip)·n)², and its stiffness is exactly k·(b bᵀ)⊗(n nᵀ), the
+///   term the contact-limited substep adds (Simulation); a normal that
+///   followed the deformed facet was a follower force, with geometric
+///   stiffness k·δ/ℓ that no step estimate saw, and it blew up a block
+///   pushed on its corner edge (bench/README.md, stability suite).
 /// - The haptic stiffness is derived from the FEM, not a constant (see
 ///   Simulation::ContactStiffness): the tissue's local stiffness at the
 ///   contact k_t = nᵀ(Σ bᵢ Kᵢᵢ)n, Kᵢᵢ the 3×3 diagonal tangent blocks of the
@@ -73,7 +82,8 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
 
 /// Penalty force on the tissue at the facet for the current facet node
 /// positions: returns F (the force on the tissue, N, to be split as bᵢF) and
-/// updates `facet.point`, `facet.normal`, `facet.depth`.
+/// updates `facet.point` and `facet.depth`; `facet.normal` (set by
+/// FindContactFacet for the frame) is not changed.
 Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
                              const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
                              const Eigen::Vector3d& approach_velocity, double stiffness, double damping,
