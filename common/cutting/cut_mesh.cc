@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numeric>
 #include <string>
+#include <unordered_map>
 
 #include "common/core/error.h"
 #include "common/mesh/surface.h"
@@ -48,35 +49,31 @@ int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
 
 }  // namespace
 
-size_t CutMesh::KeyHash::operator()(const Key& k) const noexcept {
-  uint64_t h = static_cast<uint32_t>(k[0]);
-  h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
-  h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
-  h ^= h >> 31;
-  h *= 0x94D049BB133111EBULL;
-  h ^= h >> 29;
-  return static_cast<size_t>(h);
-}
-
-CutMesh::Key CutMesh::SortedKey(int32_t a, int32_t b, int32_t c) {
-  if (a > b) std::swap(a, b);
-  if (b > c) std::swap(b, c);
-  if (a > b) std::swap(a, b);
-  return {a, b, c};
-}
-
-CutMesh::Key CutMesh::FaceKeyOf(int32_t t, int f) const {
+int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   const auto& n = tets_[Idx(t)];
   const auto lf = mesh::LocalTetFace(f);
-  return SortedKey(n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]);
+  const int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
+  for (const int32_t u : node_tets_[Idx(a)]) {
+    if (u == t) continue;
+    const auto& m = tets_[Idx(u)];
+    const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
+    const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
+    if (has_b && has_c) return u;
+  }
+  return -1;
 }
 
-int CutMesh::LocalFaceOf(int32_t t, const Key& key) const {
+int CutMesh::MatchingFace(int32_t u, int32_t t, int f) const {
+  // The corner of u that is not on the face (the face's nodes are t's other corners).
   const auto& n = tets_[Idx(t)];
-  for (int f = 0; f < 4; ++f) {
-    if (n[Idx(f)] != key[0] && n[Idx(f)] != key[1] && n[Idx(f)] != key[2]) return f;
+  const auto& m = tets_[Idx(u)];
+  for (int k = 0; k < 4; ++k) {
+    bool on_face = false;
+    for (int c = 0; c < 4; ++c)
+      if (c != f && n[Idx(c)] == m[Idx(k)]) on_face = true;
+    if (!on_face) return k;
   }
-  CUTSIM_CHECK(false, "face key is not a face of the tet");
+  CUTSIM_CHECK(false, "face is not a face of the tet");
 }
 
 CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
@@ -91,7 +88,6 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   }
   node_tets_.resize(Idx(n));
   tets_.resize(Idx(mesh.num_tets()));
-  faces_.reserve(Idx(mesh.num_tets()) * 3);
   for (int32_t t = 0; t < mesh.num_tets(); ++t) {
     for (int c = 0; c < 4; ++c) {
       const int32_t v = mesh.tets(t, c);
@@ -100,26 +96,57 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
       node_tets_[Idx(v)].push_back(t);  // ascending since t ascends
     }
   }
-  // Faces: first pass pairs tets, second assigns surface slots in tet order
-  // (deterministic, like mesh::ExtractSurface).
-  for (int32_t t = 0; t < num_tets(); ++t) {
-    for (int f = 0; f < 4; ++f) {
-      FaceRec& rec = faces_[FaceKeyOf(t, f)];
-      CUTSIM_CHECK(rec.tets[1] < 0, "face shared by more than two tets");
-      rec.tets[rec.tets[0] < 0 ? 0 : 1] = t;
+  copies_.resize(Idx(n));
+  // Faces: pair tets through a hash of sorted face keys (construction
+  // only), then assign surface slots in tet order (deterministic, like
+  // mesh::ExtractSurface).
+  neighbour_.assign(tets_.size(), {-1, -1, -1, -1});
+  slot_.assign(tets_.size(), {-1, -1, -1, -1});
+  {
+    struct Hash {
+      size_t operator()(const std::array<int32_t, 3>& k) const noexcept {
+        uint64_t h = static_cast<uint32_t>(k[0]);
+        h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
+        h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
+        return static_cast<size_t>(h ^ (h >> 29));
+      }
+    };
+    std::unordered_map<std::array<int32_t, 3>, std::pair<int32_t, int>, Hash> first;  // key → (tet, face)
+    first.reserve(tets_.size() * 3);
+    for (int32_t t = 0; t < num_tets(); ++t) {
+      for (int f = 0; f < 4; ++f) {
+        const auto lf = mesh::LocalTetFace(f);
+        const auto& tn = tets_[Idx(t)];
+        std::array<int32_t, 3> k{tn[Idx(lf[0])], tn[Idx(lf[1])], tn[Idx(lf[2])]};
+        std::sort(k.begin(), k.end());
+        const auto [it, inserted] = first.try_emplace(k, t, f);
+        if (inserted) continue;
+        const auto [u, fu] = it->second;
+        CUTSIM_CHECK(u >= 0, "face shared by more than two tets");
+        neighbour_[Idx(t)][Idx(f)] = u;
+        neighbour_[Idx(u)][Idx(fu)] = t;
+        it->second.first = -1;
+      }
     }
   }
   for (int32_t t = 0; t < num_tets(); ++t) {
     for (int f = 0; f < 4; ++f) {
-      FaceRec& rec = faces_.at(FaceKeyOf(t, f));
-      if (rec.tets[1] < 0) rec.slot = NewSlot(t, f, false);
+      if (neighbour_[Idx(t)][Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
     }
   }
 }
 
 std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const {
-  const auto it = faces_.find(SortedKey(a, b, c));
-  return it == faces_.end() ? std::array<int32_t, 2>{-1, -1} : it->second.tets;
+  std::array<int32_t, 2> out{-1, -1};
+  if (a < 0 || a >= num_nodes()) return out;
+  int k = 0;
+  for (const int32_t u : node_tets_[Idx(a)]) {
+    const auto& m = tets_[Idx(u)];
+    const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
+    const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
+    if (has_b && has_c && k < 2) out[Idx(k++)] = u;
+  }
+  return out;
 }
 
 mesh::Tets CutMesh::TetsMatrix() const {
@@ -151,12 +178,6 @@ mesh::Triangles CutMesh::SurfaceTriangles(std::vector<uint8_t>* opened) const {
   return tris;
 }
 
-int32_t CutMesh::SurfaceSlot(int32_t t, int f) const {
-  const auto it = faces_.find(FaceKeyOf(t, f));
-  if (it == faces_.end() || it->second.tets[1] >= 0) return -1;
-  return it->second.slot;
-}
-
 std::array<int32_t, 3> CutMesh::SurfaceTriangle(int32_t slot) const {
   const SurfaceFace& s = surface_[Idx(slot)];
   const auto lf = mesh::LocalTetFace(s.local_face);
@@ -183,8 +204,7 @@ std::vector<int32_t> CutMesh::Twins(int32_t node, const WorldAccess& world) cons
     if (rest_[Idx(k)] == rest_[Idx(node)] && world.Get(k) == x) out.push_back(k);
   };
   consider(o);
-  if (const auto it = copies_.find(o); it != copies_.end())
-    for (const int32_t k : it->second) consider(k);
+  for (const int32_t k : copies_[Idx(o)]) consider(k);
   return out;  // ascending: the original first, copies in creation order
 }
 
@@ -210,39 +230,39 @@ void CutMesh::FreeSlot(int32_t slot) {
   if (track_slots_) changed_slots_.push_back(slot);
 }
 
-bool CutMesh::RemoveFaceTet(const Key& key, int32_t t) {
-  auto it = faces_.find(key);
-  CUTSIM_CHECK(it != faces_.end(), "face missing from the complex");
-  FaceRec& rec = it->second;
-  if (rec.tets[1] < 0) {  // a surface face: it travels with its tet
-    CUTSIM_CHECK(rec.tets[0] == t, "face owner mismatch");
-    const bool opened = surface_[Idx(rec.slot)].opened;
-    FreeSlot(rec.slot);
-    faces_.erase(it);
+bool CutMesh::RemoveFaceTet(int32_t t, int f) {
+  const int32_t u = neighbour_[Idx(t)][Idx(f)];
+  if (u < 0) {  // a surface face: it travels with its tet
+    const int32_t slot = slot_[Idx(t)][Idx(f)];
+    CUTSIM_CHECK(slot >= 0, "surface face without a slot");
+    const bool opened = surface_[Idx(slot)].opened;
+    FreeSlot(slot);
+    slot_[Idx(t)][Idx(f)] = -1;
     return opened;
   }
   // Interior face: the other tet is exposed, as a face opened by the cut.
-  const int32_t other = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
-  CUTSIM_CHECK(rec.tets[0] == t || rec.tets[1] == t, "face owner mismatch");
-  rec.tets = {other, -1};
-  rec.slot = NewSlot(other, LocalFaceOf(other, key), true);
+  const int fu = MatchingFace(u, t, f);
+  CUTSIM_CHECK(neighbour_[Idx(u)][Idx(fu)] == t, "face owner mismatch");
+  neighbour_[Idx(t)][Idx(f)] = -1;
+  neighbour_[Idx(u)][Idx(fu)] = -1;
+  slot_[Idx(u)][Idx(fu)] = NewSlot(u, fu, true);
   return true;
 }
 
-void CutMesh::AddFaceTet(const Key& key, int32_t t, int f, bool opened_if_boundary) {
-  auto [it, inserted] = faces_.try_emplace(key);
-  FaceRec& rec = it->second;
-  if (inserted) {
-    rec.tets = {t, -1};
-    rec.slot = NewSlot(t, f, opened_if_boundary);
+void CutMesh::AddFaceTet(int32_t t, int f, bool opened_if_boundary) {
+  const int32_t u = FindFaceMate(t, f);
+  if (u < 0) {
+    slot_[Idx(t)][Idx(f)] = NewSlot(t, f, opened_if_boundary);
     return;
   }
   // Two tets sharing a face both hold copies only moved together (see the
   // proof sketch in SplitNode), so a third user is a bug.
-  CUTSIM_CHECK(rec.tets[1] < 0, "face would be shared by more than two tets");
-  rec.tets[1] = t;
-  FreeSlot(rec.slot);
-  rec.slot = -1;
+  const int fu = MatchingFace(u, t, f);
+  CUTSIM_CHECK(neighbour_[Idx(u)][Idx(fu)] < 0, "face would be shared by more than two tets");
+  neighbour_[Idx(t)][Idx(f)] = u;
+  neighbour_[Idx(u)][Idx(fu)] = t;
+  FreeSlot(slot_[Idx(u)][Idx(fu)]);
+  slot_[Idx(u)][Idx(fu)] = -1;
 }
 
 int32_t CutMesh::AddNodeCopy(int32_t node) {
@@ -251,15 +271,13 @@ int32_t CutMesh::AddNodeCopy(int32_t node) {
   rest_.push_back(r);
   origin_.push_back(o);
   node_tets_.emplace_back();
-  copies_[o].push_back(num_nodes() - 1);
+  copies_[Idx(o)].push_back(num_nodes() - 1);
   return num_nodes() - 1;
 }
 
 void CutMesh::RemoveLastNode() {
   CUTSIM_CHECK(node_tets_.back().empty(), "removing a node still in use");
-  auto& copies = copies_.at(origin_.back());
-  copies.pop_back();
-  if (copies.empty()) copies_.erase(origin_.back());
+  copies_[Idx(origin_.back())].pop_back();
   rest_.pop_back();
   origin_.pop_back();
   node_tets_.pop_back();
@@ -274,14 +292,14 @@ void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
   // The three faces through the corner change key; the opposite face does not.
   std::array<bool, 4> opened{};
   for (int f = 0; f < 4; ++f)
-    if (f != corner) opened[Idx(f)] = RemoveFaceTet(FaceKeyOf(t, f), t);
+    if (f != corner) opened[Idx(f)] = RemoveFaceTet(t, f);
   auto& from_tets = node_tets_[Idx(from)];
   from_tets.erase(std::lower_bound(from_tets.begin(), from_tets.end(), t));
   n[Idx(corner)] = to;
   auto& to_tets = node_tets_[Idx(to)];
   to_tets.insert(std::upper_bound(to_tets.begin(), to_tets.end(), t), t);
   for (int f = 0; f < 4; ++f)
-    if (f != corner) AddFaceTet(FaceKeyOf(t, f), t, f, opened[Idx(f)]);
+    if (f != corner) AddFaceTet(t, f, opened[Idx(f)]);
   if (journaling_) journal_.push_back(Op{t, from, to});
 }
 
@@ -311,62 +329,99 @@ int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, Topolog
   return copy;
 }
 
-std::vector<std::vector<int32_t>> CutMesh::StarGroups(int32_t node) const {
+namespace {
+
+// Union–find over scratch `parent` (0..n−1, path halving, the smaller index
+// is the root) and relabelling in order of first appearance.
+int32_t FindRoot(std::vector<int32_t>& parent, int32_t i) {
+  while (parent[static_cast<size_t>(i)] != i) {
+    auto& p = parent[static_cast<size_t>(i)];
+    p = parent[static_cast<size_t>(p)];
+    i = p;
+  }
+  return i;
+}
+void UnionRoots(std::vector<int32_t>& parent, int32_t a, int32_t b) {
+  a = FindRoot(parent, a);
+  b = FindRoot(parent, b);
+  if (a == b) return;
+  if (a < b) std::swap(a, b);
+  parent[static_cast<size_t>(a)] = b;
+}
+int32_t RelabelRoots(std::vector<int32_t>& parent, std::vector<int32_t>& labels, std::vector<int32_t>& root_label) {
+  const size_t n = parent.size();
+  labels.assign(n, -1);
+  root_label.assign(n, -1);
+  int32_t count = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto r = static_cast<size_t>(FindRoot(parent, static_cast<int32_t>(i)));
+    if (root_label[r] < 0) root_label[r] = count++;
+    labels[i] = root_label[r];
+  }
+  return count;
+}
+
+}  // namespace
+
+int32_t CutMesh::StarGroups(int32_t node) {
   const auto& star = node_tets_[Idx(node)];
-  DisjointSets ds(star.size());
+  ds_parent_.resize(star.size());
+  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
   for (size_t i = 0; i < star.size(); ++i) {
     const int32_t t = star[i];
     const auto& n = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
-      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
-      const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+      const int32_t u = neighbour_[Idx(t)][Idx(f)];
       if (u < 0) continue;
       const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
-      ds.Union(static_cast<int32_t>(i), static_cast<int32_t>(j));
+      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
     }
   }
-  std::vector<int32_t> labels;
-  const int32_t k = Relabel(ds, labels);
-  std::vector<std::vector<int32_t>> groups(Idx(k));
-  for (size_t i = 0; i < star.size(); ++i) groups[Idx(labels[i])].push_back(star[i]);
-  return groups;
+  const int32_t k = RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+  // Counting sort by label: groups in label order, tets ascending within.
+  group_begin_.assign(Idx(k) + 1, 0);
+  for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(ds_label_[i]) + 1];
+  for (int32_t g = 0; g < k; ++g) group_begin_[Idx(g) + 1] += group_begin_[Idx(g)];
+  group_tets_.resize(star.size());
+  ds_root_label_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
+  for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(ds_root_label_[Idx(ds_label_[i])]++)] = star[i];
+  return k;
 }
 
-int CutMesh::EdgeGroupCount(int32_t a, int32_t b) const {
+int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {
   const auto& sa = node_tets_[Idx(a)];
   const auto& sb = node_tets_[Idx(b)];
-  std::vector<int32_t> around;
-  std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around));
-  if (around.size() <= 1) return static_cast<int>(around.size());
-  DisjointSets ds(around.size());
-  for (size_t i = 0; i < around.size(); ++i) {
-    const int32_t t = around[i];
+  around_.clear();
+  std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around_));
+  if (around_.size() <= 1) return static_cast<int>(around_.size());
+  ds_parent_.resize(around_.size());
+  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
+  for (size_t i = 0; i < around_.size(); ++i) {
+    const int32_t t = around_[i];
     const auto& n = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
-      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
-      const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
+      const int32_t u = neighbour_[Idx(t)][Idx(f)];
       if (u < 0) continue;
-      const auto j = std::lower_bound(around.begin(), around.end(), u) - around.begin();
-      ds.Union(static_cast<int32_t>(i), static_cast<int32_t>(j));
+      const auto j = std::lower_bound(around_.begin(), around_.end(), u) - around_.begin();
+      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
     }
   }
-  std::vector<int32_t> labels;
-  return Relabel(ds, labels);
+  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
 }
 
 bool CutMesh::SurfaceManifoldAt(int32_t node) const {
   // Link of the node in the surface: each surface triangle (node, p, q)
   // contributes the directed link edge p → q. A closed, oriented manifold
   // fan is exactly one cycle: every link vertex has one out- and one in-edge.
-  std::vector<std::pair<int32_t, int32_t>> link;
+  auto& link = link_;
+  link.clear();
   for (const int32_t t : node_tets_[Idx(node)]) {
     const auto& n = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node) continue;
-      const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
-      if (rec.tets[1] >= 0) continue;
+      if (neighbour_[Idx(t)][Idx(f)] >= 0) continue;
       const auto lf = mesh::LocalTetFace(f);
       std::array<int32_t, 3> tri{n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]};
       while (tri[0] != node) std::rotate(tri.begin(), tri.begin() + 1, tri.end());
@@ -377,8 +432,8 @@ bool CutMesh::SurfaceManifoldAt(int32_t node) const {
   std::sort(link.begin(), link.end());
   for (size_t i = 1; i < link.size(); ++i)
     if (link[i].first == link[i - 1].first) return false;  // two out-edges
-  std::vector<int32_t> heads;
-  heads.reserve(link.size());
+  auto& heads = heads_;
+  heads.clear();
   for (const auto& e : link) heads.push_back(e.second);
   std::sort(heads.begin(), heads.end());
   if (std::adjacent_find(heads.begin(), heads.end()) != heads.end()) return false;  // two in-edges
@@ -396,8 +451,9 @@ bool CutMesh::SurfaceManifoldAt(int32_t node) const {
 
 std::vector<int32_t> CutMesh::ConnectedComponents(int32_t* count) const {
   DisjointSets ds(tets_.size());
-  for (const auto& [key, rec] : faces_)
-    if (rec.tets[1] >= 0) ds.Union(rec.tets[0], rec.tets[1]);
+  for (int32_t t = 0; t < num_tets(); ++t)
+    for (const int32_t u : neighbour_[Idx(t)])
+      if (u > t) ds.Union(t, u);
   std::vector<int32_t> labels;
   const int32_t k = Relabel(ds, labels);
   if (count) *count = k;

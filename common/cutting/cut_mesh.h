@@ -64,11 +64,11 @@
 ///    otherwise the displacement is halved (up to max_move_halvings times)
 ///    and the move is skipped if no fraction passes.
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <optional>
 #include <span>
-#include <unordered_map>
 #include <vector>
 
 #include <Eigen/Core>
@@ -154,7 +154,10 @@ class CutMesh {
   [[nodiscard]] int32_t num_surface_faces() const { return num_surface_; }
   /// Surface slot of local face `f` (opposite corner f) of tet `t`, −1 if
   /// the face is interior.
-  [[nodiscard]] int32_t SurfaceSlot(int32_t t, int f) const;
+  [[nodiscard]] int32_t SurfaceSlot(int32_t t, int f) const { return slot_[Idx(t)][Idx(f)]; }
+  /// The tet across local face `f` of tet `t`, −1 if that face is on the
+  /// surface. O(1).
+  [[nodiscard]] int32_t Neighbour(int32_t t, int f) const { return neighbour_[Idx(t)][Idx(f)]; }
   /// Nodes of surface slot `slot` (alive), outward.
   [[nodiscard]] std::array<int32_t, 3> SurfaceTriangle(int32_t slot) const;
   /// Change log for incremental consumers (the sim's BVH and surface):
@@ -208,30 +211,52 @@ class CutMesh {
   }
 
  private:
-  using Key = std::array<int32_t, 3>;
-  struct KeyHash {
-    size_t operator()(const Key& k) const noexcept;
-  };
-  struct FaceRec {
-    std::array<int32_t, 2> tets{-1, -1};
-    int32_t slot = -1;  ///< Surface slot while exactly one tet uses the face.
-  };
   struct Op {  ///< Journal entry for rollback.
     int32_t tet, from, to;
   };
+  /// A set of small integer ids (nodes or tets) cleared in O(1): an id is
+  /// in the set while its stamp equals the current generation. Grows on
+  /// demand and never shrinks, so a cut step does not allocate once warm.
+  struct StampSet {
+    std::vector<uint32_t> stamp;
+    uint32_t generation = 1;
+    void Clear() {
+      if (++generation == 0) {  // wrap-around, once in 4 billion clears
+        std::fill(stamp.begin(), stamp.end(), 0u);
+        generation = 1;
+      }
+    }
+    [[nodiscard]] bool Contains(int32_t i) const {
+      return static_cast<size_t>(i) < stamp.size() && stamp[static_cast<size_t>(i)] == generation;
+    }
+    /// True if `i` was not in the set.
+    bool Insert(int32_t i) {
+      const auto k = static_cast<size_t>(i);
+      if (k >= stamp.size()) stamp.resize(std::max(2 * stamp.size(), k + 1), 0u);
+      if (stamp[k] == generation) return false;
+      stamp[k] = generation;
+      return true;
+    }
+    void Erase(int32_t i) {
+      if (static_cast<size_t>(i) < stamp.size()) stamp[static_cast<size_t>(i)] = 0;
+    }
+  };
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
-  static Key SortedKey(int32_t a, int32_t b, int32_t c);
-  [[nodiscard]] Key FaceKeyOf(int32_t t, int f) const;
-  [[nodiscard]] int LocalFaceOf(int32_t t, const Key& key) const;
+  /// The tet other than `t` holding the face of t opposite corner f
+  /// (searched in the star of one of the face's nodes), −1 if none.
+  [[nodiscard]] int32_t FindFaceMate(int32_t t, int f) const;
+  /// Local face of `u` whose nodes are those of local face f of t.
+  [[nodiscard]] int MatchingFace(int32_t u, int32_t t, int f) const;
 
   int32_t AddNodeCopy(int32_t node);
   void RemoveLastNode();
   void RetargetTet(int32_t t, int32_t from, int32_t to);
-  void AddFaceTet(const Key& key, int32_t t, int f, bool opened_if_boundary);
-  /// Removes t from the face; returns the opened flag the face had if it
-  /// was a surface face, or true if it was interior (a cut opens it).
-  bool RemoveFaceTet(const Key& key, int32_t t);
+  /// Attaches local face f of t (just re-pointed) to its mate or the surface.
+  void AddFaceTet(int32_t t, int f, bool opened_if_boundary);
+  /// Detaches local face f of t; returns the opened flag the face had if
+  /// it was a surface face, or true if it was interior (a cut opens it).
+  bool RemoveFaceTet(int32_t t, int f);
   int32_t NewSlot(int32_t t, int f, bool opened);
   void FreeSlot(int32_t slot);
 
@@ -241,18 +266,25 @@ class CutMesh {
                                bool blade_plane);
   /// Splits `node` so that `moved` (subset of its tets) use a new copy.
   int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);
-  /// Face-connected groups of the star of `node` (sorted by lowest tet).
-  [[nodiscard]] std::vector<std::vector<int32_t>> StarGroups(int32_t node) const;
+  /// Face-connected groups of the star of `node` into group_tets_ (group g
+  /// is [group_begin_[g], group_begin_[g + 1]), groups in order of their
+  /// lowest tet, tets ascending); returns the number of groups.
+  int32_t StarGroups(int32_t node);
   /// Number of face-connected groups of the tets around edge (a, b).
-  [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b) const;
+  [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b);
   void Rollback(size_t journal_mark, int32_t node_mark);
 
   std::vector<Eigen::Vector3d> rest_;            // #N, m
   std::vector<std::array<int32_t, 4>> tets_;     // #T
+  // Face adjacency, flat: neighbour_[t][f] is the tet across local face f
+  // (opposite corner f) of t, −1 on the surface; slot_[t][f] its surface
+  // slot, −1 if interior. Replaces a hash map of sorted face keys (the
+  // cut step's main cost, issue 4).
+  std::vector<std::array<int32_t, 4>> neighbour_;  // #T×4
+  std::vector<std::array<int32_t, 4>> slot_;       // #T×4
   std::vector<std::vector<int32_t>> node_tets_;  // #N, ascending tet ids
   std::vector<int32_t> origin_;                  // #N
-  std::unordered_map<int32_t, std::vector<int32_t>> copies_;  // origin → its copies, ascending
-  std::unordered_map<Key, FaceRec, KeyHash> faces_;
+  std::vector<std::vector<int32_t>> copies_;     // #N_uncut: origin → its copies, ascending
   std::vector<SurfaceFace> surface_;
   std::vector<int32_t> free_slots_;
   int32_t num_surface_ = 0;
@@ -261,6 +293,16 @@ class CutMesh {
   bool journaling_ = false;
   std::vector<int32_t> changed_slots_;
   bool track_slots_ = false;
+
+  // Scratch of a cut step, cleared, never shrunk (no allocation once warm).
+  std::vector<int32_t> ds_parent_, ds_label_, ds_root_label_;
+  std::vector<int32_t> group_tets_, group_begin_, around_;
+  mutable std::vector<std::pair<int32_t, int32_t>> link_;
+  mutable std::vector<int32_t> heads_;
+  StampSet seen_, queued_, plane_done_;      // nodes
+  StampSet flipped_, side_known_, in_flood_, flood_done_;  // tets
+  std::vector<int8_t> side_;                 // #T, valid where side_known_
+  std::vector<int32_t> work_, negative_, nbrs_, check_, flood_, fragments_, slab_, slab_queue_;
 };
 
 /// Face-connected components of any tet list (two tets are connected when

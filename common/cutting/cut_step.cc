@@ -2,9 +2,8 @@
 // cut_mesh.h; comments here say why.
 #include <algorithm>
 #include <cmath>
-#include <deque>
-#include <unordered_map>
-#include <unordered_set>
+#include <utility>
+#include <vector>
 
 #include <Eigen/LU>
 
@@ -24,18 +23,32 @@ class StepWorld final : public WorldAccess {
   StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event)
       : base_(base), base_nodes_(base_nodes), event_(event) {}
   [[nodiscard]] Vector3d Get(int32_t node) const override {
-    if (const auto it = moved_.find(node); it != moved_.end()) return it->second;
+    if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
-    if (const auto it = moved_.find(node); it != moved_.end()) return it->second;
+    if (const Vector3d* x = Find(node)) return *x;
     return base_.Get(node);
   }
-  void Set(int32_t node, const Vector3d& x) override { moved_[node] = x; }
+  void Set(int32_t node, const Vector3d& x) override {
+    for (auto& [k, v] : moved_) {
+      if (k == node) {
+        v = x;
+        return;
+      }
+    }
+    moved_.emplace_back(node, x);
+  }
 
  private:
   const WorldAccess& base_;
   int32_t base_nodes_;
   const TopologyEvent& event_;
-  std::unordered_map<int32_t, Vector3d> moved_;
+  // Staged moves: a handful per step (the twins of v0 and v1), so a list.
+  std::vector<std::pair<int32_t, Vector3d>> moved_;
+  [[nodiscard]] const Vector3d* Find(int32_t node) const {
+    for (const auto& [k, v] : moved_)
+      if (k == node) return &v;
+    return nullptr;
+  }
 };
 
 }  // namespace
@@ -51,7 +64,7 @@ int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vect
   for (const int32_t t : node_tets_[Idx(v1)]) {
     const auto& tn = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
-      if (tn[Idx(f)] == v1 || faces_.at(FaceKeyOf(t, f)).tets[1] >= 0) continue;  // surface faces through v1
+      if (tn[Idx(f)] == v1 || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v1
       for (int c = 0; c < 4; ++c) {
         const int32_t vi = tn[Idx(c)];
         if (c == f || vi == v1 || origin_[Idx(vi)] == origin_[Idx(v0)] || origin_[Idx(vi)] == origin_[Idx(v1)])
@@ -155,7 +168,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   // ---- 2. split set S -------------------------------------------------------
   // v1 itself only if it is near P: the closest vertex of the contact facet
   // may lie on the far row of a blade passing between two rows of nodes.
-  std::vector<int32_t> S;
+  std::vector<int32_t>& S = slab_;
+  S.clear();
   if (!step.blade) S.push_back(step.v1);
   if (step.blade) {
     // In the swept slab (k = 1: split) or a wider one to walk through
@@ -177,17 +191,18 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       S.clear();
       if (!blade_plane || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
       if (blade_plane && in_slab(x0, 1.0)) S.push_back(step.v0);
-      std::unordered_set<int32_t> seen{step.v1, step.v0};
-      std::deque<int32_t> queue{step.v1, step.v0};
-      while (!queue.empty()) {
-        const int32_t u = queue.front();
-        queue.pop_front();
+      seen_.Clear();
+      seen_.Insert(step.v1);
+      seen_.Insert(step.v0);
+      slab_queue_.assign({step.v1, step.v0});
+      for (size_t head = 0; head < slab_queue_.size(); ++head) {
+        const int32_t u = slab_queue_[head];
         for (const int32_t t : node_tets_[Idx(u)]) {
           for (const int32_t w : tets_[Idx(t)]) {
-            if (!seen.insert(w).second) continue;
+            if (!seen_.Insert(w)) continue;
             const Vector3d xw = W.Get(w);
             if (!in_slab(xw, 2.0)) continue;
-            queue.push_back(w);
+            slab_queue_.push_back(w);
             if (in_slab(xw, 1.0)) S.push_back(w);
           }
         }
@@ -218,34 +233,39 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
 
   // ---- 3. sides: the farthest vertex from P decides --------------------------
   // `flipped` holds tets moved to the other side by the fragment guard (6).
-  std::unordered_set<int32_t> flipped;
-  std::unordered_map<int32_t, int8_t> side_cache;
+  flipped_.Clear();
+  side_known_.Clear();
+  if (side_.size() < tets_.size()) side_.resize(tets_.size());
   auto side = [&](int32_t t) -> int8_t {
-    if (const auto it = side_cache.find(t); it != side_cache.end()) return it->second;
+    if (side_known_.Contains(t)) return side_[Idx(t)];
     double far = 0.0;
     for (const int32_t a : tets_[Idx(t)]) {
       const double da = plane_dist(W.Get(a));
       if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
     }
     int8_t s = far < 0.0 ? int8_t{-1} : int8_t{1};
-    if (flipped.contains(t)) s = static_cast<int8_t>(-s);
-    side_cache.emplace(t, s);
+    if (flipped_.Contains(t)) s = static_cast<int8_t>(-s);
+    side_known_.Insert(t);
+    side_[Idx(t)] = s;
     return s;
   };
 
   const size_t journal_mark = journal_.size();
   journaling_ = true;
-  std::deque<int32_t> work;
-  std::unordered_set<int32_t> queued;
+  // FIFO of vertices to check: work_[work_head..).
+  work_.clear();
+  size_t work_head = 0;
+  queued_.Clear();
   auto enqueue_tets = [&](std::span<const int32_t> tets) {
     for (const int32_t t : tets)
       for (const int32_t a : tets_[Idx(t)])
-        if (queued.insert(a).second) work.push_back(a);
+        if (queued_.Insert(a)) work_.push_back(a);
   };
-  std::unordered_set<int32_t> plane_done;
+  plane_done_.Clear();
   auto plane_split = [&](int32_t w) -> bool {
-    plane_done.insert(w);
-    std::vector<int32_t> negative;
+    plane_done_.Insert(w);
+    std::vector<int32_t>& negative = negative_;
+    negative.clear();
     bool has_positive = false;
     for (const int32_t t : node_tets_[Idx(w)]) {
       if (side(t) < 0) {
@@ -265,17 +285,18 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   auto separate = [&]() -> bool {
     for (const int32_t w : S) plane_split(w);
     // ---- 4. singularities ----------------------------------------------------
-    while (!work.empty()) {
-      const int32_t v = work.front();
-      work.pop_front();
-      queued.erase(v);
+    while (work_head < work_.size()) {
+      const int32_t v = work_[work_head++];
+      queued_.Erase(v);
       if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) return false;
       // Vertex rule: parts of the star joined only through v.
-      auto groups = StarGroups(v);
-      if (groups.size() > 1) {
-        for (size_t g = 1; g < groups.size(); ++g) {
-          SplitNode(v, groups[g], &ev);
-          enqueue_tets(groups[g]);
+      const int32_t num_groups = StarGroups(v);
+      if (num_groups > 1) {
+        for (int32_t g = 1; g < num_groups; ++g) {
+          const std::span<const int32_t> group(group_tets_.data() + group_begin_[Idx(g)],
+                                               Idx(group_begin_[Idx(g) + 1] - group_begin_[Idx(g)]));
+          SplitNode(v, group, &ev);
+          enqueue_tets(group);
         }
         enqueue_tets(node_tets_[Idx(v)]);
         continue;
@@ -284,31 +305,51 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       // star of each endpoint is connected (checked above), so no vertex copy
       // alone separates them; splitting an endpoint by the plane sides extends
       // the cut by one vertex, after which the vertex rule applies again.
-      std::vector<int32_t> nbrs;
-      for (const int32_t t : node_tets_[Idx(v)])
-        for (const int32_t a : tets_[Idx(t)])
-          if (a != v) nbrs.push_back(a);
+      // Candidates: an edge (v, u) whose tets fall into k > 1 groups has 2k
+      // surface faces through it (each group is a fan whose two end faces
+      // are on the surface), so only u on ≥ 4 surface faces through v can
+      // fail; the exact count (EdgeGroupCount) runs for those only.
+      std::vector<int32_t>& nbrs = nbrs_;
+      nbrs.clear();
+      for (const int32_t t : node_tets_[Idx(v)]) {
+        const auto& tn = tets_[Idx(t)];
+        for (int f = 0; f < 4; ++f) {
+          if (tn[Idx(f)] == v || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v
+          for (int c = 0; c < 4; ++c)
+            if (c != f && tn[Idx(c)] != v) nbrs.push_back(tn[Idx(c)]);
+        }
+      }
       std::sort(nbrs.begin(), nbrs.end());
-      nbrs.erase(std::unique(nbrs.begin(), nbrs.end()), nbrs.end());
+      {
+        size_t kept = 0;
+        for (size_t i = 0; i < nbrs.size();) {
+          size_t j = i;
+          while (j < nbrs.size() && nbrs[j] == nbrs[i]) ++j;
+          if (j - i >= 4) nbrs[kept++] = nbrs[i];
+          i = j;
+        }
+        nbrs.resize(kept);
+      }
       for (const int32_t u : nbrs) {
         if (EdgeGroupCount(v, u) <= 1) continue;
         std::array<int32_t, 2> cand{v, u};
         if (std::abs(plane_dist(W.Get(u))) < std::abs(plane_dist(W.Get(v)))) std::swap(cand[0], cand[1]);
         bool fixed = false;
         for (const int32_t c : cand) {
-          if (!plane_done.contains(c) && plane_split(c)) {
+          if (!plane_done_.Contains(c) && plane_split(c)) {
             fixed = true;
             break;
           }
         }
         if (fixed) {
-          if (queued.insert(v).second) work.push_back(v);
+          if (queued_.Insert(v)) work_.push_back(v);
           break;
         }
         // Otherwise the final check below decides (and rejects if needed).
       }
     }
-    std::vector<int32_t> check;
+    std::vector<int32_t>& check = check_;
+    check.clear();
     // Faces changed only on retargeted tets and on their neighbours across
     // the old faces, whose vertices are the split node and the other corners.
     for (const Split& sp : ev.splits) {
@@ -330,25 +371,27 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   // discretisation debris, not a cut: such a piece would fly off under the
   // blade. Roll back, move its tets to the other side, and separate again.
   // Local: flood fills stop at min_fragment_tets tets.
-  auto find_fragments = [&]() {
-    std::vector<int32_t> small;
+  auto find_fragments = [&]() -> const std::vector<int32_t>& {
+    std::vector<int32_t>& small = fragments_;
+    small.clear();
     const auto limit = static_cast<size_t>(params.min_fragment_tets);
     if (limit == 0 || static_cast<size_t>(num_tets()) < 4 * limit) return small;
-    std::unordered_set<int32_t> done;
+    flood_done_.Clear();
     for (const Split& sp : ev.splits) {
       for (const int32_t start : sp.tets) {
-        if (done.contains(start)) continue;
-        std::vector<int32_t> comp{start};
-        std::unordered_set<int32_t> in{start};
+        if (flood_done_.Contains(start)) continue;
+        std::vector<int32_t>& comp = flood_;
+        comp.assign(1, start);
+        in_flood_.Clear();
+        in_flood_.Insert(start);
         for (size_t i = 0; i < comp.size() && comp.size() < limit; ++i) {
           const int32_t t = comp[i];
           for (int f = 0; f < 4; ++f) {
-            const FaceRec& rec = faces_.at(FaceKeyOf(t, f));
-            const int32_t u = rec.tets[0] == t ? rec.tets[1] : rec.tets[0];
-            if (u >= 0 && in.insert(u).second) comp.push_back(u);
+            const int32_t u = neighbour_[Idx(t)][Idx(f)];
+            if (u >= 0 && in_flood_.Insert(u)) comp.push_back(u);
           }
         }
-        done.insert(comp.begin(), comp.end());
+        for (const int32_t t : comp) flood_done_.Insert(t);
         if (comp.size() < limit) small.insert(small.end(), comp.begin(), comp.end());
       }
     }
@@ -356,17 +399,18 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   };
   bool separated = separate();
   for (int attempt = 0; separated && attempt < 3; ++attempt) {
-    const std::vector<int32_t> fragments = find_fragments();
+    const std::vector<int32_t>& fragments = find_fragments();
     if (fragments.empty()) break;
     size_t newly = 0;
-    for (const int32_t t : fragments) newly += flipped.insert(t).second ? 1 : 0;
+    for (const int32_t t : fragments) newly += flipped_.Insert(t) ? 1 : 0;
     if (newly == 0) break;  // flipping again would undo a flip: keep this result
     Rollback(journal_mark, n0);
     ev = TopologyEvent{};  // W reads `ev` by reference: copies are gone again
-    side_cache.clear();
-    plane_done.clear();
-    work.clear();
-    queued.clear();
+    side_known_.Clear();
+    plane_done_.Clear();
+    work_.clear();
+    work_head = 0;
+    queued_.Clear();
     separated = separate();
   }
   if (!separated) {

@@ -691,13 +691,7 @@ class Engine final : public Simulation {
 
   /// neighbor_ entries of tet t from the cut complex's face table.
   void UpdateNeighbors(int32_t t) {
-    const std::array<int32_t, 4>& n = cut_->tet(t);
-    for (int f = 0; f < 4; ++f) {
-      const auto lf = mesh::LocalTetFace(f);
-      const std::array<int32_t, 2> pair =
-          cut_->FaceTets(n[static_cast<size_t>(lf[0])], n[static_cast<size_t>(lf[1])], n[static_cast<size_t>(lf[2])]);
-      neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)] = pair[0] == t ? pair[1] : pair[0];
-    }
+    for (int f = 0; f < 4; ++f) neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)] = cut_->Neighbour(t, f);
   }
 
   /// After a cut: refresh the face neighbours of the retargeted tets and of
