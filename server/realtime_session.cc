@@ -1,6 +1,8 @@
 // The real-time session: physics paced to the wall clock, tool poses in and
 // local models out over LCM (seed §3.4's buffer model), mesh frames out to
 // any number of viewers over DDS. Thin glue: the work is in common/.
+#include <time.h>
+
 #include <algorithm>
 #include <cmath>
 #include <csignal>
@@ -36,6 +38,13 @@ extern volatile std::sig_atomic_t g_stop;
 extern volatile std::sig_atomic_t g_print_stats;
 
 namespace {
+
+/// CPU time of the calling thread, ns.
+int64_t ThreadCpuNs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+}
 
 /// Frame-time statistics kept in a preallocated ring (no allocation per frame).
 class FrameStats {
@@ -148,14 +157,18 @@ int ServerApp::RunRealtime() {
                transport::kServerPhysicsPriority, std::strerror(fifo_error));
   }
   // A SCHED_FIFO loop that cannot keep up never sleeps: it would starve the
-  // normal threads on its core and run into the kernel's RT throttling
-  // (which also stalls the haptic loop if it shares the core). Fall back to
-  // SCHED_OTHER when the frames kept the thread busy for more than
-  // kMaxFifoBusy of a window of wall time.
+  // normal threads on its core and run into the kernel's RT throttling at
+  // 95% (which would also stall the haptic loop if it shares the core). Once
+  // per second the physics' own CPU time (not wall time, which includes
+  // preemption) is compared with the wall time: above kMaxFifoBusy the
+  // thread goes back to SCHED_OTHER, and below kResumeFifoBusy it returns to
+  // SCHED_FIFO.
   constexpr int64_t kFifoWindowNs = 1'000'000'000;
-  constexpr double kMaxFifoBusy = 0.8;
+  constexpr double kMaxFifoBusy = 0.9;
+  constexpr double kResumeFifoBusy = 0.7;
+  const bool fifo_permitted = physics_fifo;
   int64_t window_start_ns = MonotonicNs();
-  int64_t window_busy_ns = 0;
+  int64_t window_cpu_start_ns = ThreadCpuNs();
 
   const auto& hp = scene.scene.haptics();
   Log().info("session '{}': physics {:.0f} Hz, viewers {:.0f} Hz, LCM {}, DDS domain {}",
@@ -290,20 +303,22 @@ int ServerApp::RunRealtime() {
     const int64_t end = MonotonicNs();
     frame_time.Add(1e-9 * static_cast<double>(end - frame_start));
     deadline += frame_ns;
-    if (physics_fifo) {
-      window_busy_ns += end - frame_start;
-      if (end - window_start_ns >= kFifoWindowNs) {
-        const double busy = static_cast<double>(window_busy_ns) / static_cast<double>(end - window_start_ns);
-        if (busy > kMaxFifoBusy) {
-          physics_fifo = false;
-          (void)transport::SetCurrentThreadNormal();
-          Log().warn("the physics kept its thread {:.0f}% busy over the last second: leaving SCHED_FIFO so "
-                     "it cannot starve other threads (lower the frame rate or the mesh size)",
-                     100.0 * busy);
-        }
-        window_start_ns = end;
-        window_busy_ns = 0;
+    if (fifo_permitted && end - window_start_ns >= kFifoWindowNs) {
+      const int64_t cpu_ns = ThreadCpuNs();
+      const double busy =
+          static_cast<double>(cpu_ns - window_cpu_start_ns) / static_cast<double>(end - window_start_ns);
+      if (physics_fifo && busy > kMaxFifoBusy) {
+        physics_fifo = false;
+        (void)transport::SetCurrentThreadNormal();
+        Log().warn("the physics used {:.0f}% of a core over the last second: SCHED_OTHER until it needs "
+                   "less than {:.0f}%, so it cannot starve other threads",
+                   100.0 * busy, 100.0 * kResumeFifoBusy);
+      } else if (!physics_fifo && busy < kResumeFifoBusy) {
+        physics_fifo = transport::SetCurrentThreadFifo(transport::kServerPhysicsPriority) == 0;
+        if (physics_fifo) Log().info("the physics used {:.0f}% of a core: back to SCHED_FIFO", 100.0 * busy);
       }
+      window_start_ns = end;
+      window_cpu_start_ns = cpu_ns;
     }
     if (end > deadline) {
       ++counters.overruns;
