@@ -66,6 +66,8 @@ void ValidateCutParams(const CutParams& p, const SourceRef& source) {
     fail("critical_stress", "must be a finite stress >= 0 Pa");
   if (!(std::isfinite(p.min_quality) && p.min_quality >= 0.0 && p.min_quality < 1.0))
     fail("min_quality", "must be in [0, 1)");
+  if (!(std::isfinite(p.keep_quality) && p.keep_quality >= 0.0 && p.keep_quality < 1.0))
+    fail("keep_quality", "must be in [0, 1)");
   if (p.t0_timeout_frames < 0) fail("t0_timeout_frames", "must be >= 0");
   if (!(std::isfinite(p.band_fraction) && p.band_fraction > 0.0 && p.band_fraction <= 2.0))
     fail("band_fraction", "must be in (0, 2]");

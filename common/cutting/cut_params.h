@@ -29,6 +29,11 @@ struct CutParams {
   /// Half-width of the blade's swept slab around the cut plane, as a
   /// fraction of the local mean edge length ("half an element").
   double band_fraction = 0.5;
+  /// Sliver guard of the remeshing moves: a move must also keep every
+  /// touched tet (rest and world) at mean-ratio quality ≥ min(keep_quality,
+  /// its quality before), dimensionless in [0, 1). min_quality alone lets
+  /// repeated moves in one region grind elements down to it (see cut_mesh.h).
+  double keep_quality = 0.4;
   /// Remeshing moves are halved at most this many times before being skipped.
   int32_t max_move_halvings = 8;
   /// Cap on vertex copies one cut step may create (singularity removal

@@ -478,6 +478,11 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       q_rest.push_back(quality(corners(t, true, nullptr)));
       q_world.push_back(quality(corners(t, false, nullptr)));
     }
+    // Sliver guard: the floor is keep_quality, not only min_quality (see
+    // cut_mesh.h, step 5): v0 and v1 move at every step, passes over one
+    // region move the same twins again and again, and with a floor of
+    // min_quality alone each move may take a tet down to it.
+    const double floor_quality = std::max(params.min_quality, params.keep_quality);
     double f = 1.0;
     for (int k = 0; k <= params.max_move_halvings; ++k, f *= 0.5) {
       const Vector3d xn = x_old + f * (target - x_old);
@@ -486,8 +491,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       for (size_t i = 0; i < star.size() && ok; ++i) {
         const double qr = quality(corners(star[i], true, &un));
         const double qw = quality(corners(star[i], false, &xn));
-        ok = qr > 0.0 && qw > 0.0 && qr >= std::min(params.min_quality, q_rest[i]) &&
-             qw >= std::min(params.min_quality, q_world[i]);
+        ok = qr > 0.0 && qw > 0.0 && qr >= std::min(floor_quality, q_rest[i]) &&
+             qw >= std::min(floor_quality, q_world[i]);
       }
       if (!ok) continue;
       for (const int32_t g : group) {
