@@ -83,7 +83,7 @@ class AuthIntegrationTest : public ::testing::Test {
   std::unique_ptr<Subprocess> StartServer(bool keyed) {
     std::vector<std::string> argv = {BinPath("cutsim-server"), "--scene",
                                      std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt",
-                                     "--duration", "3.5", "--session", session_, "--lcm-url", url_,
+                                     "--duration", "6", "--session", session_, "--lcm-url", url_,
                                      "--dds-domain", domain_, "--stats-json", dir_.path() + "/server.json",
                                      "--no-progress"};
     if (keyed) {
