@@ -128,7 +128,10 @@ int ServerApp::RunRealtime() {
   // LCM's udpm receive thread starts on the first subscription and inherits
   // this scope's SCHED_FIFO priority (when permitted): poses then reach the
   // link's receive thread while the physics computes.
-  std::optional<transport::ScopedThreadFifo> lcm_scope(std::in_place, transport::kLcmThreadPriority);
+  // --no-rt: every thread stays at normal priority.
+  const int lcm_priority = options_.realtime_priority ? transport::kLcmThreadPriority : 0;
+  std::optional<transport::ScopedThreadFifo> lcm_scope;
+  if (lcm_priority > 0) lcm_scope.emplace(lcm_priority);
   transport::LcmBus bus(options_.lcm_url);
   transport::HapticServerLink link(bus, options_.session, {.authenticator = authenticator.get()});
   lcm_scope.reset();
@@ -144,13 +147,14 @@ int ServerApp::RunRealtime() {
 
   // Tool poses are received on their own thread as they arrive; the physics
   // takes the newest right before each step (see the frame order below).
-  link.StartReceiving(transport::kLcmThreadPriority);
+  link.StartReceiving(lcm_priority);
   // The physics thread itself runs SCHED_FIFO below the LCM threads and the
   // haptic loop (realtime_thread.h), set after every helper thread (DDS, LCM)
   // exists so none inherits it.
-  const int fifo_error = transport::SetCurrentThreadFifo(transport::kServerPhysicsPriority);
-  bool physics_fifo = fifo_error == 0;
-  if (!physics_fifo) {
+  const int fifo_error =
+      options_.realtime_priority ? transport::SetCurrentThreadFifo(transport::kServerPhysicsPriority) : 0;
+  bool physics_fifo = options_.realtime_priority && fifo_error == 0;
+  if (options_.realtime_priority && !physics_fifo) {
     Log().warn("SCHED_FIFO priority {} not permitted for the physics thread ({}): it runs as a normal "
                "thread and other load can delay frames and the local model (grant CAP_SYS_NICE or an "
                "rtprio limit)",

@@ -76,6 +76,10 @@ int ServerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--dds-config", options_.dds_config,
                  "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
       ->check(CLI::ExistingFile);
+  app.add_flag("!--no-rt", options_.realtime_priority,
+               "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
+               "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
+               "e.g. a haptic client started with --no-rt");
   app.add_option("--viewer-fps", options_.viewer_fps, "Mesh frames per second to viewers")
       ->check(CLI::Range(0.1, 240.0));
   app.add_option("--frame-rate", options_.frame_rate,

@@ -85,7 +85,7 @@ class AuthIntegrationTest : public ::testing::Test {
                                      std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt",
                                      "--duration", "6", "--session", session_, "--lcm-url", url_,
                                      "--dds-domain", domain_, "--stats-json", dir_.path() + "/server.json",
-                                     "--no-progress"};
+                                     "--no-progress", "--no-rt"};
     if (keyed) {
       const std::string key = dir_.path() + "/session.key";
       std::ofstream(key) << kKeyHex << "\n";

@@ -87,7 +87,7 @@ run() {  # run NS LOG CMD...: in the background inside namespace NS
 }
 
 run srv server "$bin/cutsim-server" --scene "$src/scenes/ligament.pbtxt" --duration 5 --session "$session" \
-    --lcm-url "$lcm" --stats-json "$work/server.json" --log-level warn
+    --lcm-url "$lcm" --stats-json "$work/server.json" --log-level warn --no-rt
 srv_pid="${pids[-1]}"
 run view viewer "$bin/cutsim-viewer" --session "$session" --frames "$work/frames" --fps 5 \
     --exit-when-idle 4 --summary "$work/viewer.json" --log-level warn

@@ -64,7 +64,8 @@ TEST(RestartTest, KilledServerResumesTheCutTissue) {
   auto server_argv = [&](const std::string& stats) {
     return std::vector<std::string>{BinPath("cutsim-server"), "--scene", scene, "--session", session,
                                     "--lcm-url", lcm, "--dds-domain", domain, "--checkpoint", ckpt,
-                                    "--checkpoint-every", "0.2", "--resume", "--stats-json", d + "/" + stats};
+                                    "--checkpoint-every", "0.2", "--resume", "--stats-json", d + "/" + stats,
+                                    "--no-rt"};
   };
   auto server = std::make_unique<Subprocess>(server_argv("first.json"));
   Subprocess viewer({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain, "--frames",
