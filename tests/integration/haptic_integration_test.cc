@@ -379,7 +379,10 @@ TEST(HapticIntegrationTest, ReplayDeviceReplaysAnLcmLog) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::string stats = JsonLine(r.out, "haptic_stats");
   EXPECT_NE(stats.find("\"end\":\"device done\""), std::string::npos) << stats;
-  EXPECT_NEAR(Json(stats, "ticks"), 500.0, 30.0) << stats;
+  // The loop ran on its 1 ms deadlines for the recorded 0.5 s: ticks plus
+  // the deadlines a loaded machine made it skip (a --no-rt client on a
+  // 2-core box running other tests misses some).
+  EXPECT_NEAR(Json(stats, "ticks") + Json(stats, "missed_deadlines"), 500.0, 30.0) << stats;
   const std::vector<Row> rows = ReadCsv(csv);
   ASSERT_FALSE(rows.empty());
   EXPECT_NEAR(rows.back().x, 0.05, 1e-9);
