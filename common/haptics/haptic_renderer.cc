@@ -114,12 +114,16 @@ Eigen::Vector3d HapticRenderer::ModelStageForce(const Eigen::Vector3d& f_buffer,
     decay_start_force_ = model_force_;
     decay_time_ = 0.0;
     phase_ = RenderPhase::kCutDecay;
+  } else if (phase_ != RenderPhase::kBufferModel) {
+    // Time since the switch: this tick's period. (Adding it after the
+    // evaluation counted the period *before* the switch tick, so one late
+    // wake just before a cut shifted the whole decay.)
+    decay_time_ += dt;
   }
   if (phase_ == RenderPhase::kBufferModel) return f_buffer;
 
   // Seed eq. (13) with I·Δt → t: F_c e^(−ξ t).
   const Eigen::Vector3d f_decay = CutDecayForce(decay_start_force_, decay_rate_, decay_time_);
-  decay_time_ += dt;
   if (phase_ == RenderPhase::kCutDecay) {
     const double decayed = f_decay.norm();
     if (newer_since_cut_ && (decayed <= f_buffer.norm() ||
