@@ -7,6 +7,7 @@
 #include <unordered_map>
 
 #include "common/core/error.h"
+#include "common/mesh/face_key.h"
 #include "common/mesh/surface.h"
 
 namespace cutsim::cutting {
@@ -103,15 +104,7 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   neighbour_.assign(tets_.size(), {-1, -1, -1, -1});
   slot_.assign(tets_.size(), {-1, -1, -1, -1});
   {
-    struct Hash {
-      size_t operator()(const std::array<int32_t, 3>& k) const noexcept {
-        uint64_t h = static_cast<uint32_t>(k[0]);
-        h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
-        h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
-        return static_cast<size_t>(h ^ (h >> 29));
-      }
-    };
-    std::unordered_map<std::array<int32_t, 3>, std::pair<int32_t, int>, Hash> first;  // key → (tet, face)
+    std::unordered_map<mesh::internal::FaceKey, std::pair<int32_t, int>, mesh::internal::FaceKeyHash> first;  // key → (tet, face)
     first.reserve(tets_.size() * 3);
     for (int32_t t = 0; t < num_tets(); ++t) {
       for (int f = 0; f < 4; ++f) {
@@ -461,15 +454,7 @@ std::vector<int32_t> CutMesh::ConnectedComponents(int32_t* count) const {
 }
 
 std::vector<int32_t> ConnectedComponents(const mesh::Tets& tets, int32_t* count) {
-  struct Hash {
-    size_t operator()(const std::array<int32_t, 3>& k) const noexcept {
-      uint64_t h = static_cast<uint32_t>(k[0]);
-      h = h * 0x9E3779B97F4A7C15ULL ^ static_cast<uint32_t>(k[1]);
-      h = h * 0xBF58476D1CE4E5B9ULL ^ static_cast<uint32_t>(k[2]);
-      return static_cast<size_t>(h ^ (h >> 29));
-    }
-  };
-  std::unordered_map<std::array<int32_t, 3>, int32_t, Hash> first;
+  std::unordered_map<mesh::internal::FaceKey, int32_t, mesh::internal::FaceKeyHash> first;
   first.reserve(static_cast<size_t>(tets.rows()) * 3);
   DisjointSets ds(static_cast<size_t>(tets.rows()));
   for (int32_t t = 0; t < tets.rows(); ++t) {
