@@ -64,8 +64,9 @@ struct State {
   /// while this is small.
   double dt_element_drift = 0;
   /// The step Advance holds between estimate refreshes (0: none yet), s:
-  /// 0.95 × the estimate when set, shrunk at once when the estimate falls
-  /// below it, grown only when the estimate exceeds it by 15%. A step that
+  /// 0.85 × the estimate when set, re-set at once when the estimate falls
+  /// below it, and on growth only when the estimate is 20% above the one it
+  /// was set from (integrator.cc: kDtHoldMargin, kDtGrowThreshold). A step that
   /// follows the estimate's every wiggle is variable-step symplectic Euler,
   /// which is not symplectic and pumps energy (integrator.h).
   double dt_held = 0;
