@@ -33,6 +33,12 @@ struct State {
   /// Implicit viscous: inverse of each node's 3×3 diagonal block of
   /// M + dt·C (block-Jacobi preconditioner), symmetric xx yy zz xy xz yz.  // #N_cap×6
   std::vector<T> cg_precond;
+  /// When cg_precond was built: step, dt (s) and topology version. It is
+  /// rebuilt every few steps, on a cut and when dt moves by more than 1 %
+  /// (integrator.cc: a stale preconditioner costs iterations, not accuracy).
+  int64_t cg_precond_step = -1;
+  double cg_precond_dt = 0;
+  uint64_t cg_precond_topology = 0;
   /// Implicit viscous: the last step's correction v⁺ − v* (the warm start of
   /// the next solve; not scratch: kept between steps, 0 initially).  // #N_cap×3
   std::vector<T> viscous_dv;

@@ -1152,6 +1152,7 @@ class Engine final : public Simulation {
     state_.time = b.sim_time();
     state_.step = b.steps();
     state_.dt_refreshed_step = -1;  // positions changed: refresh the stable step
+    state_.cg_precond_step = -1;    // and the viscous solve's preconditioner
     frames_ = b.frames();
     cuts_ = b.cuts();
     report_.cuts = cuts_;
