@@ -17,6 +17,9 @@
 //      same process, tool lifted clear, alternating rounds (median ratio).
 //
 //   cut_bench [--json FILE] [--scene-dir scenes] [--max-tets 100000] [--cuts 100]
+//             [--min-tets 0] [--step-only]
+//   (--min-tets/--step-only: one size alone, and no (b)/(c), for callgrind:
+//   valgrind stops at an AVX-512 instruction in (b)'s quality check.)
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -70,6 +73,28 @@ cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
                      nx * h, ny * h, nz * h, nx, ny, nz);
 }
 
+// FNV-1a of the world mesh (tets and positions), printed to stderr so a
+// change that claims identical cut results can be checked before/after.
+uint64_t MeshHash(const Simulation& sim) {
+  const cutsim::mesh::TetMesh m = sim.WorldMesh();
+  uint64_t h = 1469598103934665603ull;
+  auto bytes = [&](const void* p, size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
+  };
+  for (Eigen::Index r = 0; r < m.tets.rows(); ++r)
+    for (int c = 0; c < 4; ++c) {
+      const int32_t v = m.tets(r, c);
+      bytes(&v, sizeof v);
+    }
+  for (Eigen::Index r = 0; r < m.nodes.rows(); ++r)
+    for (int c = 0; c < 3; ++c) {
+      const double x = m.nodes(r, c);
+      bytes(&x, sizeof x);
+    }
+  return h;
+}
+
 struct StepResult {
   int tets = 0;
   std::vector<CutStepTiming> timings;
@@ -94,8 +119,9 @@ StepResult RunStepBench(int nx, int ny, int nz) {
   }
   StepResult r;
   const auto s = sim->QuickSummary();
-  std::fprintf(stderr, "step bench: %d tets, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s\n", s.num_tets,
-               static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time, s.stable_dt);
+  std::fprintf(stderr, "step bench: %d tets, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s, mesh hash %016llx\n",
+               s.num_tets, static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time,
+               s.stable_dt, static_cast<unsigned long long>(MeshHash(*sim)));
   r.tets = s.num_tets;
   r.timings = sim->CutTimings();
   r.attempts = static_cast<int64_t>(s.cut_attempts);
@@ -125,11 +151,15 @@ int main(int argc, char** argv) {
   std::string scene_dir = "scenes";
   int max_tets = 100000;
   int target_cuts = 100;
+  int min_tets = 0;
+  bool step_only = false;
   CLI::App app{"cut step time, stable step and throughput after cuts (issue 4)"};
   app.add_option("--json", json_path, "Also write the JSON here");
   app.add_option("--scene-dir", scene_dir, "Where block.pbtxt is");
   app.add_option("--max-tets", max_tets, "Skip step sizes above this");
   app.add_option("--cuts", target_cuts, "Cut steps on block for (b) and (c)");
+  app.add_option("--min-tets", min_tets, "Skip step sizes below this");
+  app.add_flag("--step-only", step_only, "Only (a), the cut step times");
   CLI11_PARSE(app, argc, argv);
   cutsim::InitLogging("cut_bench", "warn");
 
@@ -138,7 +168,7 @@ int main(int argc, char** argv) {
   const int sizes[][3] = {{8, 5, 4}, {17, 10, 10}, {37, 22, 20}};
   bool first = true;
   for (const auto& n : sizes) {
-    if (6 * n[0] * n[1] * n[2] > max_tets) continue;
+    if (6 * n[0] * n[1] * n[2] > max_tets || 6 * n[0] * n[1] * n[2] < min_tets) continue;
     const StepResult r = RunStepBench(n[0], n[1], n[2]);
     std::vector<double> total, criterion, topology, fem, surface, splits;
     for (const CutStepTiming& t : r.timings) {
@@ -159,6 +189,12 @@ int main(int argc, char** argv) {
     std::fflush(stdout);
   }
   json += "\n  ],\n";
+  if (step_only) {
+    json += "  \"block\": null,\n  \"throughput\": null\n}\n";
+    std::fputs(json.c_str(), stdout);
+    if (!json_path.empty()) std::ofstream(json_path) << json;
+    return 0;
+  }
 
   // (b) block: parallel half-depth passes 0.1 mm beside the node rows (2.5 mm apart).
   const cutsim::sim::LoadedScene block = cutsim::sim::LoadScene(scene_dir + "/block.pbtxt");
@@ -193,8 +229,8 @@ int main(int argc, char** argv) {
   (void)glide(Vector3d(0.02, 0.01, 0.05), 0.002);
   for (int i = 0; i < 20; ++i) (void)cut->AdvanceFrame();  // settle, tool clear
   const auto cs = cut->Summary();
-  std::fprintf(stderr, "block: %llu cuts after %lld steps\n", static_cast<unsigned long long>(cs.cuts),
-               static_cast<long long>(cs.steps));
+  std::fprintf(stderr, "block: %llu cuts after %lld steps, mesh hash %016llx\n", static_cast<unsigned long long>(cs.cuts),
+               static_cast<long long>(cs.steps), static_cast<unsigned long long>(MeshHash(*cut)));
   const double q_cut = MinQuality(*cut);
   json += fmt::format(
       "  \"block\": {{\"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, \"tets\": {}, \"nodes_uncut\": {}, "

@@ -53,7 +53,11 @@ int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
 int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   const auto& n = tets_[Idx(t)];
   const auto lf = mesh::LocalTetFace(f);
-  const int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
+  int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
+  // Search the smallest of the three stars (a just-made copy's, often): a
+  // face has at most two tets, so every star finds the same mate.
+  if (node_tets_[Idx(b)].size() < node_tets_[Idx(a)].size()) std::swap(a, b);
+  if (node_tets_[Idx(c)].size() < node_tets_[Idx(a)].size()) std::swap(a, c);
   for (const int32_t u : node_tets_[Idx(a)]) {
     if (u == t) continue;
     const auto& m = tets_[Idx(u)];
@@ -127,6 +131,8 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
       if (neighbour_[Idx(t)][Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
     }
   }
+  star_connected0_.resize(Idx(n));
+  for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
 }
 
 std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const {
@@ -380,6 +386,26 @@ int32_t CutMesh::StarGroups(int32_t node) {
   ds_root_label_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
   for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(ds_root_label_[Idx(ds_label_[i])]++)] = star[i];
   return k;
+}
+
+bool CutMesh::StarIsOneGroup(int32_t node) {
+  // Flood over the faces through `node` from the first tet of its star; a
+  // tet across such a face holds the face, hence the node: it is in the star.
+  const auto& star = node_tets_[Idx(node)];
+  if (star.size() <= 1) return true;
+  in_star_.Clear();
+  in_star_.Insert(star[0]);
+  star_queue_.assign(1, star[0]);
+  for (size_t i = 0; i < star_queue_.size(); ++i) {
+    const int32_t t = star_queue_[i];
+    const auto& n = tets_[Idx(t)];
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == node) continue;
+      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      if (u >= 0 && in_star_.Insert(u)) star_queue_.push_back(u);
+    }
+  }
+  return star_queue_.size() == star.size();
 }
 
 int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {

@@ -241,7 +241,7 @@ class CutMesh {
     /// True if `i` was not in the set.
     bool Insert(int32_t i) {
       const auto k = static_cast<size_t>(i);
-      if (k >= stamp.size()) stamp.resize(std::max(2 * stamp.size(), k + 1), 0u);
+      if (k >= stamp.size()) [[unlikely]] Grow(k);
       if (stamp[k] == generation) return false;
       stamp[k] = generation;
       return true;
@@ -249,6 +249,7 @@ class CutMesh {
     void Erase(int32_t i) {
       if (static_cast<size_t>(i) < stamp.size()) stamp[static_cast<size_t>(i)] = 0;
     }
+    [[gnu::noinline]] void Grow(size_t k) { stamp.resize(std::max(2 * stamp.size(), k + 1), 0u); }
   };
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
@@ -279,6 +280,9 @@ class CutMesh {
   /// is [group_begin_[g], group_begin_[g + 1]), groups in order of their
   /// lowest tet, tets ascending); returns the number of groups.
   int32_t StarGroups(int32_t node);
+  /// True if the star of `node` is one face-connected group (StarGroups
+  /// would return ≤ 1), without building the groups. O(star).
+  [[nodiscard]] bool StarIsOneGroup(int32_t node);
   /// Number of face-connected groups of the tets around edge (a, b).
   [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b);
   void Rollback(size_t journal_mark, int32_t node_mark);
@@ -310,8 +314,18 @@ class CutMesh {
   mutable std::vector<int32_t> heads_;
   StampSet seen_, queued_, plane_done_;      // nodes
   StampSet flipped_, side_known_, in_flood_, flood_done_;  // tets
+  StampSet slab_tets_, in_star_, in_search_;  // tets
   std::vector<int8_t> side_;                 // #T, valid where side_known_
   std::vector<int32_t> work_, negative_, nbrs_, check_, flood_, fragments_, slab_, slab_queue_;
+  std::vector<int32_t> star_queue_, search_;
+  // World positions read during one step (the FEM's, through a virtual
+  // call): cached per node, valid where pos_known_ (cleared every step).
+  StampSet pos_known_;
+  std::vector<Eigen::Vector3d> pos_cache_;
+  // Per uncut node: its uncut star is face-connected around it (one group).
+  // Then a vertex with no surface face through it cannot have k > 1 star
+  // groups (see StarIsOneGroup), and the singularity pass skips it.
+  std::vector<uint8_t> star_connected0_;
 };
 
 /// Face-connected components of any tet list (two tets are connected when

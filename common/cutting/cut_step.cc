@@ -20,13 +20,25 @@ using Eigen::Vector3d;
 // staged moves. Nothing is written to the FEM: the event carries it.
 class StepWorld final : public WorldAccess {
  public:
-  StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event)
-      : base_(base), base_nodes_(base_nodes), event_(event) {}
+  // `cache`/`stamp`/`generation`: a per-node cache of base_.Get (a virtual
+  // call into the FEM state, read many times per step), valid where
+  // stamp == generation; the caller clears it (new generation) per step.
+  StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event, std::vector<Vector3d>& cache,
+            std::vector<uint32_t>& stamp, uint32_t generation)
+      : base_(base), base_nodes_(base_nodes), event_(event), cache_(cache), stamp_(stamp), generation_(generation) {
+    if (stamp_.size() < static_cast<size_t>(base_nodes_)) stamp_.resize(static_cast<size_t>(base_nodes_), 0u);
+    if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
+  }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
     if (const Vector3d* x = Find(node)) return *x;
-    return base_.Get(node);
+    const auto k = static_cast<size_t>(node);
+    if (stamp_[k] != generation_) {
+      cache_[k] = base_.Get(node);
+      stamp_[k] = generation_;
+    }
+    return cache_[k];
   }
   void Set(int32_t node, const Vector3d& x) override {
     for (auto& [k, v] : moved_) {
@@ -42,6 +54,9 @@ class StepWorld final : public WorldAccess {
   const WorldAccess& base_;
   int32_t base_nodes_;
   const TopologyEvent& event_;
+  std::vector<Vector3d>& cache_;
+  std::vector<uint32_t>& stamp_;
+  uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
   [[nodiscard]] const Vector3d* Find(int32_t node) const {
@@ -104,7 +119,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     return out;
   }
   TopologyEvent ev;
-  StepWorld W(world, n0, ev);
+  pos_known_.Clear();
+  StepWorld W(world, n0, ev, pos_cache_, pos_known_.stamp, pos_known_.generation);
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
   const Vector3d n = step.normal.normalized();
@@ -191,13 +207,17 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       S.clear();
       if (!blade_plane || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
       if (blade_plane && in_slab(x0, 1.0)) S.push_back(step.v0);
+      // Every tet is looked at once (slab_tets_): the vertices seen, hence
+      // S (sorted below), do not depend on the walk's order.
       seen_.Clear();
+      slab_tets_.Clear();
       seen_.Insert(step.v1);
       seen_.Insert(step.v0);
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
         const int32_t u = slab_queue_[head];
         for (const int32_t t : node_tets_[Idx(u)]) {
+          if (!slab_tets_.Insert(t)) continue;
           for (const int32_t w : tets_[Idx(t)]) {
             if (!seen_.Insert(w)) continue;
             const Vector3d xw = W.Get(w);
@@ -289,8 +309,27 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       const int32_t v = work_[work_head++];
       queued_.Erase(v);
       if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) return false;
-      // Vertex rule: parts of the star joined only through v.
-      const int32_t num_groups = StarGroups(v);
+      // Surface faces through v: the edge rule's candidates (below), and a
+      // shortcut. A vertex with none has a closed star: every face through
+      // it is shared with another tet of its star, in the uncut mesh too
+      // (copies keep their origin's ids), so each group of its star is
+      // closed under the uncut star's face adjacency; if that star was one
+      // group, so is this one (it is all of it), and the edge rule has no
+      // candidate: nothing to do (about a third of the vertices queued).
+      std::vector<int32_t>& nbrs = nbrs_;
+      nbrs.clear();
+      for (const int32_t t : node_tets_[Idx(v)]) {
+        const auto& tn = tets_[Idx(t)];
+        for (int f = 0; f < 4; ++f) {
+          if (tn[Idx(f)] == v || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v
+          for (int c = 0; c < 4; ++c)
+            if (c != f && tn[Idx(c)] != v) nbrs.push_back(tn[Idx(c)]);
+        }
+      }
+      if (nbrs.empty() && star_connected0_[Idx(origin_[Idx(v)])] != 0) continue;
+      // Vertex rule: parts of the star joined only through v. (A flood
+      // answers the usual "one group" first; the groups only when split.)
+      const int32_t num_groups = StarIsOneGroup(v) ? 1 : StarGroups(v);
       if (num_groups > 1) {
         for (int32_t g = 1; g < num_groups; ++g) {
           const std::span<const int32_t> group(group_tets_.data() + group_begin_[Idx(g)],
@@ -308,17 +347,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       // Candidates: an edge (v, u) whose tets fall into k > 1 groups has 2k
       // surface faces through it (each group is a fan whose two end faces
       // are on the surface), so only u on ≥ 4 surface faces through v can
-      // fail; the exact count (EdgeGroupCount) runs for those only.
-      std::vector<int32_t>& nbrs = nbrs_;
-      nbrs.clear();
-      for (const int32_t t : node_tets_[Idx(v)]) {
-        const auto& tn = tets_[Idx(t)];
-        for (int f = 0; f < 4; ++f) {
-          if (tn[Idx(f)] == v || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v
-          for (int c = 0; c < 4; ++c)
-            if (c != f && tn[Idx(c)] != v) nbrs.push_back(tn[Idx(c)]);
-        }
-      }
+      // fail; the exact count (EdgeGroupCount) runs for those only (nbrs,
+      // gathered above).
       std::sort(nbrs.begin(), nbrs.end());
       {
         size_t kept = 0;
@@ -435,14 +465,51 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     star.erase(std::unique(star.begin(), star.end()), star.end());
     // Rest preimage of the target: barycentric coordinates in the world tet
     // (star and its neighbours) that contains it best, mapped to rest.
-    std::vector<int32_t> search = star;
-    for (const int32_t t : star)
-      for (const int32_t a : tets_[Idx(t)]) search.insert(search.end(), node_tets_[Idx(a)].begin(), node_tets_[Idx(a)].end());
-    std::sort(search.begin(), search.end());
-    search.erase(std::unique(search.begin(), search.end()), search.end());
+    // Ties go to the lowest tet id, as a scan in ascending order keeping the
+    // first maximum would. The star first; then its neighbours, gathered
+    // through a stamp set. Once a tet holds the target (best score ≥ 0),
+    // only a tet holding it too can beat it (a score is the smallest
+    // barycentric coordinate: < 0 outside), so a neighbour whose world
+    // bounding box, padded by 1e-6 of its size, misses the target is
+    // skipped without its 3×3 inverse (outside the padded box the smallest
+    // coordinate is < −2.5e-7, far beyond rounding). One loop body serves
+    // both phases on purpose: a second copy of it (a lambda) was compiled
+    // with other FMA contractions and moved rest targets by an ulp.
     double best_score = -1e300;
+    int32_t best_tet = -1;
     Vector3d u_target = u_old;
-    for (const int32_t t : search) {
+    std::vector<int32_t>& search = search_;
+    search.assign(star.begin(), star.end());
+    in_search_.Clear();
+    for (const int32_t t : star) in_search_.Insert(t);
+    bool ring_added = false;
+    for (size_t i = 0;; ++i) {
+      if (i == search.size()) {  // the star is done: add its neighbours
+        if (ring_added) break;
+        ring_added = true;
+        const bool prune = best_score >= 0.0;
+        for (const int32_t st : star) {
+          for (const int32_t a : tets_[Idx(st)]) {
+            for (const int32_t u : node_tets_[Idx(a)]) {
+              if (!in_search_.Insert(u)) continue;
+              if (prune) {
+                const auto& un = tets_[Idx(u)];
+                Vector3d lo = W.Get(un[0]), hi = lo;
+                for (int c = 1; c < 4; ++c) {
+                  const Vector3d pc = W.Get(un[Idx(c)]);
+                  lo = lo.cwiseMin(pc);
+                  hi = hi.cwiseMax(pc);
+                }
+                const double pad = 1e-6 * (hi - lo).maxCoeff();
+                if ((target.array() < lo.array() - pad).any() || (target.array() > hi.array() + pad).any()) continue;
+              }
+              search.push_back(u);
+            }
+          }
+        }
+        if (i == search.size()) break;
+      }
+      const int32_t t = search[i];
       const auto& tn = tets_[Idx(t)];
       const Vector3d p0 = W.Get(tn[0]);
       Eigen::Matrix3d D;
@@ -452,8 +519,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       const Vector3d lam = D.inverse() * (target - p0);
       const double b0 = 1.0 - lam.sum();
       const double score = std::min(b0, lam.minCoeff());
-      if (score > best_score) {
+      if (score > best_score || (score == best_score && t < best_tet)) {
         best_score = score;
+        best_tet = t;
         u_target = b0 * rest_[Idx(tn[0])] + lam[0] * rest_[Idx(tn[1])] + lam[1] * rest_[Idx(tn[2])] +
                    lam[2] * rest_[Idx(tn[3])];
       }

@@ -1,4 +1,5 @@
 // Randomised cut paths on three meshes, every invariant after every step.
+#include <cstring>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -19,6 +20,54 @@ struct MeshCase {
   mesh::TetMesh mesh;
   Matrix3d A;  // world = A·rest (an affine deformation; identity = undeformed)
 };
+
+// FNV-1a over the cut result (tets, rest and world positions, surface slots,
+// the events' splits and moves): logged per case so a change that claims to
+// keep results identical can be checked by comparing the log before/after.
+struct ResultHash {
+  uint64_t h = 1469598103934665603ull;
+  void Bytes(const void* p, size_t n) {
+    const auto* b = static_cast<const unsigned char*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
+  }
+  template <typename T>
+  void Add(const T& v) {
+    Bytes(&v, sizeof(v));
+  }
+  void Add(const Vector3d& v) { Bytes(v.data(), 3 * sizeof(double)); }
+};
+
+uint64_t HashResult(const CutMesh& cm, const WorldAccess& world, const std::vector<TopologyEvent>& events) {
+  ResultHash r;
+  for (int32_t t = 0; t < cm.num_tets(); ++t) r.Add(cm.tet(t));
+  for (int32_t v = 0; v < cm.num_nodes(); ++v) {
+    r.Add(cm.rest(v));
+    r.Add(world.Get(v));
+  }
+  for (const SurfaceFace& s : cm.surface_slots()) {
+    r.Add(s.alive);
+    if (!s.alive) continue;
+    r.Add(s.tet);
+    r.Add(s.local_face);
+    r.Add(s.opened);
+  }
+  for (const TopologyEvent& e : events) {
+    r.Add(e.version);
+    for (const Split& sp : e.splits) {
+      r.Add(sp.node);
+      r.Add(sp.new_node);
+      for (const int32_t t : sp.tets) r.Add(t);
+    }
+    for (const Move& m : e.moves) {
+      r.Add(m.node);
+      r.Add(m.rest);
+      r.Add(m.world);
+    }
+    for (const int32_t t : e.touched_tets) r.Add(t);
+    for (const int32_t v : e.touched_nodes) r.Add(v);
+  }
+  return r.h;
+}
 
 std::vector<MeshCase> Cases() {
   constexpr double h = 0.01;
@@ -92,6 +141,7 @@ TEST(CutStress, RandomPathsKeepEveryInvariant) {
         total_skipped += stats.moves_skipped;
         cut_seconds += stats.cut_seconds;
       }
+      Log().info("cut stress {} seed {}: result hash {:016x}", mc.name, seed, HashResult(cm, world, events));
       // Replay reproduces the topology bit-exactly.
       CutMesh replay(mc.mesh);
       for (const TopologyEvent& e : events) replay.ApplyEvent(e);
