@@ -89,6 +89,14 @@
 
 namespace cutsim::cutting {
 
+namespace internal {
+/// A world position cached for one cut step (see CutMesh::pos_cache_).
+struct CachedPosition {
+  Eigen::Vector3d x = Eigen::Vector3d::Zero();
+  uint32_t generation = 0;
+};
+}  // namespace internal
+
 /// The blade below the contact point, world.
 struct Blade {
   Eigen::Vector3d tip = Eigen::Vector3d::Zero();             ///< m
@@ -319,9 +327,10 @@ class CutMesh {
   std::vector<int32_t> work_, negative_, nbrs_, check_, flood_, fragments_, slab_, slab_queue_;
   std::vector<int32_t> star_queue_, search_;
   // World positions read during one step (the FEM's, through a virtual
-  // call): cached per node, valid where pos_known_ (cleared every step).
-  StampSet pos_known_;
-  std::vector<Eigen::Vector3d> pos_cache_;
+  // call): cached per node, valid where the entry's generation is
+  // pos_generation_ (a new one every step); position and stamp share a line.
+  std::vector<internal::CachedPosition> pos_cache_;
+  uint32_t pos_generation_ = 0;
   // Per uncut node: its uncut star is face-connected around it (one group).
   // Then a vertex with no surface face through it cannot have k > 1 star
   // groups (see StarIsOneGroup), and the singularity pass skips it.

@@ -20,25 +20,24 @@ using Eigen::Vector3d;
 // staged moves. Nothing is written to the FEM: the event carries it.
 class StepWorld final : public WorldAccess {
  public:
-  // `cache`/`stamp`/`generation`: a per-node cache of base_.Get (a virtual
-  // call into the FEM state, read many times per step), valid where
-  // stamp == generation; the caller clears it (new generation) per step.
-  StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event, std::vector<Vector3d>& cache,
-            std::vector<uint32_t>& stamp, uint32_t generation)
-      : base_(base), base_nodes_(base_nodes), event_(event), cache_(cache), stamp_(stamp), generation_(generation) {
-    if (stamp_.size() < static_cast<size_t>(base_nodes_)) stamp_.resize(static_cast<size_t>(base_nodes_), 0u);
+  // `cache`/`generation`: a per-node cache of base_.Get (a virtual call
+  // into the FEM state, read many times per step), valid where an entry's
+  // generation is `generation`; the caller takes a new one per step.
+  StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event,
+            std::vector<internal::CachedPosition>& cache, uint32_t generation)
+      : base_(base), base_nodes_(base_nodes), event_(event), cache_(cache), generation_(generation) {
     if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
   }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
     if (const Vector3d* x = Find(node)) return *x;
-    const auto k = static_cast<size_t>(node);
-    if (stamp_[k] != generation_) {
-      cache_[k] = base_.Get(node);
-      stamp_[k] = generation_;
+    internal::CachedPosition& c = cache_[static_cast<size_t>(node)];
+    if (c.generation != generation_) {
+      c.x = base_.Get(node);
+      c.generation = generation_;
     }
-    return cache_[k];
+    return c.x;
   }
   void Set(int32_t node, const Vector3d& x) override {
     for (auto& [k, v] : moved_) {
@@ -54,8 +53,7 @@ class StepWorld final : public WorldAccess {
   const WorldAccess& base_;
   int32_t base_nodes_;
   const TopologyEvent& event_;
-  std::vector<Vector3d>& cache_;
-  std::vector<uint32_t>& stamp_;
+  std::vector<internal::CachedPosition>& cache_;
   uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
@@ -119,8 +117,11 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     return out;
   }
   TopologyEvent ev;
-  pos_known_.Clear();
-  StepWorld W(world, n0, ev, pos_cache_, pos_known_.stamp, pos_known_.generation);
+  if (++pos_generation_ == 0) {  // wrap-around, once in 4 billion steps
+    for (auto& c : pos_cache_) c.generation = 0;
+    pos_generation_ = 1;
+  }
+  StepWorld W(world, n0, ev, pos_cache_, pos_generation_);
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
   const Vector3d n = step.normal.normalized();
