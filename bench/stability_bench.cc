@@ -2,7 +2,7 @@
 // bench/stability_cases.h; a short version runs as tests/unit/fem/
 // stability_test.cc). Prints a Markdown table on stdout and writes JSON.
 //
-//   stability_bench [--out stability.json] [--long-steps 1000000] [--strokes 300]
+//   stability_bench [--out stability.json] [--long-steps 1000000] [--strokes 300] [--only TEXT]
 //                   [--scene scenes/block.pbtxt]
 #include <cstdio>
 #include <string>
@@ -33,6 +33,8 @@ int Main(int argc, char** argv) {
   app.add_option("--long-steps", size.long_steps, "Steps of the long run");
   app.add_option("--strokes", size.strokes, "Random cut strokes");
   app.add_option("--cells", size.cells, "Cube side in cells of the loading cases");
+  std::string only;
+  app.add_option("--only", only, "Only the cases whose name contains this (e.g. \"long run\", \"corner\")");
   bool fixed_only = false;
   app.add_flag("--fixed-dt-only", fixed_only, "Only the fixed-dt cases at 0.5 / 0.75 / 1.0 of the start's limit");
   CLI11_PARSE(app, argc, argv);
@@ -69,7 +71,7 @@ int Main(int argc, char** argv) {
       print_row(results.back());
     }
   } else {
-    results = RunAll(size, scene_path, print_row);
+    results = RunAll(size, scene_path, print_row, only);
   }
   if (!out_path.empty()) {
     std::FILE* out = std::fopen(out_path.c_str(), "w");

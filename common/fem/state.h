@@ -76,6 +76,11 @@ struct State {
   /// follows the estimate's every wiggle is variable-step symplectic Euler,
   /// which is not symplectic and pumps energy (integrator.h).
   double dt_held = 0;
+  /// First step of the current run of estimates above the regrow threshold
+  /// (−1: none); the held step grows only after dt_grow_delay steps of them.
+  int64_t dt_grow_since = -1;
+  int64_t dt_grow_delay = 0;       ///< Steps; backs off while the step toggles.
+  int64_t dt_last_grow_step = -1;  ///< Step of the last growth (−1: undone or none).
   int dt_calm_refreshes = 0;  ///< Consecutive bound refreshes that changed it ≤ 2%.
   bool dt_trusted = false;    ///< Whether the last CurrentTimeStep used the ratio.
   uint64_t dt_spectral_topology_version = 0;
