@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The one bench command: installs what is missing, builds the `release`
 # preset, runs every benchmark in bench/ with JSON output into out/bench/,
-# and plots them (PNG) with matplotlib. About 5–10 minutes on a 2-core box.
+# and plots them (PNG) with matplotlib. About 25 minutes on a 2-core box with
+# a cold build (~11 min of it), ~14 min with the build cached.
 #
 #   ./deploy/bench.sh                 # everything
 #   BENCH_MIN_TIME=0.1 ./deploy/bench.sh   # quicker, noisier
