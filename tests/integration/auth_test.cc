@@ -11,6 +11,8 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -45,7 +47,9 @@ struct ModelWatch {
   uint64_t max_topology_version = 0;
 };
 
-/// The blade across the ligament (scenes/ligament-cut.path), `t` s into the attack.
+/// The blade across the ligament, `t` s into the attack: down beside it in
+/// 0.5 s, then drawn across and back, 2 s per sweep, as in
+/// scenes/ligament-cut.path (whose first sweep cuts at ~1.5 s in most runs).
 void CuttingPose(double t, v1::ToolState* m) {
   double y = -0.008;
   double z = 0.010;
@@ -53,7 +57,8 @@ void CuttingPose(double t, v1::ToolState* m) {
     z = 0.010 - 0.016 * t / 0.5;
   } else {
     z = -0.006;
-    y = -0.008 + 0.016 * std::min(1.0, (t - 0.5) / 2.0);
+    const double phase = std::fmod((t - 0.5) / 2.0, 2.0);  // 0..2: across, then back
+    y = -0.008 + 0.016 * (phase <= 1.0 ? phase : 2.0 - phase);
   }
   m->mutable_tip()->set_x(0.0151);
   m->mutable_tip()->set_y(y);
@@ -80,10 +85,10 @@ class AuthIntegrationTest : public ::testing::Test {
     domain_ = std::to_string(1 + k % 200);
   }
 
-  std::unique_ptr<Subprocess> StartServer(bool keyed) {
+  std::unique_ptr<Subprocess> StartServer(bool keyed, const std::string& duration_s = "6") {
     std::vector<std::string> argv = {BinPath("cutsim-server"), "--scene",
                                      std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt",
-                                     "--duration", "6", "--session", session_, "--lcm-url", url_,
+                                     "--duration", duration_s, "--session", session_, "--lcm-url", url_,
                                      "--dds-domain", domain_, "--stats-json", dir_.path() + "/server.json",
                                      "--no-progress", "--no-rt"};
     if (keyed) {
@@ -204,9 +209,11 @@ TEST_F(AuthIntegrationTest, ForgedReplayedAndUnsignedToolMessagesHaveNoEffect) {
 }
 
 // Control: the same unsigned cutting poses against an open server do cut,
-// and the server warns that it is open.
+// and the server warns that it is open. The sweeps go on until a model
+// reports the cut (or 40 s): whether the first sweep reaches K_I depends on
+// the pose timing on a loaded machine (one CI run did not cut in 6 s).
 TEST_F(AuthIntegrationTest, ControlOpenServerIsCutByTheSameUnsignedPoses) {
-  auto server = StartServer(/*keyed=*/false);
+  auto server = StartServer(/*keyed=*/false, /*duration_s=*/"120");
   transport::LcmBus bus(url_);
   const std::string tool_channel = transport::LcmChannelName(session_, transport::LcmChannel::kTool);
   ModelWatch watch;
@@ -225,13 +232,16 @@ TEST_F(AuthIntegrationTest, ControlOpenServerIsCutByTheSameUnsignedPoses) {
   }
   ASSERT_GT(watch.models, 0u) << server->Stderr();
   const int64_t attack_start = MonotonicNs();
-  while (server->running() && MonotonicNs() - attack_start < 120'000'000'000) {
+  while (server->running() && watch.max_topology_version == 0 &&
+         MonotonicNs() - attack_start < 40'000'000'000) {
     attack.set_seq(++seq);
     attack.set_stamp_ns(MonotonicNs());
     CuttingPose(1e-9 * static_cast<double>(MonotonicNs() - attack_start), &attack);
     ASSERT_EQ(bus.Publish(tool_channel, attack), transport::PublishStatus::kOk);
     bus.HandleTimeout(4);
   }
+  EXPECT_GE(watch.max_topology_version, 1u) << "no local model reported a cut within 40 s";
+  server->Signal(SIGTERM);  // clean exit: stats written
   ASSERT_EQ(server->Wait(30s), 0) << server->Stderr();
   const std::string stats = ReadTextFile(dir_.path() + "/server.json");
   EXPECT_GE(JsonNumber(stats, "topology_version"), 1) << stats;
