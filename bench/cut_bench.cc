@@ -31,6 +31,7 @@
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
+#include "common/core/hash.h"
 #include "common/core/log.h"
 #include "common/mesh/quality.h"
 #include "common/sim/scene_loader.h"
@@ -73,26 +74,12 @@ cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
                      nx * h, ny * h, nz * h, nx, ny, nz);
 }
 
-// FNV-1a of the world mesh (tets and positions), printed to stderr so a
+// Hash of the world mesh (tets and positions), printed to stderr so a
 // change that claims identical cut results can be checked before/after.
 uint64_t MeshHash(const Simulation& sim) {
   const cutsim::mesh::TetMesh m = sim.WorldMesh();
-  uint64_t h = 1469598103934665603ull;
-  auto bytes = [&](const void* p, size_t n) {
-    const auto* b = static_cast<const unsigned char*>(p);
-    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
-  };
-  for (Eigen::Index r = 0; r < m.tets.rows(); ++r)
-    for (int c = 0; c < 4; ++c) {
-      const int32_t v = m.tets(r, c);
-      bytes(&v, sizeof v);
-    }
-  for (Eigen::Index r = 0; r < m.nodes.rows(); ++r)
-    for (int c = 0; c < 3; ++c) {
-      const double x = m.nodes(r, c);
-      bytes(&x, sizeof x);
-    }
-  return h;
+  const uint64_t h = cutsim::Fnv1a64(m.tets.data(), static_cast<size_t>(m.tets.size()) * sizeof(m.tets(0, 0)));
+  return cutsim::Fnv1a64(m.nodes.data(), static_cast<size_t>(m.nodes.size()) * sizeof(double), h);
 }
 
 struct StepResult {

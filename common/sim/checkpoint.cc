@@ -54,16 +54,6 @@ Eigen::Vector3d Vec3FromProto(const google::protobuf::RepeatedField<double>& v, 
 
 }  // namespace
 
-uint64_t Fnv1a64(const void* data, size_t size, uint64_t seed) {
-  const auto* bytes = static_cast<const unsigned char*>(data);
-  uint64_t h = seed;
-  for (size_t i = 0; i < size; ++i) {
-    h ^= bytes[i];
-    h *= 0x100000001b3ULL;
-  }
-  return h;
-}
-
 v1::CheckpointEvent EventToProto(const cutting::TopologyEvent& e) {
   v1::CheckpointEvent out;
   out.set_version(e.version);

@@ -15,13 +15,10 @@
 
 #include "common/cutting/topology_event.h"
 #include "common/sim/simulation.h"
+#include "common/core/hash.h"  // Fnv1a64
 #include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
-
-/// FNV-1a 64 of `size` bytes, continuing from `seed` (the offset basis by
-/// default): integrity and identity against mistakes, not an attacker.
-[[nodiscard]] uint64_t Fnv1a64(const void* data, size_t size, uint64_t seed = 0xcbf29ce484222325ULL);
 
 /// Topology event ⇄ its checkpoint message. EventFromProto checks the shape
 /// (3 coordinates per move, finite values) and throws InputError naming

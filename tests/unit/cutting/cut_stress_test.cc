@@ -1,8 +1,9 @@
 // Randomised cut paths on three meshes, every invariant after every step.
-#include <cstring>
 #include <random>
 
 #include <gtest/gtest.h>
+
+#include "common/core/hash.h"
 
 #include "common/core/log.h"
 #include "common/cutting/cut_mesh.h"
@@ -25,16 +26,12 @@ struct MeshCase {
 // the events' splits and moves): logged per case so a change that claims to
 // keep results identical can be checked by comparing the log before/after.
 struct ResultHash {
-  uint64_t h = 1469598103934665603ull;
-  void Bytes(const void* p, size_t n) {
-    const auto* b = static_cast<const unsigned char*>(p);
-    for (size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ull;
-  }
+  uint64_t h = Fnv1a64(nullptr, 0);
   template <typename T>
   void Add(const T& v) {
-    Bytes(&v, sizeof(v));
+    h = Fnv1a64(&v, sizeof(v), h);
   }
-  void Add(const Vector3d& v) { Bytes(v.data(), 3 * sizeof(double)); }
+  void Add(const Vector3d& v) { h = Fnv1a64(v.data(), 3 * sizeof(double), h); }
 };
 
 uint64_t HashResult(const CutMesh& cm, const WorldAccess& world, const std::vector<TopologyEvent>& events) {
