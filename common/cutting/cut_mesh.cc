@@ -52,7 +52,7 @@ int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
 
 int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   const auto& n = tets_[Idx(t)];
-  const auto lf = mesh::LocalTetFace(f);
+  const auto& lf = mesh::internal::kTetFaces[Idx(f)];
   int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
   // Search the smallest of the three stars (a just-made copy's, often): a
   // face has at most two tets, so every star finds the same mate.
@@ -194,9 +194,15 @@ std::vector<int32_t> CutMesh::ContactElements(int32_t node, int32_t facet_tet) c
 }
 
 std::vector<int32_t> CutMesh::Twins(int32_t node, const WorldAccess& world) const {
+  std::vector<int32_t> out;
+  TwinsInto(node, world, out);
+  return out;
+}
+
+void CutMesh::TwinsInto(int32_t node, const WorldAccess& world, std::vector<int32_t>& out) const {
   // Copies of one original vertex that still coincide (split but not moved
   // apart) move together, so a crack stays closed where the tool passed.
-  std::vector<int32_t> out;
+  out.clear();
   const int32_t o = origin_[Idx(node)];
   const Eigen::Vector3d x = world.Get(node);
   auto consider = [&](int32_t k) {
@@ -204,7 +210,7 @@ std::vector<int32_t> CutMesh::Twins(int32_t node, const WorldAccess& world) cons
   };
   consider(o);
   for (const int32_t k : copies_[Idx(o)]) consider(k);
-  return out;  // ascending: the original first, copies in creation order
+  // Ascending: the original first, copies in creation order.
 }
 
 int32_t CutMesh::NewSlot(int32_t t, int f, bool opened) {
@@ -393,8 +399,8 @@ bool CutMesh::StarIsOneGroup(int32_t node) {
   // tet across such a face holds the face, hence the node: it is in the star.
   const auto& star = node_tets_[Idx(node)];
   if (star.size() <= 1) return true;
-  in_star_.Clear();
-  in_star_.Insert(star[0]);
+  tet_marks_.Clear(kInStar);
+  tet_marks_.Insert(kInStar, star[0]);
   star_queue_.assign(1, star[0]);
   for (size_t i = 0; i < star_queue_.size(); ++i) {
     const int32_t t = star_queue_[i];
@@ -402,7 +408,7 @@ bool CutMesh::StarIsOneGroup(int32_t node) {
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node) continue;
       const int32_t u = neighbour_[Idx(t)][Idx(f)];
-      if (u >= 0 && in_star_.Insert(u)) star_queue_.push_back(u);
+      if (u >= 0 && tet_marks_.Insert(kInStar, u)) star_queue_.push_back(u);
     }
   }
   return star_queue_.size() == star.size();
@@ -438,16 +444,46 @@ bool CutMesh::SurfaceManifoldAt(int32_t node) const {
   link.clear();
   for (const int32_t t : node_tets_[Idx(node)]) {
     const auto& n = tets_[Idx(t)];
+    const auto& nb = neighbour_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
-      if (n[Idx(f)] == node) continue;
-      if (neighbour_[Idx(t)][Idx(f)] >= 0) continue;
-      const auto lf = mesh::LocalTetFace(f);
-      std::array<int32_t, 3> tri{n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]};
-      while (tri[0] != node) std::rotate(tri.begin(), tri.begin() + 1, tri.end());
-      link.emplace_back(tri[1], tri[2]);
+      if (n[Idx(f)] == node || nb[Idx(f)] >= 0) continue;
+      const auto& lf = mesh::internal::kTetFaces[Idx(f)];
+      const int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
+      // The triangle rotated to start at the node: (node, p, q).
+      if (a == node) {
+        link.emplace_back(b, c);
+      } else if (b == node) {
+        link.emplace_back(c, a);
+      } else {
+        link.emplace_back(a, b);
+      }
     }
   }
   if (link.empty()) return true;  // interior vertex
+  const size_t k = link.size();
+  if (k <= 32) {
+    // A handful of edges (a surface fan has ~6, a vertex on a cut ~12):
+    // pairwise checks beat sorting. Same answer as the sorted path below.
+    for (size_t i = 0; i < k; ++i) {
+      bool head_is_tail = false;
+      for (size_t j = 0; j < k; ++j) {
+        if (j != i && (link[j].first == link[i].first || link[j].second == link[i].second)) return false;
+        head_is_tail |= link[j].first == link[i].second;
+      }
+      if (!head_is_tail) return false;  // a link vertex without an out-edge
+    }
+    // Tails distinct, heads distinct and every head a tail: a permutation of
+    // the link vertices, so the walk from link[0] returns to its start. One
+    // cycle through all edges if that takes k steps.
+    const int32_t start = link[0].first;
+    size_t steps = 1;
+    for (int32_t v = link[0].second; v != start; ++steps) {
+      size_t j = 0;
+      while (link[j].first != v) ++j;
+      v = link[j].second;
+    }
+    return steps == k;
+  }
   std::sort(link.begin(), link.end());
   for (size_t i = 1; i < link.size(); ++i)
     if (link[i].first == link[i - 1].first) return false;  // two out-edges

@@ -78,6 +78,7 @@
 #include <cstdint>
 #include <optional>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -90,10 +91,15 @@
 namespace cutsim::cutting {
 
 namespace internal {
-/// A world position cached for one cut step (see CutMesh::pos_cache_).
-struct CachedPosition {
+/// Per-node scratch of a cut step (see CutMesh::node_marks_): the world
+/// position cached for the step (valid where x_generation is the step's)
+/// and the node stamp sets, in one line, so a node visited by the step
+/// costs one cache line of scratch.
+enum NodeMark : uint8_t { kSeen, kQueued, kPlaneDone, kRingNode, kSurfaceFree, kNumNodeMarks };
+struct alignas(64) NodeScratch {
   Eigen::Vector3d x = Eigen::Vector3d::Zero();
-  uint32_t generation = 0;
+  uint32_t x_generation = 0;
+  std::array<uint32_t, kNumNodeMarks> stamp{};
 };
 }  // namespace internal
 
@@ -231,36 +237,55 @@ class CutMesh {
   struct Op {  ///< Journal entry for rollback.
     int32_t tet, from, to;
   };
-  /// A set of small integer ids (nodes or tets) cleared in O(1): an id is
-  /// in the set while its stamp equals the current generation. Grows on
-  /// demand and never shrinks, so a cut step does not allocate once warm.
-  struct StampSet {
-    std::vector<uint32_t> stamp;
-    uint32_t generation = 1;
-    void Clear() {
-      if (++generation == 0) {  // wrap-around, once in 4 billion clears
-        std::fill(stamp.begin(), stamp.end(), 0u);
-        generation = 1;
+  /// Sets of small integer ids (nodes or tets), each cleared in O(1): id i
+  /// is in set m while rows[i].stamp[m] equals generation[m]. The sets over
+  /// one kind of id share a row per id (with other per-id scratch), so an
+  /// id visited by several passes of a step costs one cache line: the step
+  /// visits a few hundred scattered tets and nodes, and at 100k tets it runs
+  /// on caches the FEM steps in between have evicted. Grows on demand and
+  /// never shrinks, so a cut step does not allocate once warm.
+  template <typename Row, size_t kSets>
+  struct StampRows {
+    std::vector<Row> rows;
+    std::array<uint32_t, kSets> generation = MakeGenerations();
+    void Clear(size_t m) {
+      if (++generation[m] == 0) {  // wrap-around, once in 4 billion clears
+        for (Row& r : rows) r.stamp[m] = 0;
+        generation[m] = 1;
       }
     }
-    [[nodiscard]] bool Contains(int32_t i) const {
-      return static_cast<size_t>(i) < stamp.size() && stamp[static_cast<size_t>(i)] == generation;
+    [[nodiscard]] bool Contains(size_t m, int32_t i) const {
+      return static_cast<size_t>(i) < rows.size() && rows[static_cast<size_t>(i)].stamp[m] == generation[m];
     }
-    /// True if `i` was not in the set.
-    bool Insert(int32_t i) {
+    /// True if `i` was not in set `m`.
+    bool Insert(size_t m, int32_t i) {
       const auto k = static_cast<size_t>(i);
-      if (k >= stamp.size()) [[unlikely]] Grow(k);
-      if (stamp[k] == generation) return false;
-      stamp[k] = generation;
+      if (k >= rows.size()) [[unlikely]] Grow(k);
+      if (rows[k].stamp[m] == generation[m]) return false;
+      rows[k].stamp[m] = generation[m];
       return true;
     }
-    void Erase(int32_t i) {
-      if (static_cast<size_t>(i) < stamp.size()) stamp[static_cast<size_t>(i)] = 0;
+    void Erase(size_t m, int32_t i) {
+      if (static_cast<size_t>(i) < rows.size()) rows[static_cast<size_t>(i)].stamp[m] = 0;
     }
-    [[gnu::noinline]] void Grow(size_t k) { stamp.resize(std::max(2 * stamp.size(), k + 1), 0u); }
+    [[gnu::noinline]] void Grow(size_t k) { rows.resize(std::max(2 * rows.size(), k + 1)); }
+    static std::array<uint32_t, kSets> MakeGenerations() {
+      std::array<uint32_t, kSets> g{};
+      g.fill(1u);
+      return g;
+    }
   };
+  enum TetMark : uint8_t { kSlab, kSideKnown, kFlipped, kInStar, kInFlood, kFloodDone, kInSearch, kNumTetMarks };
+  struct TetRow {
+    std::array<uint32_t, kNumTetMarks> stamp{};
+    int8_t side = 0;  // step 3's side, valid where kSideKnown
+  };
+  using TetMarks = StampRows<TetRow, kNumTetMarks>;
+  using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
+  /// Twins into a reused buffer (no allocation once warm).
+  void TwinsInto(int32_t node, const WorldAccess& world, std::vector<int32_t>& out) const;
   /// The tet other than `t` holding the face of t opposite corner f
   /// (searched in the star of one of the face's nodes), −1 if none.
   [[nodiscard]] int32_t FindFaceMate(int32_t t, int f) const;
@@ -320,16 +345,19 @@ class CutMesh {
   std::vector<int32_t> group_tets_, group_begin_, around_;
   mutable std::vector<std::pair<int32_t, int32_t>> link_;
   mutable std::vector<int32_t> heads_;
-  StampSet seen_, queued_, plane_done_;      // nodes
-  StampSet flipped_, side_known_, in_flood_, flood_done_;  // tets
-  StampSet slab_tets_, in_star_, in_search_;  // tets
-  std::vector<int8_t> side_;                 // #T, valid where side_known_
+  TetMarks tet_marks_;                       // side valid where kSideKnown
   std::vector<int32_t> work_, negative_, nbrs_, check_, flood_, fragments_, slab_, slab_queue_;
   std::vector<int32_t> star_queue_, search_;
+  std::vector<std::pair<int32_t, int>> slab_seen_;  // vertex, slab level
+  // Remeshing move: the twins, their star, its qualities before the move.
+  std::vector<int32_t> move_twins_, move_star_;
+  std::vector<double> q_rest_, q_world_;
+  // Node stamp sets (kSurfaceFree: nodes whose last visit in the
+  // singularity pass found no surface face) and cached world positions.
+  NodeMarks node_marks_;
   // World positions read during one step (the FEM's, through a virtual
-  // call): cached per node, valid where the entry's generation is
-  // pos_generation_ (a new one every step); position and stamp share a line.
-  std::vector<internal::CachedPosition> pos_cache_;
+  // call) are cached in node_marks_.rows, valid where x_generation is
+  // pos_generation_ (a new one every step).
   uint32_t pos_generation_ = 0;
   // Per uncut node: its uncut star is face-connected around it (one group).
   // Then a vertex with no surface face through it cannot have k > 1 star

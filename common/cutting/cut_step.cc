@@ -24,7 +24,7 @@ class StepWorld final : public WorldAccess {
   // into the FEM state, read many times per step), valid where an entry's
   // generation is `generation`; the caller takes a new one per step.
   StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event,
-            std::vector<internal::CachedPosition>& cache, uint32_t generation)
+            std::vector<internal::NodeScratch>& cache, uint32_t generation)
       : base_(base), base_nodes_(base_nodes), event_(event), cache_(cache), generation_(generation) {
     if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
   }
@@ -32,10 +32,10 @@ class StepWorld final : public WorldAccess {
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
     if (const Vector3d* x = Find(node)) return *x;
-    internal::CachedPosition& c = cache_[static_cast<size_t>(node)];
-    if (c.generation != generation_) {
+    internal::NodeScratch& c = cache_[static_cast<size_t>(node)];
+    if (c.x_generation != generation_) {
       c.x = base_.Get(node);
-      c.generation = generation_;
+      c.x_generation = generation_;
     }
     return c.x;
   }
@@ -53,7 +53,7 @@ class StepWorld final : public WorldAccess {
   const WorldAccess& base_;
   int32_t base_nodes_;
   const TopologyEvent& event_;
-  std::vector<internal::CachedPosition>& cache_;
+  std::vector<internal::NodeScratch>& cache_;
   uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
@@ -118,10 +118,10 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   }
   TopologyEvent ev;
   if (++pos_generation_ == 0) {  // wrap-around, once in 4 billion steps
-    for (auto& c : pos_cache_) c.generation = 0;
+    for (auto& c : node_marks_.rows) c.x_generation = 0;
     pos_generation_ = 1;
   }
-  StepWorld W(world, n0, ev, pos_cache_, pos_generation_);
+  StepWorld W(world, n0, ev, node_marks_.rows, pos_generation_);
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
   const Vector3d n = step.normal.normalized();
@@ -204,27 +204,48 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       return std::abs(plane_dist(x)) <= k * band && (blade_plane ? along >= -k * band : along > (k > 1.0 ? -band : 0.0)) && along <= sweep_len + k * band &&
              depth >= (k > 1.0 ? -band : 0.0) && depth <= step.blade->length;
     };
-    auto collect = [&]() {
-      S.clear();
+    // in_slab(x, 1) ? 1 : in_slab(x, 2) ? 2 : 0, the distances computed once.
+    auto slab_level = [&](const Vector3d& x) -> int {
+      const double dist = std::abs(plane_dist(x));
+      const double along = sweep_dir.dot(x - sweep_from);
+      const double depth = d.dot(x - step.blade->tip);
+      if (!(dist <= 2.0 * band && (blade_plane ? along >= -2.0 * band : along > -band) &&
+            along <= sweep_len + 2.0 * band && depth >= -band && depth <= step.blade->length)) {
+        return 0;
+      }
+      const bool in1 = dist <= band && (blade_plane ? along >= -band : along > 0.0) && along <= sweep_len + band &&
+                       depth >= 0.0;
+      return in1 ? 1 : 2;
+    };
+    auto add_ends = [&]() {
       if (!blade_plane || std::abs(plane_dist(x1)) <= band) S.push_back(step.v1);
       if (blade_plane && in_slab(x0, 1.0)) S.push_back(step.v0);
-      // Every tet is looked at once (slab_tets_): the vertices seen, hence
+    };
+    // Every vertex the walk saw, with its slab level (see the snap below).
+    std::vector<std::pair<int32_t, int>>& walked = slab_seen_;
+    auto collect = [&]() {
+      S.clear();
+      add_ends();
+      walked.clear();
+      // Every tet is looked at once (kSlab): the vertices seen, hence
       // S (sorted below), do not depend on the walk's order.
-      seen_.Clear();
-      slab_tets_.Clear();
-      seen_.Insert(step.v1);
-      seen_.Insert(step.v0);
+      node_marks_.Clear(internal::kSeen);
+      tet_marks_.Clear(kSlab);
+      node_marks_.Insert(internal::kSeen, step.v1);
+      node_marks_.Insert(internal::kSeen, step.v0);
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
         const int32_t u = slab_queue_[head];
         for (const int32_t t : node_tets_[Idx(u)]) {
-          if (!slab_tets_.Insert(t)) continue;
+          if (!tet_marks_.Insert(kSlab, t)) continue;
           for (const int32_t w : tets_[Idx(t)]) {
-            if (!seen_.Insert(w)) continue;
+            if (!node_marks_.Insert(internal::kSeen, w)) continue;
             const Vector3d xw = W.Get(w);
-            if (!in_slab(xw, 2.0)) continue;
+            const int k = slab_level(xw);
+            walked.emplace_back(w, k);
+            if (k == 0) continue;
             slab_queue_.push_back(w);
-            if (in_slab(xw, 1.0)) S.push_back(w);
+            if (k == 1) S.push_back(w);
           }
         }
       }
@@ -247,27 +268,47 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         if (nearest < 0 || std::abs(plane_dist(W.Get(w))) < std::abs(plane_dist(W.Get(nearest)))) nearest = w;
       if (nearest >= 0 && plane_dist(W.Get(nearest)) != 0.0) {
         origin += plane_dist(W.Get(nearest)) * m;
-        collect();
+        // The snap moves P by less than a band. If every vertex the walk saw
+        // keeps its level, a second walk would take the same tets from the
+        // same queued vertices and see the same vertices: the same S, but for
+        // v0 and v1 (queued whatever their level), which are tested again.
+        // Only if a level changed is the walk redone.
+        bool same_levels = true;
+        for (const auto& [w, k] : walked) {
+          if (slab_level(W.Get(w)) != k) {
+            same_levels = false;
+            break;
+          }
+        }
+        if (same_levels) {
+          S.clear();
+          add_ends();
+          for (const auto& [w, k] : walked)
+            if (k == 1) S.push_back(w);
+          std::sort(S.begin(), S.end());
+          S.erase(std::unique(S.begin(), S.end()), S.end());
+        } else {
+          collect();
+        }
       }
     }
   }
 
   // ---- 3. sides: the farthest vertex from P decides --------------------------
   // `flipped` holds tets moved to the other side by the fragment guard (6).
-  flipped_.Clear();
-  side_known_.Clear();
-  if (side_.size() < tets_.size()) side_.resize(tets_.size());
+  tet_marks_.Clear(kFlipped);
+  tet_marks_.Clear(kSideKnown);
   auto side = [&](int32_t t) -> int8_t {
-    if (side_known_.Contains(t)) return side_[Idx(t)];
+    if (tet_marks_.Contains(kSideKnown, t)) return tet_marks_.rows[Idx(t)].side;
     double far = 0.0;
     for (const int32_t a : tets_[Idx(t)]) {
       const double da = plane_dist(W.Get(a));
       if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
     }
     int8_t s = far < 0.0 ? int8_t{-1} : int8_t{1};
-    if (flipped_.Contains(t)) s = static_cast<int8_t>(-s);
-    side_known_.Insert(t);
-    side_[Idx(t)] = s;
+    if (tet_marks_.Contains(kFlipped, t)) s = static_cast<int8_t>(-s);
+    tet_marks_.Insert(kSideKnown, t);
+    tet_marks_.rows[Idx(t)].side = s;
     return s;
   };
 
@@ -276,15 +317,15 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   // FIFO of vertices to check: work_[work_head..).
   work_.clear();
   size_t work_head = 0;
-  queued_.Clear();
+  node_marks_.Clear(internal::kQueued);
   auto enqueue_tets = [&](std::span<const int32_t> tets) {
     for (const int32_t t : tets)
       for (const int32_t a : tets_[Idx(t)])
-        if (queued_.Insert(a)) work_.push_back(a);
+        if (node_marks_.Insert(internal::kQueued, a)) work_.push_back(a);
   };
-  plane_done_.Clear();
+  node_marks_.Clear(internal::kPlaneDone);
   auto plane_split = [&](int32_t w) -> bool {
-    plane_done_.Insert(w);
+    node_marks_.Insert(internal::kPlaneDone, w);
     std::vector<int32_t>& negative = negative_;
     negative.clear();
     bool has_positive = false;
@@ -304,11 +345,12 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
 
   // Steps 3–4 as one pass that the fragment guard may roll back and redo.
   auto separate = [&]() -> bool {
+    node_marks_.Clear(internal::kSurfaceFree);
     for (const int32_t w : S) plane_split(w);
     // ---- 4. singularities ----------------------------------------------------
     while (work_head < work_.size()) {
       const int32_t v = work_[work_head++];
-      queued_.Erase(v);
+      node_marks_.Erase(internal::kQueued, v);
       if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) return false;
       // Surface faces through v: the edge rule's candidates (below), and a
       // shortcut. A vertex with none has a closed star: every face through
@@ -326,6 +368,14 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
           for (int c = 0; c < 4; ++c)
             if (c != f && tn[Idx(c)] != v) nbrs.push_back(tn[Idx(c)]);
         }
+      }
+      // The final check below needs no link for a vertex whose last visit
+      // saw no surface face through it: a later change to its star would
+      // have queued it again.
+      if (nbrs.empty()) {
+        node_marks_.Insert(internal::kSurfaceFree, v);
+      } else {
+        node_marks_.Erase(internal::kSurfaceFree, v);
       }
       if (nbrs.empty() && star_connected0_[Idx(origin_[Idx(v)])] != 0) continue;
       // Vertex rule: parts of the star joined only through v. (A flood
@@ -367,13 +417,13 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         if (std::abs(plane_dist(W.Get(u))) < std::abs(plane_dist(W.Get(v)))) std::swap(cand[0], cand[1]);
         bool fixed = false;
         for (const int32_t c : cand) {
-          if (!plane_done_.Contains(c) && plane_split(c)) {
+          if (!node_marks_.Contains(internal::kPlaneDone, c) && plane_split(c)) {
             fixed = true;
             break;
           }
         }
         if (fixed) {
-          if (queued_.Insert(v)) work_.push_back(v);
+          if (node_marks_.Insert(internal::kQueued, v)) work_.push_back(v);
           break;
         }
         // Otherwise the final check below decides (and rejects if needed).
@@ -390,8 +440,11 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     }
     std::sort(check.begin(), check.end());
     check.erase(std::unique(check.begin(), check.end()), check.end());
+    // Every vertex here was queued by the split that last changed its star
+    // and visited after it (the loop above ran dry), so a vertex with no
+    // surface face through it at that visit is interior: manifold.
     for (const int32_t a : check)
-      if (!SurfaceManifoldAt(a)) return false;
+      if (!node_marks_.Contains(internal::kSurfaceFree, a) && !SurfaceManifoldAt(a)) return false;
     return true;
   };
 
@@ -407,22 +460,22 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     small.clear();
     const auto limit = static_cast<size_t>(params.min_fragment_tets);
     if (limit == 0 || static_cast<size_t>(num_tets()) < 4 * limit) return small;
-    flood_done_.Clear();
+    tet_marks_.Clear(kFloodDone);
     for (const Split& sp : ev.splits) {
       for (const int32_t start : sp.tets) {
-        if (flood_done_.Contains(start)) continue;
+        if (tet_marks_.Contains(kFloodDone, start)) continue;
         std::vector<int32_t>& comp = flood_;
         comp.assign(1, start);
-        in_flood_.Clear();
-        in_flood_.Insert(start);
+        tet_marks_.Clear(kInFlood);
+        tet_marks_.Insert(kInFlood, start);
         for (size_t i = 0; i < comp.size() && comp.size() < limit; ++i) {
           const int32_t t = comp[i];
           for (int f = 0; f < 4; ++f) {
             const int32_t u = neighbour_[Idx(t)][Idx(f)];
-            if (u >= 0 && in_flood_.Insert(u)) comp.push_back(u);
+            if (u >= 0 && tet_marks_.Insert(kInFlood, u)) comp.push_back(u);
           }
         }
-        for (const int32_t t : comp) flood_done_.Insert(t);
+        for (const int32_t t : comp) tet_marks_.Insert(kFloodDone, t);
         if (comp.size() < limit) small.insert(small.end(), comp.begin(), comp.end());
       }
     }
@@ -433,15 +486,15 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     const std::vector<int32_t>& fragments = find_fragments();
     if (fragments.empty()) break;
     size_t newly = 0;
-    for (const int32_t t : fragments) newly += flipped_.Insert(t) ? 1 : 0;
+    for (const int32_t t : fragments) newly += tet_marks_.Insert(kFlipped, t) ? 1 : 0;
     if (newly == 0) break;  // flipping again would undo a flip: keep this result
     Rollback(journal_mark, n0);
     ev = TopologyEvent{};  // W reads `ev` by reference: copies are gone again
-    side_known_.Clear();
-    plane_done_.Clear();
+    tet_marks_.Clear(kSideKnown);
+    node_marks_.Clear(internal::kPlaneDone);
     work_.clear();
     work_head = 0;
-    queued_.Clear();
+    node_marks_.Clear(internal::kQueued);
     separated = separate();
   }
   if (!separated) {
@@ -456,7 +509,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
 
   // ---- 5. local remeshing -----------------------------------------------------
   auto move_group = [&](int32_t node, const Vector3d& target) {
-    const std::vector<int32_t> group = Twins(node, W);
+    std::vector<int32_t>& group = move_twins_;
+    TwinsInto(node, W, group);
     const Vector3d x_old = W.Get(node);
     const Vector3d u_old = rest_[Idx(node)];
     if (!((target - x_old).norm() > 1e-12 * h)) return;
@@ -481,18 +535,24 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     Vector3d u_target = u_old;
     std::vector<int32_t>& search = search_;
     search.assign(star.begin(), star.end());
-    in_search_.Clear();
-    for (const int32_t t : star) in_search_.Insert(t);
+    tet_marks_.Clear(kInSearch);
+    for (const int32_t t : star) tet_marks_.Insert(kInSearch, t);
     bool ring_added = false;
     for (size_t i = 0;; ++i) {
       if (i == search.size()) {  // the star is done: add its neighbours
         if (ring_added) break;
         ring_added = true;
         const bool prune = best_score >= 0.0;
+        // Each corner's star once (a corner is in ~6 star tets); the group's
+        // own stars are the star itself. The order of `search` does not
+        // matter: the best score wins, ties go to the lowest id.
+        node_marks_.Clear(internal::kRingNode);
+        for (const int32_t g : group) node_marks_.Insert(internal::kRingNode, g);
         for (const int32_t st : star) {
           for (const int32_t a : tets_[Idx(st)]) {
+            if (!node_marks_.Insert(internal::kRingNode, a)) continue;
             for (const int32_t u : node_tets_[Idx(a)]) {
-              if (!in_search_.Insert(u)) continue;
+              if (!tet_marks_.Insert(kInSearch, u)) continue;
               if (prune) {
                 const auto& un = tets_[Idx(u)];
                 Vector3d lo = W.Get(un[0]), hi = lo;
@@ -542,7 +602,10 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       return p;
     };
     auto quality = [](const std::array<Vector3d, 4>& p) { return mesh::MeanRatio(p[0], p[1], p[2], p[3]); };
-    std::vector<double> q_rest, q_world;
+    std::vector<double>& q_rest = q_rest_;
+    std::vector<double>& q_world = q_world_;
+    q_rest.clear();
+    q_world.clear();
     for (const int32_t t : star) {
       q_rest.push_back(quality(corners(t, true, nullptr)));
       q_world.push_back(quality(corners(t, false, nullptr)));
