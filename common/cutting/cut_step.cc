@@ -29,15 +29,13 @@ class StepWorld final : public WorldAccess {
     if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
   }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
+    // Fast path (most reads: a node that existed before the step, nothing
+    // moved yet): the cached FEM position.
+    if (moved_.empty() && node < base_nodes_) return Cached(node);
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
     if (const Vector3d* x = Find(node)) return *x;
-    internal::NodeScratch& c = cache_[static_cast<size_t>(node)];
-    if (c.x_generation != generation_) {
-      c.x = base_.Get(node);
-      c.x_generation = generation_;
-    }
-    return c.x;
+    return Cached(node);
   }
   void Set(int32_t node, const Vector3d& x) override {
     for (auto& [k, v] : moved_) {
@@ -57,6 +55,14 @@ class StepWorld final : public WorldAccess {
   uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
+  [[nodiscard]] const Vector3d& Cached(int32_t node) const {
+    internal::NodeScratch& c = cache_[static_cast<size_t>(node)];
+    if (c.x_generation != generation_) [[unlikely]] {
+      c.x = base_.Get(node);
+      c.x_generation = generation_;
+    }
+    return c.x;
+  }
   [[nodiscard]] const Vector3d* Find(int32_t node) const {
     for (const auto& [k, v] : moved_)
       if (k == node) return &v;
@@ -516,8 +522,10 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     if (!((target - x_old).norm() > 1e-12 * h)) return;
     std::vector<int32_t> star;
     for (const int32_t g : group) star.insert(star.end(), node_tets_[Idx(g)].begin(), node_tets_[Idx(g)].end());
-    std::sort(star.begin(), star.end());
-    star.erase(std::unique(star.begin(), star.end()), star.end());
+    if (group.size() > 1) {  // one node's tets are sorted and unique already
+      std::sort(star.begin(), star.end());
+      star.erase(std::unique(star.begin(), star.end()), star.end());
+    }
     // Rest preimage of the target: barycentric coordinates in the world tet
     // (star and its neighbours) that contains it best, mapped to rest.
     // Ties go to the lowest tet id, as a scan in ascending order keeping the
