@@ -56,9 +56,9 @@ int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
   // Search the smallest of the three stars (a just-made copy's, often): a
   // face has at most two tets, so every star finds the same mate.
-  if (node_tets_[Idx(b)].size() < node_tets_[Idx(a)].size()) std::swap(a, b);
-  if (node_tets_[Idx(c)].size() < node_tets_[Idx(a)].size()) std::swap(a, c);
-  for (const int32_t u : node_tets_[Idx(a)]) {
+  if (star_block_[Idx(b)].size < star_block_[Idx(a)].size) std::swap(a, b);
+  if (star_block_[Idx(c)].size < star_block_[Idx(a)].size) std::swap(a, c);
+  for (const int32_t u : Star(a)) {
     if (u == t) continue;
     const auto& m = tets_[Idx(u)];
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
@@ -85,20 +85,35 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   const int32_t n = mesh.num_nodes();
   const int32_t cap = std::max(n, node_capacity > 0 ? node_capacity : 2 * n);
   rest_.reserve(Idx(cap));
-  node_tets_.reserve(Idx(cap));
+  star_block_.reserve(Idx(cap));
   origin_.reserve(Idx(cap));
   for (int32_t i = 0; i < n; ++i) {
     rest_.emplace_back(mesh.nodes.row(i).transpose());
     origin_.push_back(i);
   }
-  node_tets_.resize(Idx(n));
+  star_block_.resize(Idx(n));
   tets_.resize(Idx(mesh.num_tets()));
   for (int32_t t = 0; t < mesh.num_tets(); ++t) {
     for (int c = 0; c < 4; ++c) {
       const int32_t v = mesh.tets(t, c);
       CUTSIM_CHECK(v >= 0 && v < n, "tet node out of range (validate the mesh first)");
       tets_[Idx(t)][Idx(c)] = v;
-      node_tets_[Idx(v)].push_back(t);  // ascending since t ascends
+      ++star_block_[Idx(v)].capacity;
+    }
+  }
+  // Blocks in node order, each as large as the node's uncut star (a node
+  // only loses tets to its copies; a rollback gives them back).
+  int32_t offset = 0;
+  for (StarBlock& b : star_block_) {
+    b.begin = offset;
+    offset += b.capacity;
+  }
+  star_pool_.reserve(Idx(offset) + Idx(offset) / 4);
+  star_pool_.resize(Idx(offset));
+  for (int32_t t = 0; t < num_tets(); ++t) {
+    for (const int32_t v : tets_[Idx(t)]) {
+      StarBlock& b = star_block_[Idx(v)];
+      star_pool_[Idx(b.begin + b.size++)] = t;  // ascending since t ascends
     }
   }
   copies_.resize(Idx(n));
@@ -139,7 +154,7 @@ std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const 
   std::array<int32_t, 2> out{-1, -1};
   if (a < 0 || a >= num_nodes()) return out;
   int k = 0;
-  for (const int32_t u : node_tets_[Idx(a)]) {
+  for (const int32_t u : Star(a)) {
     const auto& m = tets_[Idx(u)];
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
     const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
@@ -186,7 +201,7 @@ std::array<int32_t, 3> CutMesh::SurfaceTriangle(int32_t slot) const {
 
 std::vector<int32_t> CutMesh::ContactElements(int32_t node, int32_t facet_tet) const {
   std::vector<int32_t> out;
-  if (node >= 0 && node < num_nodes()) out = node_tets_[Idx(node)];
+  if (node >= 0 && node < num_nodes()) out.assign(Star(node).begin(), Star(node).end());
   if (facet_tet >= 0 && facet_tet < num_tets() && !std::binary_search(out.begin(), out.end(), facet_tet)) {
     out.insert(std::lower_bound(out.begin(), out.end(), facet_tet), facet_tet);
   }
@@ -270,22 +285,55 @@ void CutMesh::AddFaceTet(int32_t t, int f, bool opened_if_boundary) {
   slot_[Idx(u)][Idx(fu)] = -1;
 }
 
-int32_t CutMesh::AddNodeCopy(int32_t node) {
+int32_t CutMesh::AddNodeCopy(int32_t node, int32_t star_capacity) {
   const Eigen::Vector3d r = rest_[Idx(node)];
   const int32_t o = origin_[Idx(node)];
   rest_.push_back(r);
   origin_.push_back(o);
-  node_tets_.emplace_back();
+  const auto begin = static_cast<int32_t>(star_pool_.size());
+  star_capacity = std::max(star_capacity, 1);
+  star_pool_.resize(star_pool_.size() + Idx(star_capacity));
+  star_block_.push_back(StarBlock{begin, 0, star_capacity});
   copies_[Idx(o)].push_back(num_nodes() - 1);
   return num_nodes() - 1;
 }
 
 void CutMesh::RemoveLastNode() {
-  CUTSIM_CHECK(node_tets_.back().empty(), "removing a node still in use");
+  const StarBlock b = star_block_.back();
+  CUTSIM_CHECK(b.size == 0, "removing a node still in use");
   copies_[Idx(origin_.back())].pop_back();
   rest_.pop_back();
   origin_.pop_back();
-  node_tets_.pop_back();
+  star_block_.pop_back();
+  // A rolled-back copy's block is usually the pool's last: give it back.
+  if (Idx(b.begin + b.capacity) == star_pool_.size()) star_pool_.resize(Idx(b.begin));
+}
+
+void CutMesh::StarInsert(int32_t node, int32_t t) {
+  StarBlock& b = star_block_[Idx(node)];
+  if (b.size == b.capacity) [[unlikely]] {  // move the block to the pool's end, twice as large
+    const auto begin = static_cast<int32_t>(star_pool_.size());
+    const int32_t capacity = std::max(4, 2 * b.capacity);
+    star_pool_.resize(star_pool_.size() + Idx(capacity));
+    std::copy_n(star_pool_.begin() + b.begin, b.size, star_pool_.begin() + begin);
+    b.begin = begin;
+    b.capacity = capacity;
+  }
+  int32_t* first = star_pool_.data() + b.begin;
+  int32_t* last = first + b.size;
+  int32_t* at = std::upper_bound(first, last, t);
+  std::copy_backward(at, last, last + 1);
+  *at = t;
+  ++b.size;
+}
+
+void CutMesh::StarErase(int32_t node, int32_t t) {
+  StarBlock& b = star_block_[Idx(node)];
+  int32_t* first = star_pool_.data() + b.begin;
+  int32_t* last = first + b.size;
+  int32_t* at = std::lower_bound(first, last, t);
+  std::copy(at + 1, last, at);
+  --b.size;
 }
 
 void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
@@ -298,11 +346,9 @@ void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
   std::array<bool, 4> opened{};
   for (int f = 0; f < 4; ++f)
     if (f != corner) opened[Idx(f)] = RemoveFaceTet(t, f);
-  auto& from_tets = node_tets_[Idx(from)];
-  from_tets.erase(std::lower_bound(from_tets.begin(), from_tets.end(), t));
+  StarErase(from, t);
   n[Idx(corner)] = to;
-  auto& to_tets = node_tets_[Idx(to)];
-  to_tets.insert(std::upper_bound(to_tets.begin(), to_tets.end(), t), t);
+  StarInsert(to, t);
   for (int f = 0; f < 4; ++f)
     if (f != corner) AddFaceTet(t, f, opened[Idx(f)]);
   if (journaling_) journal_.push_back(Op{t, from, to});
@@ -324,7 +370,7 @@ int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, Topolog
   // Why no face can get a third tet: the copy only ever receives tets that
   // used `node`, so two tets sharing a face with the copy shared the same
   // face with `node` before, and that face had at most two tets.
-  const int32_t copy = AddNodeCopy(node);
+  const int32_t copy = AddNodeCopy(node, static_cast<int32_t>(moved.size()));
   Split split;
   split.node = node;
   split.new_node = copy;
@@ -369,7 +415,7 @@ int32_t RelabelRoots(std::vector<int32_t>& parent, std::vector<int32_t>& labels,
 }  // namespace
 
 int32_t CutMesh::StarGroups(int32_t node) {
-  const auto& star = node_tets_[Idx(node)];
+  const std::span<const int32_t> star = Star(node);
   ds_parent_.resize(star.size());
   std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
   for (size_t i = 0; i < star.size(); ++i) {
@@ -397,7 +443,7 @@ int32_t CutMesh::StarGroups(int32_t node) {
 bool CutMesh::StarIsOneGroup(int32_t node) {
   // Flood over the faces through `node` from the first tet of its star; a
   // tet across such a face holds the face, hence the node: it is in the star.
-  const auto& star = node_tets_[Idx(node)];
+  const std::span<const int32_t> star = Star(node);
   if (star.size() <= 1) return true;
   tet_marks_.Clear(kInStar);
   tet_marks_.Insert(kInStar, star[0]);
@@ -415,8 +461,8 @@ bool CutMesh::StarIsOneGroup(int32_t node) {
 }
 
 int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {
-  const auto& sa = node_tets_[Idx(a)];
-  const auto& sb = node_tets_[Idx(b)];
+  const std::span<const int32_t> sa = Star(a);
+  const std::span<const int32_t> sb = Star(b);
   around_.clear();
   std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around_));
   if (around_.size() <= 1) return static_cast<int>(around_.size());
@@ -442,7 +488,7 @@ bool CutMesh::SurfaceManifoldAt(int32_t node) const {
   // fan is exactly one cycle: every link vertex has one out- and one in-edge.
   auto& link = link_;
   link.clear();
-  for (const int32_t t : node_tets_[Idx(node)]) {
+  for (const int32_t t : Star(node)) {
     const auto& n = tets_[Idx(t)];
     const auto& nb = neighbour_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
@@ -560,7 +606,7 @@ void CutMesh::ApplyEvent(const TopologyEvent& event) {
                   std::to_string(s.new_node) + ", expected new node " + std::to_string(num_nodes()) + ")";
       break;
     }
-    AddNodeCopy(s.node);
+    AddNodeCopy(s.node, static_cast<int32_t>(s.tets.size()));
     for (const int32_t t : s.tets) {
       const bool uses = t >= 0 && t < num_tets() &&
                         std::find(tets_[Idx(t)].begin(), tets_[Idx(t)].end(), s.node) != tets_[Idx(t)].end();

@@ -160,8 +160,8 @@ class CutMesh {
   [[nodiscard]] uint64_t version() const { return version_; }
   [[nodiscard]] const Eigen::Vector3d& rest(int32_t node) const { return rest_[Idx(node)]; }
   [[nodiscard]] const std::array<int32_t, 4>& tet(int32_t t) const { return tets_[Idx(t)]; }
-  /// Tets using `node`, ascending.
-  [[nodiscard]] const std::vector<int32_t>& node_tets(int32_t node) const { return node_tets_[Idx(node)]; }
+  /// Tets using `node`, ascending. Valid until the next topology change.
+  [[nodiscard]] std::span<const int32_t> node_tets(int32_t node) const { return Star(node); }
   /// The uncut-mesh node this one descends from (itself for original nodes).
   [[nodiscard]] int32_t origin(int32_t node) const { return origin_[Idx(node)]; }
   /// Tets sharing the face {a, b, c}: {t0, t1} with −1 for none.
@@ -284,6 +284,13 @@ class CutMesh {
   using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
+  [[nodiscard]] std::span<const int32_t> Star(int32_t node) const {
+    const StarBlock& b = star_block_[Idx(node)];
+    return {star_pool_.data() + b.begin, Idx(b.size)};
+  }
+  /// Inserts `t` into the star of `node` (sorted), erases it.
+  void StarInsert(int32_t node, int32_t t);
+  void StarErase(int32_t node, int32_t t);
   /// Twins into a reused buffer (no allocation once warm).
   void TwinsInto(int32_t node, const WorldAccess& world, std::vector<int32_t>& out) const;
   /// The tet other than `t` holding the face of t opposite corner f
@@ -292,7 +299,8 @@ class CutMesh {
   /// Local face of `u` whose nodes are those of local face f of t.
   [[nodiscard]] int MatchingFace(int32_t u, int32_t t, int f) const;
 
-  int32_t AddNodeCopy(int32_t node);
+  /// A copy of `node` with room for `star_capacity` tets.
+  int32_t AddNodeCopy(int32_t node, int32_t star_capacity = 4);
   void RemoveLastNode();
   void RetargetTet(int32_t t, int32_t from, int32_t to);
   /// Attaches local face f of t (just re-pointed) to its mate or the surface.
@@ -328,7 +336,16 @@ class CutMesh {
   // cut step's main cost, issue 4).
   std::vector<std::array<int32_t, 4>> neighbour_;  // #T×4
   std::vector<std::array<int32_t, 4>> slot_;       // #T×4
-  std::vector<std::vector<int32_t>> node_tets_;  // #N, ascending tet ids
+  // Node → its tets, ascending: one pool with a block per node (CSR with
+  // slack) instead of a vector per node, so a node's star is one load away
+  // from its block record and the stars of nodes with nearby ids lie
+  // nearby (a cut step walks a few dozen neighbouring nodes' stars). A
+  // block that outgrows its capacity moves to the end of the pool.
+  struct StarBlock {
+    int32_t begin = 0, size = 0, capacity = 0;
+  };
+  std::vector<StarBlock> star_block_;            // #N
+  std::vector<int32_t> star_pool_;
   std::vector<int32_t> origin_;                  // #N
   std::vector<std::vector<int32_t>> copies_;     // #N_uncut: origin → its copies, ascending
   std::vector<SurfaceFace> surface_;

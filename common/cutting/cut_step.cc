@@ -80,7 +80,7 @@ int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vect
   if (!(s1.norm() > 0.0)) return -1;
   int32_t best = -1;
   double best_cos = -2.0;
-  for (const int32_t t : node_tets_[Idx(v1)]) {
+  for (const int32_t t : Star(v1)) {
     const auto& tn = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
       if (tn[Idx(f)] == v1 || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v1
@@ -135,7 +135,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   // Local element size: mean world edge length around v1.
   double h = 0.0;
   int edges = 0;
-  for (const int32_t t : node_tets_[Idx(step.v1)]) {
+  for (const int32_t t : Star(step.v1)) {
     for (const int32_t a : tets_[Idx(t)]) {
       if (a == step.v1) continue;
       h += (W.Get(a) - x1).norm();
@@ -242,7 +242,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
         const int32_t u = slab_queue_[head];
-        for (const int32_t t : node_tets_[Idx(u)]) {
+        for (const int32_t t : Star(u)) {
           if (!tet_marks_.Insert(kSlab, t)) continue;
           for (const int32_t w : tets_[Idx(t)]) {
             if (!node_marks_.Insert(internal::kSeen, w)) continue;
@@ -335,7 +335,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     std::vector<int32_t>& negative = negative_;
     negative.clear();
     bool has_positive = false;
-    for (const int32_t t : node_tets_[Idx(w)]) {
+    for (const int32_t t : Star(w)) {
       if (side(t) < 0) {
         negative.push_back(t);
       } else {
@@ -345,7 +345,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     if (negative.empty() || !has_positive) return false;
     SplitNode(w, negative, &ev);
     enqueue_tets(negative);
-    enqueue_tets(node_tets_[Idx(w)]);
+    enqueue_tets(Star(w));
     return true;
   };
 
@@ -367,7 +367,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       // candidate: nothing to do (about a third of the vertices queued).
       std::vector<int32_t>& nbrs = nbrs_;
       nbrs.clear();
-      for (const int32_t t : node_tets_[Idx(v)]) {
+      for (const int32_t t : Star(v)) {
         const auto& tn = tets_[Idx(t)];
         for (int f = 0; f < 4; ++f) {
           if (tn[Idx(f)] == v || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v
@@ -394,7 +394,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
           SplitNode(v, group, &ev);
           enqueue_tets(group);
         }
-        enqueue_tets(node_tets_[Idx(v)]);
+        enqueue_tets(Star(v));
         continue;
       }
       // Edge rule: parts around an edge joined only through the edge. The
@@ -521,7 +521,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     const Vector3d u_old = rest_[Idx(node)];
     if (!((target - x_old).norm() > 1e-12 * h)) return;
     std::vector<int32_t> star;
-    for (const int32_t g : group) star.insert(star.end(), node_tets_[Idx(g)].begin(), node_tets_[Idx(g)].end());
+    for (const int32_t g : group) star.insert(star.end(), Star(g).begin(), Star(g).end());
     if (group.size() > 1) {  // one node's tets are sorted and unique already
       std::sort(star.begin(), star.end());
       star.erase(std::unique(star.begin(), star.end()), star.end());
@@ -559,7 +559,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         for (const int32_t st : star) {
           for (const int32_t a : tets_[Idx(st)]) {
             if (!node_marks_.Insert(internal::kRingNode, a)) continue;
-            for (const int32_t u : node_tets_[Idx(a)]) {
+            for (const int32_t u : Star(a)) {
               if (!tet_marks_.Insert(kInSearch, u)) continue;
               if (prune) {
                 const auto& un = tets_[Idx(u)];
@@ -671,7 +671,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     ev.touched_nodes.push_back(s.new_node);
   }
   for (const Move& mv : ev.moves)
-    ev.touched_tets.insert(ev.touched_tets.end(), node_tets_[Idx(mv.node)].begin(), node_tets_[Idx(mv.node)].end());
+    ev.touched_tets.insert(ev.touched_tets.end(), Star(mv.node).begin(), Star(mv.node).end());
   for (auto* v : {&ev.touched_tets, &ev.touched_nodes}) {
     std::sort(v->begin(), v->end());
     v->erase(std::unique(v->begin(), v->end()), v->end());

@@ -36,7 +36,7 @@ TEST(CutMesh, ContactElementsAreTheStarOfTheClosestVertexPlusTheFacetTet) {
   const mesh::TetMesh m = Box();
   const CutMesh cm(m);
   const int32_t v = 0;
-  std::vector<int32_t> expect = cm.node_tets(v);
+  std::vector<int32_t> expect(cm.node_tets(v).begin(), cm.node_tets(v).end());
   EXPECT_EQ(cm.ContactElements(v), expect);
   const int32_t other = cm.num_tets() - 1;
   expect.push_back(other);
