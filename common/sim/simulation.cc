@@ -279,6 +279,23 @@ class Engine final : public Simulation {
 
   Eigen::Matrix3d ContactStiffness() const override {
     if (!facet_.touching) return Eigen::Matrix3d::Zero();
+    if (grip_.active) {
+      // The edge spring acts across the blade, K = k·(I − d dᵀ); in series
+      // with the tissue's stiffness along the stretch (or, unloaded, along
+      // the facet normal's part across the blade).
+      const Eigen::Vector3d d = pose_.blade_dir;
+      Eigen::Vector3d u = grip_.stretch;
+      if (u.norm() <= 1e-12 * (1.0 + indent_limit_)) u = facet_.normal - facet_.normal.dot(d) * d;
+      const double u_len = u.norm();
+      if (!(u_len > 0)) return Eigen::Matrix3d::Zero();
+      u /= u_len;
+      double k_tissue = 0;
+      for (int i = 0; i < 3; ++i) k_tissue += grip_.bary[i] * NodeNormalStiffness(grip_.nodes[static_cast<size_t>(i)], u);
+      k_tissue = std::max(k_tissue, 0.0);
+      const double k = contact_stiffness_;
+      const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
+      return k_eff * (Eigen::Matrix3d::Identity() - d * d.transpose());
+    }
     // Local tissue stiffness along n: Σ bᵢ nᵀKᵢᵢn, Kᵢᵢ = −∂fᵢ/∂xᵢ from central
     // differences of the incident element forces (current state, StVK).
     const Eigen::Vector3d n = facet_.normal;
@@ -525,6 +542,7 @@ class Engine final : public Simulation {
     contact_stiffness_ = tool.contact_stiffness() > 0 ? tool.contact_stiffness() : E * mean_edge_;
     contact_damping_ = tool.contact_damping();
     indent_limit_ = 0.5 * mean_edge_;
+    grip_limit_ = mean_edge_;
     if (blade_length_ <= 0) blade_length_ = 2.0 * mean_edge_;
     report_.present = true;
     if (path_.empty()) {
@@ -788,6 +806,7 @@ class Engine final : public Simulation {
                               mean_edge_, hits_scratch_, box_scratch_, debris_facet_, in_cut_);
     if (!facet_.touching) in_cut_ = false;  // the blade left the tissue (see tool_contact.h)
     if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
+    UpdateGrip();
     report_.touching = facet_.touching;
     report_.pose = pose_;
     report_.point = facet_.point;
@@ -796,6 +815,32 @@ class Engine final : public Simulation {
     if (!facet_.touching) report_.force_on_tool.setZero();
   }
 
+  /// Edge coupling (tool_contact.h): the blade is inside once the contact
+  /// point is more than the indentation limit up the blade from its tip.
+  /// A grip from an older topology is released (a cut: the tissue gave
+  /// way, the spring restarts unloaded at the new crossing); one whose
+  /// tissue end drifted more than half the limit from its material point
+  /// moves to the current crossing, keeping its world point.
+  void UpdateGrip() {
+    const bool inside = facet_.touching && (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
+    if (!inside) {
+      grip_.active = false;
+      return;
+    }
+    const uint64_t version = model_.topology_version();
+    if (!grip_.active || grip_.topology_version != version) {
+      grip_ = MakeGrip(facet_, facet_.point, version);
+    } else if (grip_.offset.norm() > 0.5 * grip_limit_) {
+      const auto& nd = grip_.nodes;
+      grip_ = MakeGrip(facet_, GripPoint(grip_, NodeX(nd[0]), NodeX(nd[1]), NodeX(nd[2])), version);
+    }
+    facet_.depth = 0.0;  // no tip penalty inside: the edge carries the load
+  }
+
+  /// Nodes and weights the contact force goes to this frame.
+  const std::array<int32_t, 3>& ForceNodes() const { return grip_.active ? grip_.nodes : facet_.nodes; }
+  const Eigen::Vector3d& ForceWeights() const { return grip_.active ? grip_.bary : facet_.bary; }
+
   Eigen::Vector3d NodeX(int32_t n) const {
     const size_t i = 3 * static_cast<size_t>(n);
     return {static_cast<double>(state_.x[i]), static_cast<double>(state_.x[i + 1]),
@@ -803,17 +848,29 @@ class Engine final : public Simulation {
   }
 
   void ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity) {
-    const auto& nd = facet_.nodes;
-    const Eigen::Vector3d F = PenaltyForce(facet_, NodeX(nd[0]), NodeX(nd[1]), NodeX(nd[2]), tip,
-                                           tool_velocity, contact_stiffness_, contact_damping_, indent_limit_);
+    const auto& nd = ForceNodes();
+    const Eigen::Vector3d x0 = NodeX(nd[0]), x1 = NodeX(nd[1]), x2 = NodeX(nd[2]);
+    Eigen::Vector3d F;
+    if (grip_.active) {
+      F = EdgeGripForce(grip_, x0, x1, x2, tip, pose_.blade_dir, contact_stiffness_, grip_limit_);
+      facet_.point = facet_.bary[0] * NodeX(facet_.nodes[0]) + facet_.bary[1] * NodeX(facet_.nodes[1]) +
+                     facet_.bary[2] * NodeX(facet_.nodes[2]);
+    } else {
+      F = PenaltyForce(facet_, x0, x1, x2, tip, tool_velocity, contact_stiffness_, contact_damping_, indent_limit_);
+    }
+    const Eigen::Vector3d& w = ForceWeights();
     for (int i = 0; i < 3; ++i) {
       const size_t b = 3 * static_cast<size_t>(nd[static_cast<size_t>(i)]);
-      for (int k = 0; k < 3; ++k) state_.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(facet_.bary[i] * F[k]);
+      for (int k = 0; k < 3; ++k) state_.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(w[i] * F[k]);
     }
+    applied_nodes_ = nd;
     report_.force_on_tool = -F;
-    report_.depth = facet_.depth;
+    report_.depth = grip_.active ? grip_.stretch.norm() : facet_.depth;
     report_.point = facet_.point;
-    report_.normal = facet_.normal;
+    // The haptic side renders unilaterally along this direction: the push
+    // on the tool (against the blade's sideways motion when gripping).
+    const double f = F.norm();
+    report_.normal = grip_.active && f > 0 ? Eigen::Vector3d(-F / f) : facet_.normal;
   }
 
   /// The penalty spring is stiffness the FEM's stable-step estimate does
@@ -828,8 +885,8 @@ class Engine final : public Simulation {
     double w2 = 0;
     double damper_limit = std::numeric_limits<double>::infinity();
     for (int i = 0; i < 3; ++i) {
-      const double b = facet_.bary[i];
-      const double m = static_cast<double>(model_.node_mass(facet_.nodes[static_cast<size_t>(i)]));
+      const double b = ForceWeights()[i];
+      const double m = static_cast<double>(model_.node_mass(ForceNodes()[static_cast<size_t>(i)]));
       if (!(m > 0) || b <= 0) continue;
       w2 += contact_stiffness_ * b * b / m;
       if (contact_damping_ > 0) damper_limit = std::min(damper_limit, m / (contact_damping_ * b));
@@ -841,10 +898,11 @@ class Engine final : public Simulation {
   }
 
   void ClearContactForce() {
-    if (!facet_.touching) return;
-    for (const int32_t n : facet_.nodes) {
+    for (const int32_t n : applied_nodes_) {
+      if (n < 0) continue;
       for (int k = 0; k < 3; ++k) state_.f_ext[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] = T(0);
     }
+    applied_nodes_ = {-1, -1, -1};
   }
 
   /// nᵀKᵢᵢn for one node: central differences of its incident element forces.
@@ -1006,7 +1064,8 @@ class Engine final : public Simulation {
   double blade_length_ = 0;        // m
   double contact_stiffness_ = 0;   // N/m
   double contact_damping_ = 0;     // N·s/m
-  double indent_limit_ = 0;        // m
+  double indent_limit_ = 0;        // m, tip penalty cap (and the depth at which the blade is inside)
+  double grip_limit_ = 0;          // m, edge-grip stretch cap (tool_contact.h)
   double mean_edge_ = 0;           // m
   mesh::Positions world_;          // #N_cap×3 double copy for the BVH (first #N rows current)
   // Surface by slot (cutting: CutMesh surface slots, stable ids; else the
@@ -1030,6 +1089,8 @@ class Engine final : public Simulation {
   std::vector<mesh::SegmentHit> hits_scratch_;
   std::vector<int32_t> box_scratch_;
   ContactFacet facet_;
+  EdgeGrip grip_;                                  // the blade's hold on tissue it is inside
+  std::array<int32_t, 3> applied_nodes_{-1, -1, -1};  // nodes holding a contact force in f_ext
   ToolReport report_;
 
   // Cutting (absent without `cutting.enabled`).

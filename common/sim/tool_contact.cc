@@ -111,7 +111,13 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     if (!facet.ok || facet.n.dot(blade_dir) <= kFacingCosine) continue;
     const mesh::ClosestPointHit hit = mesh::ClosestPointOnTriangle(tip, facet.p0, facet.p1, facet.p2);
     if (hit.distance > near_radius || hit.distance >= best_distance) continue;
-    if ((hit.point - tip).dot(facet.n) <= 0.0) continue;  // tip above this facet
+    const Eigen::Vector3d to_facet = hit.point - tip;
+    const double below = to_facet.dot(facet.n);
+    if (below <= 0.0) continue;  // tip above this facet
+    // Straight under it: the closest point is the projection along n. A tip
+    // behind the plane of a slanted facet but outside the body, beside a
+    // ridge, has its closest point on the facet's border instead.
+    if ((to_facet - below * facet.n).norm() > 1e-6 * near_radius) continue;
     best_distance = hit.distance;
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }
@@ -161,6 +167,36 @@ Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, con
   const double vn = approach_velocity.dot(facet.normal);  // < 0: tool moving inward
   const double push = stiffness * facet.depth + damping * std::max(0.0, -vn);
   return -push * facet.normal;
+}
+
+EdgeGrip MakeGrip(const ContactFacet& facet, const Eigen::Vector3d& hold, uint64_t topology_version) {
+  EdgeGrip grip;
+  grip.active = true;
+  grip.nodes = facet.nodes;
+  grip.bary = facet.bary;
+  grip.offset = hold - facet.point;
+  grip.topology_version = topology_version;
+  return grip;
+}
+
+Eigen::Vector3d GripPoint(const EdgeGrip& grip, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                          const Eigen::Vector3d& x2) {
+  return grip.bary[0] * x0 + grip.bary[1] * x1 + grip.bary[2] * x2 + grip.offset;
+}
+
+Eigen::Vector3d EdgeGripForce(EdgeGrip& grip, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                              const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
+                              const Eigen::Vector3d& blade_dir, double stiffness, double limit) {
+  const Eigen::Vector3d to_blade = tip - GripPoint(grip, x0, x1, x2);
+  Eigen::Vector3d e = to_blade - to_blade.dot(blade_dir) * blade_dir;  // across the blade only
+  const double len = e.norm();
+  if (len > limit) {
+    const Eigen::Vector3d capped = e * (limit / len);
+    grip.offset += e - capped;  // the tissue end slides after the blade
+    e = capped;
+  }
+  grip.stretch = e;
+  return stiffness * e;  // pulls the gripped tissue toward the blade
 }
 
 }  // namespace cutsim::sim

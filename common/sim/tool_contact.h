@@ -13,7 +13,9 @@
 ///   far side of the body are therefore never taken for the touched face.
 ///   Without a crossing the tip may still be just under a facet (the blade
 ///   pressed flat): the facing facet nearest to the tip within one mean
-///   edge length counts too.
+///   edge length counts too, if the tip lies straight under it (its
+///   closest point on the facet is its projection along the normal; a tip
+///   behind the plane of a slanted facet beside a ridge is outside).
 /// - Only tissue the blade can push counts: facets flagged in `ignored`
 ///   (the sim flags those of debris, pieces cut loose with less than 1% of
 ///   the body's mass) are passed through. A penalty force sized for the
@@ -39,6 +41,28 @@
 ///   followed the deformed facet was a follower force, with geometric
 ///   stiffness k·δ/ℓ that no step estimate saw, and it blew up a block
 ///   pushed on its corner edge (bench/README.md, stability suite).
+/// - Edge coupling of a blade inside the tissue. The penalty above is the
+///   tip pressing on a face. Once the contact point is more than the
+///   indentation limit up the blade from the tip ((C_p − tip)·d > limit:
+///   the tip went through the surface, or the blade stands in its own
+///   cut), the blade is *inside* and what loads the tissue is its edge
+///   drawn sideways, not its tip: (C_p − tip)·n then measured the slant of
+///   the crossed facet, flipped between 0 and the cap from frame to frame
+///   and pushed along the facet normal whatever way the blade moved.
+///   Inside, the blade grips the tissue where it crosses the surface
+///   (EdgeGrip: a material point Σbᵢxᵢ of the facet plus a world offset)
+///   with a spring of the same k acting only across the blade,
+///   e = (I − d dᵀ)(tip − A): the blade slides freely along itself, and
+///   the tissue is pushed along the blade's sideways motion. The stretch
+///   is capped at the indentation limit: beyond it the gripped point
+///   slides after the blade (the offset takes up the excess), so the force
+///   stays k·limit along the motion while the blade is drawn through
+///   uncut tissue (a steady cutting resistance) and falls back as the
+///   blade returns. A cut releases the grip (the tissue gave way: the
+///   force drops and the haptic side renders the decay); the grip is
+///   re-taken at the new crossing. When the offset exceeds half the limit
+///   the grip moves to the current crossing, keeping its world point, so
+///   the force stays continuous and acts on the facet at the blade.
 /// - The haptic stiffness is derived from the FEM, not a constant (see
 ///   Simulation::ContactStiffness): the tissue's local stiffness at the
 ///   contact k_t = nᵀ(Σ bᵢ Kᵢᵢ)n, Kᵢᵢ the 3×3 diagonal tangent blocks of the
@@ -67,6 +91,33 @@ struct ContactFacet {
   double depth = 0.0;                                 ///< δ ≥ 0, m
   int32_t closest_node = -1;                          ///< v_c: facet node nearest to C_p
 };
+
+/// The blade's grip on the tissue it is inside (file comment, edge coupling).
+struct EdgeGrip {
+  bool active = false;
+  std::array<int32_t, 3> nodes{-1, -1, -1};           ///< Gripped facet's nodes.
+  Eigen::Vector3d bary = Eigen::Vector3d::Zero();     ///< Material point on the facet.
+  Eigen::Vector3d offset = Eigen::Vector3d::Zero();   ///< Spring's tissue end − Σbᵢxᵢ, world, m.
+  Eigen::Vector3d stretch = Eigen::Vector3d::Zero();  ///< Last capped e (⟂ blade), m.
+  uint64_t topology_version = 0;                      ///< Mesh version the nodes belong to.
+};
+
+/// Grips `facet` (its nodes, barycentrics and current point C_p) so that
+/// the spring's tissue end is at `hold` (world, m): hold = C_p starts
+/// unloaded, hold = the previous grip's end keeps the force continuous.
+EdgeGrip MakeGrip(const ContactFacet& facet, const Eigen::Vector3d& hold, uint64_t topology_version);
+
+/// World position of the grip's tissue end for the current node positions.
+Eigen::Vector3d GripPoint(const EdgeGrip& grip, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                          const Eigen::Vector3d& x2);
+
+/// Edge-coupling force on the tissue (N, to be split as bᵢF) for the blade
+/// line through `tip` along unit `blade_dir`: k·e with e the stretch across
+/// the blade capped at `limit`; an uncapped stretch beyond it slides the
+/// tissue end (grip.offset) so that |e| = limit. Updates `grip.stretch`.
+Eigen::Vector3d EdgeGripForce(EdgeGrip& grip, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                              const Eigen::Vector3d& x2, const Eigen::Vector3d& tip,
+                              const Eigen::Vector3d& blade_dir, double stiffness, double limit);
 
 /// Finds the contact facet of the blade (tip, unit direction tip → handle,
 /// length) on a surface (see file comment). `near_radius` is the reach of

@@ -77,7 +77,10 @@ TEST(BlockCutTest, StraightCutLeavesTwoSaneParts) {
   EXPECT_NE(r.out.find("\"status\": \"ok\""), std::string::npos) << r.out;
   EXPECT_NEAR(JsonNumber(r.out, "sim_time"), 2.4, 1e-9);
   EXPECT_EQ(JsonNumber(r.out, "components"), 2) << r.out;
-  EXPECT_GE(JsonNumber(r.out, "cuts"), 6) << "about one cut step per node along the line";
+  // Progressive: the blade's grip loads the tissue ahead of it until the
+  // criterion passes, and each cut step opens the stretch swept since the
+  // last one (3 to 4 node rows of the 13 here), not the whole line at once.
+  EXPECT_GE(JsonNumber(r.out, "cuts"), 4) << r.out;
   EXPECT_LE(JsonNumber(r.out, "cuts_rejected"), 1) << r.out;
   EXPECT_GT(JsonNumber(r.out, "min_rest_volume"), 0.0);
   // 40 × 20 × 10 mm at 1000 kg/m³.
