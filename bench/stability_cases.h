@@ -562,12 +562,44 @@ inline Result ToolJammed(const Size& size, const std::string& scene_path, bool c
   return r;
 }
 
-/// The blade held with its tip at the origin pointing +z, i.e. along the
-/// block's corner edge (where a tool without a path used to sit): the
-/// penalty acts on a vertex and the edges shared by the top and side facets.
-inline Result ToolOnEdge(const Size& size, const std::string& scene_path) {
+/// The blade (tip 1 mm under the base) drawn back and forth along x
+/// through the block with cutting off: its edge grip drags the tissue at
+/// the cap the whole way (the steady resistance of tissue it cannot cut).
+inline Result ToolDrawnThrough(const Size& size, const std::string& scene_path) {
   Result r;
-  r.name = "tool resting on the block's corner edge (no path)";
+  r.name = "tool drawn through the block, cutting off";
+  const int s = size.cells;
+  const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), false);
+  auto simulation = sim::Simulation::Create(scene, {.threads = 1});
+  const double mass0 = simulation->Summary().total_mass;
+  const double frame = 0.01;
+  Stopwatch watch;
+  const int frames = std::max(4, static_cast<int>(std::lround(size.jam_time / frame)));
+  double peak = 0;
+  for (int f = 0; f < frames; ++f) {
+    const double phase = static_cast<double>(f) / frames;  // one pass there and back
+    const double x = 0.005 + 0.03 * (phase < 0.5 ? 2 * phase : 2 - 2 * phase);
+    simulation->SetToolPose({Eigen::Vector3d(x, 0.0101, -0.001), Eigen::Vector3d::UnitZ()});
+    if (simulation->AdvanceFrame(frame) != sim::SimStatus::kOk) break;
+    peak = std::max(peak, simulation->Tool().force_on_tool.norm());
+  }
+  sim::MeshView view;
+  FinishSim(*simulation, mass0, r, view);
+  r.wall = watch.ElapsedSeconds();
+  r.reason += ", peak tool force " + std::to_string(peak) + " N";
+  return r;
+}
+
+/// The blade held pointing +z along the block's corner edge, its tip at
+/// height `tip_z` on the edge. At the origin (where a tool without a path
+/// used to sit) the blade stands along the whole edge: it is inside the
+/// tissue and its edge grip holds it (tool_contact.h). At 0.5 mm under the
+/// top (under the indentation limit) the tip presses the top corner: the
+/// penalty acts on a vertex and the edges shared by the top and side facets.
+inline Result ToolOnEdge(const Size& size, const std::string& scene_path, double tip_z = 0.0) {
+  Result r;
+  r.name = tip_z == 0.0 ? "tool resting on the block's corner edge (no path)"
+                        : "tool tip pressing the block's top corner, 0.5 mm";
   const int s = size.cells;
   const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), true);
   auto simulation = sim::Simulation::Create(scene, {.threads = 1});
@@ -577,7 +609,7 @@ inline Result ToolOnEdge(const Size& size, const std::string& scene_path) {
   const int frames = std::max(2, static_cast<int>(std::lround(size.jam_time / frame)));
   // A tool without a path is parked clear of the body (ToolParked); put the
   // blade where the old default pose left it: tip at the origin, along +z.
-  simulation->SetToolPose({Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ()});
+  simulation->SetToolPose({Eigen::Vector3d(0, 0, tip_z), Eigen::Vector3d::UnitZ()});
   int touching = 0;
   for (int f = 0; f < frames; ++f) {
     if (simulation->AdvanceFrame(frame) != sim::SimStatus::kOk) break;
@@ -629,6 +661,8 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
   add("tool jammed, cutting off", [&] { return ToolJammed(size, scene_path, false); });
   add("tool jammed, cutting on", [&] { return ToolJammed(size, scene_path, true); });
   add("tool on the corner edge", [&] { return ToolOnEdge(size, scene_path); });
+  add("tool tip pressing the corner", [&] { return ToolOnEdge(size, scene_path, 0.0095); });
+  add("tool drawn through uncut tissue", [&] { return ToolDrawnThrough(size, scene_path); });
   add("random cuts", [&] { return RandomCuts(size, scene_path); });  // last: see the note in stability_test.cc
   return out;
 }

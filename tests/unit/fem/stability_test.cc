@@ -129,6 +129,23 @@ TEST(Stability, ToolOnTheCornerEdge) {
   ExpectHolds(ToolOnEdge(size, kBlock));
 }
 
+// That blade stands along the whole edge, so it is inside the tissue and
+// gripped (no push while it stays still); the tip pressing the top corner
+// keeps the penalty on the corner vertex and edges under test.
+TEST(Stability, ToolTipPressingTheCorner) {
+  Size size = Size::Test();
+  size.jam_time = 0.5;
+  ExpectHolds(ToolOnEdge(size, kBlock, 0.0095));
+}
+
+// Drawn back and forth through tissue it may not cut: the edge grip drags
+// the tissue at its cap the whole way.
+TEST(Stability, ToolDrawnThroughUncutTissue) {
+  Size size = Size::Test();
+  size.jam_time = 0.5;
+  ExpectHolds(ToolDrawnThrough(size, kBlock));
+}
+
 // A tool with neither a path nor a client is parked clear of the tissue.
 TEST(Stability, IdleToolWithoutPathDoesNotTouch) {
   const sim::LoadedScene scene = BlockScene(kBlock, 6, 3, 2, true);
