@@ -2,6 +2,7 @@
 // cut_mesh.h; comments here say why.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -610,14 +611,16 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       return p;
     };
     auto quality = [](const std::array<Vector3d, 4>& p) { return mesh::MeanRatio(p[0], p[1], p[2], p[3]); };
+    // Qualities before the move, computed when first needed (NaN: not yet):
+    // a tet at or above the floor after the move passes whatever it had.
     std::vector<double>& q_rest = q_rest_;
     std::vector<double>& q_world = q_world_;
-    q_rest.clear();
-    q_world.clear();
-    for (const int32_t t : star) {
-      q_rest.push_back(quality(corners(t, true, nullptr)));
-      q_world.push_back(quality(corners(t, false, nullptr)));
-    }
+    q_rest.assign(star.size(), std::numeric_limits<double>::quiet_NaN());
+    q_world.assign(star.size(), std::numeric_limits<double>::quiet_NaN());
+    auto before = [&](std::vector<double>& q, size_t i, bool rest_config) {
+      if (std::isnan(q[i])) q[i] = quality(corners(star[i], rest_config, nullptr));
+      return q[i];
+    };
     // Sliver guard: the floor is keep_quality, not only min_quality (see
     // cut_mesh.h, step 5): v0 and v1 move at every step, passes over one
     // region move the same twins again and again, and with a floor of
@@ -631,8 +634,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       for (size_t i = 0; i < star.size() && ok; ++i) {
         const double qr = quality(corners(star[i], true, &un));
         const double qw = quality(corners(star[i], false, &xn));
-        ok = qr > 0.0 && qw > 0.0 && qr >= std::min(floor_quality, q_rest[i]) &&
-             qw >= std::min(floor_quality, q_world[i]);
+        ok = qr > 0.0 && qw > 0.0 &&
+             (qr >= floor_quality || qr >= std::min(floor_quality, before(q_rest, i, true))) &&
+             (qw >= floor_quality || qw >= std::min(floor_quality, before(q_world, i, false)));
       }
       if (!ok) continue;
       for (const int32_t g : group) {
