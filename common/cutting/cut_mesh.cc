@@ -146,6 +146,10 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
       if (neighbour_[Idx(t)][Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
     }
   }
+  // Step scratch sized here, not in the first cut step (an O(N) fill).
+  node_marks_.rows.reserve(Idx(cap));
+  node_marks_.rows.resize(Idx(n));
+  tet_marks_.rows.resize(tets_.size());
   star_connected0_.resize(Idx(n));
   for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
 }
