@@ -99,6 +99,33 @@ Vec12<T> StvkElementForce(const Mat34<T>& x, const Mat3<T>& dm_inv, T rest_volum
   return ElementForceFromPiola<T>(StvkFirstPiola<T>(F, lambda, mu), dm_inv, rest_volume);
 }
 
+/// Tangent stiffness of one StVK element, K = −∂f/∂x (f from
+/// StvkElementForce), exact: for node j along axis a, dDs is e_a in column
+/// j (or −e_a in every column for node 0), dF = dDs·Dm⁻¹,
+/// dE = sym(Fᵀ dF), dP = dF S + F (λ tr(dE) I + 2μ dE), and the column is
+/// −ElementForceFromPiola(dP) (the force is linear in P).  // 12×12
+template <typename T>
+Eigen::Matrix<T, 12, 12> StvkElementStiffness(const Mat34<T>& x, const Mat3<T>& dm_inv, T rest_volume,
+                                              T lambda, T mu) {
+  const Mat3<T> F = EdgeMatrix(x) * dm_inv;
+  const Mat3<T> S = StvkSecondPiola(GreenStrain(F), lambda, mu);
+  Eigen::Matrix<T, 12, 12> K;
+  for (int j = 0; j < 4; ++j) {
+    for (int a = 0; a < 3; ++a) {
+      Mat3<T> dF;  // e_a · (row j−1 of Dm⁻¹), or −e_a · (sum of its rows) for node 0
+      const Eigen::Matrix<T, 1, 3> g = j == 0 ? Eigen::Matrix<T, 1, 3>(-dm_inv.colwise().sum())
+                                              : Eigen::Matrix<T, 1, 3>(dm_inv.row(j - 1));
+      dF.setZero();
+      dF.row(a) = g;
+      const Mat3<T> FtdF = F.transpose() * dF;
+      const Mat3<T> dE = T(0.5) * (FtdF + FtdF.transpose());
+      const Mat3<T> dS = lambda * dE.trace() * Mat3<T>::Identity() + T(2) * mu * dE;
+      K.col(3 * j + a) = -ElementForceFromPiola<T>(dF * S + F * dS, dm_inv, rest_volume);
+    }
+  }
+  return K;
+}
+
 /// The seed's β: the 4×4 inverse of the barycentric matrix [u₀ u₁ u₂ u₃; 1 1 1 1],
 /// so barycentric coordinates are b = β·[u; 1].  // 4×4
 template <typename T>

@@ -6,8 +6,11 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <unordered_map>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/Sparse>
+#include <Eigen/SparseCholesky>
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
@@ -289,22 +292,14 @@ class Engine final : public Simulation {
       const double u_len = u.norm();
       if (!(u_len > 0)) return Eigen::Matrix3d::Zero();
       u /= u_len;
-      double k_tissue = 0;
-      for (int i = 0; i < 3; ++i) k_tissue += grip_.bary[i] * NodeNormalStiffness(grip_.nodes[static_cast<size_t>(i)], u);
-      k_tissue = std::max(k_tissue, 0.0);
+      const double k_tissue = PatchStiffness(grip_.nodes, grip_.bary, u);
       const double k = contact_stiffness_;
       const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
       return k_eff * (Eigen::Matrix3d::Identity() - d * d.transpose());
     }
-    // Local tissue stiffness along n: Σ bᵢ nᵀKᵢᵢn, Kᵢᵢ = −∂fᵢ/∂xᵢ from central
-    // differences of the incident element forces (current state, StVK).
+    // The tissue's point stiffness along n at the contact (PatchStiffness).
     const Eigen::Vector3d n = facet_.normal;
-    double k_tissue = 0;
-    for (int i = 0; i < 3; ++i) {
-      const int32_t node = facet_.nodes[static_cast<size_t>(i)];
-      k_tissue += facet_.bary[i] * NodeNormalStiffness(node, n);
-    }
-    k_tissue = std::max(k_tissue, 0.0);
+    const double k_tissue = PatchStiffness(facet_.nodes, facet_.bary, n);
     const double k = contact_stiffness_;
     const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
     return k_eff * n * n.transpose();
@@ -903,6 +898,91 @@ class Engine final : public Simulation {
       for (int k = 0; k < 3; ++k) state_.f_ext[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] = T(0);
     }
     applied_nodes_ = {-1, -1, -1};
+  }
+
+  /// Point stiffness of the tissue (N/m) along unit `u` for a load spread
+  /// as wᵢ·u over `nodes`: 1/(fᵀK⁻¹f), f = w ⊗ u, K = −∂f/∂x the tangent
+  /// stiffness (fem::StvkElementStiffness at the current state) of the
+  /// free nodes within kStiffnessRings rings of the
+  /// facet, with every element touching them; nodes beyond are held. The
+  /// facet nodes' diagonal blocks alone (every other node held) made the
+  /// haptic K about 4× too stiff on the ligament (bench/README.md, buffer
+  /// model). Falls back to that diagonal estimate if the patch solve fails.
+  double PatchStiffness(const std::array<int32_t, 3>& nodes, const Eigen::Vector3d& w,
+                        const Eigen::Vector3d& u) const {
+    constexpr int kStiffnessRings = 2;
+    std::vector<int32_t> unknown;                 // node ids, in discovery order
+    std::unordered_map<int32_t, int32_t> column;  // node id → unknown index
+    std::vector<int32_t> frontier;
+    auto visit = [&](int32_t node, std::vector<int32_t>& next) {
+      if (column.count(node) != 0 || model_.fixed(node)) return;
+      column.emplace(node, static_cast<int32_t>(unknown.size()));
+      unknown.push_back(node);
+      next.push_back(node);
+    };
+    for (const int32_t node : nodes) visit(node, frontier);
+    const int32_t* slots = model_.incidence_slots();
+    for (int ring = 0; ring < kStiffnessRings; ++ring) {
+      std::vector<int32_t> next;
+      for (const int32_t node : frontier) {
+        for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) {
+          const int32_t t = slots[s] / 12;
+          for (int c = 0; c < 4; ++c) visit(model_.tet_node(t, c), next);
+        }
+      }
+      frontier.swap(next);
+    }
+    if (unknown.empty()) return 0.0;
+    std::vector<int32_t> tets;  // every element touching an unknown, once
+    for (const int32_t node : unknown) {
+      for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) tets.push_back(slots[s] / 12);
+    }
+    std::sort(tets.begin(), tets.end());
+    tets.erase(std::unique(tets.begin(), tets.end()), tets.end());
+    std::vector<Eigen::Triplet<double>> entries;
+    entries.reserve(tets.size() * 144);
+    for (const int32_t t : tets) {
+      fem::Mat34<double> x;
+      std::array<int32_t, 4> local{};  // unknown index of each corner, −1 if held
+      for (int c = 0; c < 4; ++c) {
+        const int32_t node = model_.tet_node(t, c);
+        x.col(c) = NodeX(node);
+        const auto it = column.find(node);
+        local[static_cast<size_t>(c)] = it == column.end() ? -1 : it->second;
+      }
+      const Eigen::Matrix<double, 12, 12> Ke = fem::StvkElementStiffness<double>(
+          x, model_.DmInv(t).template cast<double>(), static_cast<double>(model_.rest_volume(t)),
+          static_cast<double>(model_.lambdas()[t]), static_cast<double>(model_.mus()[t]));
+      for (int cj = 0; cj < 4; ++cj) {
+        const int32_t col = local[static_cast<size_t>(cj)];
+        if (col < 0) continue;
+        for (int ci = 0; ci < 4; ++ci) {
+          const int32_t row = local[static_cast<size_t>(ci)];
+          if (row < 0) continue;
+          for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) entries.emplace_back(3 * row + b, 3 * col + a, Ke(3 * ci + b, 3 * cj + a));
+          }
+        }
+      }
+    }
+    const int n = 3 * static_cast<int>(unknown.size());
+    Eigen::SparseMatrix<double> K(n, n);
+    K.setFromTriplets(entries.begin(), entries.end());
+    K = (0.5 * (K + Eigen::SparseMatrix<double>(K.transpose()))).eval();
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
+    for (int i = 0; i < 3; ++i) {
+      const auto it = column.find(nodes[static_cast<size_t>(i)]);
+      if (it != column.end()) f.segment<3>(3 * it->second) = w[i] * u;
+    }
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(K);
+    if (solver.info() == Eigen::Success) {
+      const Eigen::VectorXd displacement = solver.solve(f);
+      const double compliance = f.dot(displacement);
+      if (solver.info() == Eigen::Success && std::isfinite(compliance) && compliance > 0) return 1.0 / compliance;
+    }
+    double k_diagonal = 0;
+    for (int i = 0; i < 3; ++i) k_diagonal += w[i] * NodeNormalStiffness(nodes[static_cast<size_t>(i)], u);
+    return std::max(k_diagonal, 0.0);
   }
 
   /// nᵀKᵢᵢn for one node: central differences of its incident element forces.

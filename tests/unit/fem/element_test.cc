@@ -104,6 +104,33 @@ TEST(FemElement, ForceIsMinusEnergyGradient) {
   }
 }
 
+TEST(FemElement, StiffnessIsMinusForceDerivativeAndSymmetric) {
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 20; ++trial) {
+    const Mat34<double> u = RandomTet(rng);
+    const Mat3<double> dm_inv = EdgeMatrix(u).inverse();
+    const double vol = EdgeMatrix(u).determinant() / 6.0;
+    const Mat34<double> x = RandomF(rng, 0.3) * u;
+    const Eigen::Matrix<double, 12, 12> K = StvkElementStiffness<double>(x, dm_inv, vol, kLambda, kMu);
+    const double eps = 1e-6;
+    for (int j = 0; j < 12; ++j) {
+      Mat34<double> xp = x, xm = x;
+      xp(j % 3, j / 3) += eps;
+      xm(j % 3, j / 3) -= eps;
+      const Vec12<double> fd = -(StvkElementForce<double>(xp, dm_inv, vol, kLambda, kMu) -
+                                 StvkElementForce<double>(xm, dm_inv, vol, kLambda, kMu)) / (2 * eps);
+      EXPECT_LT((K.col(j) - fd).norm(), 1e-5 * K.norm()) << "trial " << trial << " dof " << j;
+    }
+    EXPECT_LT((K - K.transpose()).norm(), 1e-10 * K.norm()) << "a conservative force has a symmetric tangent";
+    // Rigid translations are in its null space.
+    for (int a = 0; a < 3; ++a) {
+      Vec12<double> t = Vec12<double>::Zero();
+      for (int n = 0; n < 4; ++n) t(3 * n + a) = 1.0;
+      EXPECT_LT((K * t).norm(), 1e-10 * K.norm());
+    }
+  }
+}
+
 TEST(FemElement, DampingIsDissipativeAndZeroForRigidVelocity) {
   std::mt19937 rng(5);
   const Mat3<double> F = RandomF(rng, 0.3);
