@@ -9,7 +9,7 @@
 //      beside a row of nodes, at 1.25 m/s with one cut attempt every few
 //      frames. critical_stress is 1 Pa: every geometric attempt passes the
 //      stress test, so the steps measured are real cuts.
-//  (b) "block": scenes/block.pbtxt cut by parallel half-depth passes until
+//  (b) "block": scenes/block.pbtxt (K_I = 1 Pa) cut by parallel half-depth passes until
 //      100 cut steps executed (or the 7 passes end), then the blade lifted
 //      out and parked clear; the stable time step (fem estimate, before
 //      the safety factor) as a ratio of the uncut mesh's, and the smallest
@@ -185,7 +185,12 @@ int main(int argc, char** argv) {
   }
 
   // (b) block: parallel half-depth passes 0.1 mm beside the node rows (2.5 mm apart).
-  const cutsim::sim::LoadedScene block = cutsim::sim::LoadScene(scene_dir + "/block.pbtxt");
+  // K_I = 1 Pa, as in (a): every geometric attempt cuts, so the passes make
+  // many small cut steps (with the scene's K_I the blade's grip loads the
+  // tissue until it gives way and one step opens what it swept since the
+  // last: 6 steps for the whole line, too few for "after 100 cut steps").
+  cutsim::sim::LoadedScene block = cutsim::sim::LoadScene(scene_dir + "/block.pbtxt");
+  block.scene.mutable_cutting()->set_critical_stress(1.0);
   auto uncut = Simulation::Create(block);
   auto cut = Simulation::Create(block);
   ToolPose lifted;
