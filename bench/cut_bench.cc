@@ -249,15 +249,16 @@ int main(int argc, char** argv) {
   const double ke_uncut = uncut->QuickSummary().kinetic_energy, ke_cut = cut->QuickSummary().kinetic_energy;
   const bool touching = cut->Tool().touching;
   const int64_t steps_uncut0 = uncut->QuickSummary().steps, steps_cut0 = cut->QuickSummary().steps;
+  constexpr int kRounds = 7, kFramesPerRound = 10;
   std::vector<double> ratios, rate_uncut, rate_cut;
-  for (int round = 0; round < 7; ++round) {
-    const auto [wu, su] = Rounds(*uncut, 10);
-    const auto [wc, sc] = Rounds(*cut, 10);
+  for (int round = 0; round < kRounds; ++round) {
+    const auto [wu, su] = Rounds(*uncut, kFramesPerRound);
+    const auto [wc, sc] = Rounds(*cut, kFramesPerRound);
     rate_uncut.push_back(su / wu);
     rate_cut.push_back(sc / wc);
     ratios.push_back((sc / wc) / (su / wu));
   }
-  const double frames = 7 * 10;
+  const double frames = kRounds * kFramesPerRound;
   json += fmt::format(
       "  \"throughput\": {{\"tet_steps_per_s_uncut\": {:.4g}, \"tet_steps_per_s_cut\": {:.4g}, \"ratio\": {:.3f}, "
       "\"rounds\": {},\n                 \"steps_per_frame_uncut\": {:.1f}, \"steps_per_frame_cut\": {:.1f}, "

@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <random>
 #include <span>
 #include <string>
@@ -460,6 +461,13 @@ inline sim::LoadedScene BlockScene(const std::string& path, int nx, int ny, int 
   return scene;
 }
 
+/// The tool cases' block at the suite's size (2s × s × max(2, s/2) cells,
+/// s = size.cells), no tool path, one thread.
+inline std::unique_ptr<sim::Simulation> SmallBlock(const Size& size, const std::string& scene_path, bool cutting) {
+  const int s = size.cells;
+  return sim::Simulation::Create(BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), cutting), {.threads = 1});
+}
+
 /// Finishes a Simulation case from its summary and mesh.
 inline void FinishSim(const sim::Simulation& simulation, double mass0, Result& r, sim::MeshView& view) {
   const sim::SimulationSummary s = simulation.Summary();
@@ -492,9 +500,7 @@ inline void FinishSim(const sim::Simulation& simulation, double mass0, Result& r
 inline Result RandomCuts(const Size& size, const std::string& scene_path) {
   Result r;
   r.name = "random cuts (" + std::to_string(size.strokes) + " strokes) then dynamics";
-  const int s = size.cells;
-  const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), true);
-  auto simulation = sim::Simulation::Create(scene, {.threads = 1});
+  auto simulation = SmallBlock(size, scene_path, true);
   const double mass0 = simulation->Summary().total_mass;
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> u(0, 1);
@@ -542,9 +548,7 @@ inline Result RandomCuts(const Size& size, const std::string& scene_path) {
 inline Result ToolJammed(const Size& size, const std::string& scene_path, bool cutting) {
   Result r;
   r.name = std::string("tool jammed 8 mm deep, cutting ") + (cutting ? "on" : "off");
-  const int s = size.cells;
-  const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), cutting);
-  auto simulation = sim::Simulation::Create(scene, {.threads = 1});
+  auto simulation = SmallBlock(size, scene_path, cutting);
   const double mass0 = simulation->Summary().total_mass;
   const double frame = 0.01;
   Stopwatch watch;
@@ -568,9 +572,7 @@ inline Result ToolJammed(const Size& size, const std::string& scene_path, bool c
 inline Result ToolDrawnThrough(const Size& size, const std::string& scene_path) {
   Result r;
   r.name = "tool drawn through the block, cutting off";
-  const int s = size.cells;
-  const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), false);
-  auto simulation = sim::Simulation::Create(scene, {.threads = 1});
+  auto simulation = SmallBlock(size, scene_path, false);
   const double mass0 = simulation->Summary().total_mass;
   const double frame = 0.01;
   Stopwatch watch;
@@ -600,9 +602,7 @@ inline Result ToolOnEdge(const Size& size, const std::string& scene_path, double
   Result r;
   r.name = tip_z == 0.0 ? "tool resting on the block's corner edge (no path)"
                         : "tool tip pressing the block's top corner, 0.5 mm";
-  const int s = size.cells;
-  const sim::LoadedScene scene = BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), true);
-  auto simulation = sim::Simulation::Create(scene, {.threads = 1});
+  auto simulation = SmallBlock(size, scene_path, true);
   const double mass0 = simulation->Summary().total_mass;
   const double frame = 0.01;
   Stopwatch watch;

@@ -6,7 +6,6 @@
 #include <cmath>
 #include <limits>
 #include <optional>
-#include <unordered_map>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Sparse>
@@ -282,27 +281,26 @@ class Engine final : public Simulation {
 
   Eigen::Matrix3d ContactStiffness() const override {
     if (!facet_.touching) return Eigen::Matrix3d::Zero();
+    // The contact spring k in series with the tissue's point stiffness along
+    // the direction it pushes (PatchStiffness). The tip penalty acts along
+    // n: K = k_eff·n nᵀ. The edge grip acts across the blade, K = k_eff·
+    // (I − d dᵀ), with the tissue taken along the stretch (or, unloaded,
+    // along the facet normal's part across the blade).
+    Eigen::Vector3d u = facet_.normal;
+    Eigen::Matrix3d shape = u * u.transpose();
     if (grip_.active) {
-      // The edge spring acts across the blade, K = k·(I − d dᵀ); in series
-      // with the tissue's stiffness along the stretch (or, unloaded, along
-      // the facet normal's part across the blade).
       const Eigen::Vector3d d = pose_.blade_dir;
-      Eigen::Vector3d u = grip_.stretch;
+      u = grip_.stretch;
       if (u.norm() <= 1e-12 * (1.0 + indent_limit_)) u = facet_.normal - facet_.normal.dot(d) * d;
       const double u_len = u.norm();
       if (!(u_len > 0)) return Eigen::Matrix3d::Zero();
       u /= u_len;
-      const double k_tissue = PatchStiffness(grip_.nodes, grip_.bary, u);
-      const double k = contact_stiffness_;
-      const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
-      return k_eff * (Eigen::Matrix3d::Identity() - d * d.transpose());
+      shape = Eigen::Matrix3d::Identity() - d * d.transpose();
     }
-    // The tissue's point stiffness along n at the contact (PatchStiffness).
-    const Eigen::Vector3d n = facet_.normal;
-    const double k_tissue = PatchStiffness(facet_.nodes, facet_.bary, n);
+    const double k_tissue = PatchStiffness(ForceNodes(), ForceWeights(), u);
     const double k = contact_stiffness_;
     const double k_eff = (k + k_tissue) > 0 ? k * k_tissue / (k + k_tissue) : 0.0;
-    return k_eff * n * n.transpose();
+    return k_eff * shape;
   }
 
   void FillMeshView(MeshView& view) const override {
@@ -903,108 +901,114 @@ class Engine final : public Simulation {
   /// Point stiffness of the tissue (N/m) along unit `u` for a load spread
   /// as wᵢ·u over `nodes`: 1/(fᵀK⁻¹f), f = w ⊗ u, K = −∂f/∂x the tangent
   /// stiffness (fem::StvkElementStiffness at the current state) of the
-  /// free nodes within kStiffnessRings rings of the
-  /// facet, with every element touching them; nodes beyond are held. The
-  /// facet nodes' diagonal blocks alone (every other node held) made the
-  /// haptic K about 4× too stiff on the ligament (bench/README.md, buffer
-  /// model). Falls back to that diagonal estimate if the patch solve fails.
+  /// free nodes within kStiffnessRings rings of the facet, with every
+  /// element touching them; nodes beyond are held. The facet nodes'
+  /// diagonal blocks alone (every other node held) made the haptic K about
+  /// 4× too stiff on the ligament (bench/README.md, buffer model). Falls
+  /// back to that diagonal estimate if the patch solve fails. Runs once per
+  /// physics frame with a haptic client in contact; the node → unknown map
+  /// is a scratch row kept at −1 between calls.
   double PatchStiffness(const std::array<int32_t, 3>& nodes, const Eigen::Vector3d& w,
                         const Eigen::Vector3d& u) const {
     constexpr int kStiffnessRings = 2;
-    std::vector<int32_t> unknown;                 // node ids, in discovery order
-    std::unordered_map<int32_t, int32_t> column;  // node id → unknown index
-    std::vector<int32_t> frontier;
-    auto visit = [&](int32_t node, std::vector<int32_t>& next) {
-      if (column.count(node) != 0 || model_.fixed(node)) return;
-      column.emplace(node, static_cast<int32_t>(unknown.size()));
+    std::vector<int32_t>& column = patch_column_;  // node id → unknown index, −1 if none
+    if (column.size() < static_cast<size_t>(model_.node_capacity())) {
+      column.assign(static_cast<size_t>(model_.node_capacity()), -1);
+    }
+    std::vector<int32_t>& unknown = patch_unknown_;  // node ids, in discovery order
+    unknown.clear();
+    auto visit = [&](int32_t node) {
+      if (column[static_cast<size_t>(node)] >= 0 || model_.fixed(node)) return;
+      column[static_cast<size_t>(node)] = static_cast<int32_t>(unknown.size());
       unknown.push_back(node);
-      next.push_back(node);
     };
-    for (const int32_t node : nodes) visit(node, frontier);
+    for (const int32_t node : nodes) visit(node);
     const int32_t* slots = model_.incidence_slots();
+    size_t ring_begin = 0;
     for (int ring = 0; ring < kStiffnessRings; ++ring) {
-      std::vector<int32_t> next;
-      for (const int32_t node : frontier) {
+      const size_t ring_end = unknown.size();
+      for (size_t k = ring_begin; k < ring_end; ++k) {
+        const int32_t node = unknown[k];
         for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) {
-          const int32_t t = slots[s] / 12;
-          for (int c = 0; c < 4; ++c) visit(model_.tet_node(t, c), next);
+          for (int c = 0; c < 4; ++c) visit(model_.tet_node(slots[s] / 12, c));
         }
       }
-      frontier.swap(next);
+      ring_begin = ring_end;
     }
-    if (unknown.empty()) return 0.0;
-    std::vector<int32_t> tets;  // every element touching an unknown, once
-    for (const int32_t node : unknown) {
-      for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) tets.push_back(slots[s] / 12);
-    }
-    std::sort(tets.begin(), tets.end());
-    tets.erase(std::unique(tets.begin(), tets.end()), tets.end());
-    std::vector<Eigen::Triplet<double>> entries;
-    entries.reserve(tets.size() * 144);
-    for (const int32_t t : tets) {
-      fem::Mat34<double> x;
-      std::array<int32_t, 4> local{};  // unknown index of each corner, −1 if held
-      for (int c = 0; c < 4; ++c) {
-        const int32_t node = model_.tet_node(t, c);
-        x.col(c) = NodeX(node);
-        const auto it = column.find(node);
-        local[static_cast<size_t>(c)] = it == column.end() ? -1 : it->second;
-      }
-      const Eigen::Matrix<double, 12, 12> Ke = fem::StvkElementStiffness<double>(
-          x, model_.DmInv(t).template cast<double>(), static_cast<double>(model_.rest_volume(t)),
-          static_cast<double>(model_.lambdas()[t]), static_cast<double>(model_.mus()[t]));
-      for (int cj = 0; cj < 4; ++cj) {
-        const int32_t col = local[static_cast<size_t>(cj)];
-        if (col < 0) continue;
-        for (int ci = 0; ci < 4; ++ci) {
-          const int32_t row = local[static_cast<size_t>(ci)];
-          if (row < 0) continue;
-          for (int a = 0; a < 3; ++a) {
-            for (int b = 0; b < 3; ++b) entries.emplace_back(3 * row + b, 3 * col + a, Ke(3 * ci + b, 3 * cj + a));
-          }
-        }
-      }
-    }
-    const int n = 3 * static_cast<int>(unknown.size());
-    Eigen::SparseMatrix<double> K(n, n);
-    K.setFromTriplets(entries.begin(), entries.end());
-    K = (0.5 * (K + Eigen::SparseMatrix<double>(K.transpose()))).eval();
-    Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
-    for (int i = 0; i < 3; ++i) {
-      const auto it = column.find(nodes[static_cast<size_t>(i)]);
-      if (it != column.end()) f.segment<3>(3 * it->second) = w[i] * u;
-    }
-    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(K);
-    if (solver.info() == Eigen::Success) {
-      const Eigen::VectorXd displacement = solver.solve(f);
-      const double compliance = f.dot(displacement);
-      if (solver.info() == Eigen::Success && std::isfinite(compliance) && compliance > 0) return 1.0 / compliance;
-    }
+    const double k_tissue = unknown.empty() ? 0.0 : SolvePatchCompliance(nodes, w, u);
+    for (const int32_t node : unknown) column[static_cast<size_t>(node)] = -1;
+    if (k_tissue > 0) return k_tissue;
     double k_diagonal = 0;
     for (int i = 0; i < 3; ++i) k_diagonal += w[i] * NodeNormalStiffness(nodes[static_cast<size_t>(i)], u);
     return std::max(k_diagonal, 0.0);
   }
 
-  /// nᵀKᵢᵢn for one node: central differences of its incident element forces.
+  /// PatchStiffness's solve over patch_unknown_ (mapped by patch_column_):
+  /// 1/(fᵀK⁻¹f), or 0 if the patch matrix cannot be factored or the
+  /// compliance is not positive.
+  double SolvePatchCompliance(const std::array<int32_t, 3>& nodes, const Eigen::Vector3d& w,
+                              const Eigen::Vector3d& u) const {
+    const int32_t* slots = model_.incidence_slots();
+    std::vector<int32_t>& tets = patch_tets_;  // every element touching an unknown, once
+    tets.clear();
+    for (const int32_t node : patch_unknown_) {
+      for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) tets.push_back(slots[s] / 12);
+    }
+    std::sort(tets.begin(), tets.end());
+    tets.erase(std::unique(tets.begin(), tets.end()), tets.end());
+    // The lower triangle only: the element tangents are symmetric and
+    // SimplicialLDLT reads the lower part.
+    std::vector<Eigen::Triplet<double>>& entries = patch_entries_;
+    entries.clear();
+    for (const int32_t t : tets) {
+      std::array<int32_t, 4> local{};  // unknown index of each corner, −1 if held
+      for (int c = 0; c < 4; ++c) local[static_cast<size_t>(c)] = patch_column_[static_cast<size_t>(model_.tet_node(t, c))];
+      const Eigen::Matrix<double, 12, 12> Ke = ElementStiffness(t);
+      for (int cj = 0; cj < 4; ++cj) {
+        const int32_t col = local[static_cast<size_t>(cj)];
+        if (col < 0) continue;
+        for (int ci = 0; ci < 4; ++ci) {
+          const int32_t row = local[static_cast<size_t>(ci)];
+          if (row < col) continue;  // held (−1) or above the diagonal
+          for (int a = 0; a < 3; ++a) {
+            for (int b = row == col ? a : 0; b < 3; ++b) {
+              entries.emplace_back(3 * row + b, 3 * col + a, Ke(3 * ci + b, 3 * cj + a));
+            }
+          }
+        }
+      }
+    }
+    const int n = 3 * static_cast<int>(patch_unknown_.size());
+    Eigen::SparseMatrix<double> K(n, n);
+    K.setFromTriplets(entries.begin(), entries.end());
+    Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
+    for (int i = 0; i < 3; ++i) {
+      const int32_t col = patch_column_[static_cast<size_t>(nodes[static_cast<size_t>(i)])];
+      if (col >= 0) f.segment<3>(3 * col) = w[i] * u;
+    }
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(K);
+    if (solver.info() != Eigen::Success) return 0.0;
+    const double compliance = f.dot(solver.solve(f));
+    return solver.info() == Eigen::Success && std::isfinite(compliance) && compliance > 0 ? 1.0 / compliance : 0.0;
+  }
+
+  /// StVK tangent of element t at the current state (12×12, double).
+  Eigen::Matrix<double, 12, 12> ElementStiffness(int32_t t) const {
+    fem::Mat34<double> x;
+    for (int c = 0; c < 4; ++c) x.col(c) = NodeX(model_.tet_node(t, c));
+    return fem::StvkElementStiffness<double>(x, model_.DmInv(t).template cast<double>(),
+                                             static_cast<double>(model_.rest_volume(t)),
+                                             static_cast<double>(model_.lambdas()[t]),
+                                             static_cast<double>(model_.mus()[t]));
+  }
+
+  /// nᵀKᵢᵢn for one node: its diagonal block of the incident element tangents.
   double NodeNormalStiffness(int32_t node, const Eigen::Vector3d& n) const {
     const int32_t* slots = model_.incidence_slots();
     double k = 0;
     for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) {
-      const int32_t t = slots[s] / 12;
       const int corner = (slots[s] % 12) / 3;
-      fem::Mat34<double> x;
-      for (int c = 0; c < 4; ++c) x.col(c) = NodeX(model_.tet_node(t, c));
-      const double h = 1e-6 * std::cbrt(std::max(static_cast<double>(model_.rest_volume(t)), 1e-30)) + 1e-12;
-      const Eigen::Matrix3d dm_inv = model_.DmInv(t).template cast<double>();
-      const double vol = static_cast<double>(model_.rest_volume(t));
-      const double lambda = static_cast<double>(model_.lambdas()[t]);
-      const double mu = static_cast<double>(model_.mus()[t]);
-      fem::Mat34<double> xp = x, xm = x;
-      xp.col(corner) += h * n;
-      xm.col(corner) -= h * n;
-      const fem::Vec12<double> fp = fem::StvkElementForce<double>(xp, dm_inv, vol, lambda, mu);
-      const fem::Vec12<double> fm = fem::StvkElementForce<double>(xm, dm_inv, vol, lambda, mu);
-      k -= n.dot((fp - fm).template segment<3>(3 * corner)) / (2 * h);
+      k += n.dot(ElementStiffness(slots[s] / 12).template block<3, 3>(3 * corner, 3 * corner) * n);
     }
     return k;
   }
@@ -1170,6 +1174,11 @@ class Engine final : public Simulation {
   std::vector<int32_t> box_scratch_;
   ContactFacet facet_;
   EdgeGrip grip_;                                  // the blade's hold on tissue it is inside
+  // PatchStiffness scratch (reused across frames; the column row stays −1).
+  mutable std::vector<int32_t> patch_column_;
+  mutable std::vector<int32_t> patch_unknown_;
+  mutable std::vector<int32_t> patch_tets_;
+  mutable std::vector<Eigen::Triplet<double>> patch_entries_;
   std::array<int32_t, 3> applied_nodes_{-1, -1, -1};  // nodes holding a contact force in f_ext
   ToolReport report_;
 

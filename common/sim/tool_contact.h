@@ -54,20 +54,23 @@
 ///   with a spring of the same k acting only across the blade,
 ///   e = (I − d dᵀ)(tip − A): the blade slides freely along itself, and
 ///   the tissue is pushed along the blade's sideways motion. The stretch
-///   is capped at the indentation limit: beyond it the gripped point
+///   is capped at one mean edge (twice the indentation limit, so a coarse
+///   mesh still reaches its critical stress): beyond it the gripped point
 ///   slides after the blade (the offset takes up the excess), so the force
 ///   stays k·limit along the motion while the blade is drawn through
 ///   uncut tissue (a steady cutting resistance) and falls back as the
 ///   blade returns. A cut releases the grip (the tissue gave way: the
 ///   force drops and the haptic side renders the decay); the grip is
-///   re-taken at the new crossing. When the offset exceeds half the limit
+///   re-taken at the new crossing. When the offset exceeds half the cap
 ///   the grip moves to the current crossing, keeping its world point, so
 ///   the force stays continuous and acts on the facet at the blade.
 /// - The haptic stiffness is derived from the FEM, not a constant (see
 ///   Simulation::ContactStiffness): the tissue's local stiffness at the
-///   contact k_t = nᵀ(Σ bᵢ Kᵢᵢ)n, Kᵢᵢ the 3×3 diagonal tangent blocks of the
-///   facet nodes at the current state, in series with the penalty spring:
-///   K = k·k_t/(k + k_t) · n nᵀ. It stiffens with deformation, as StVK does.
+///   contact k_t = 1/(fᵀK⁻¹f), the point stiffness for the load f = b ⊗ n
+///   of the tangent K (current state) of the free nodes within two rings
+///   of the facet, in series with the contact spring:
+///   K = k·k_t/(k + k_t) · n nᵀ (across the blade, (I − d dᵀ), for the
+///   edge grip). It stiffens with deformation, as StVK does.
 
 #include <array>
 #include <cstdint>
