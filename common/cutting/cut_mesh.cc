@@ -375,13 +375,53 @@ int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, Topolog
   // used `node`, so two tets sharing a face with the copy shared the same
   // face with `node` before, and that face had at most two tets.
   const int32_t copy = AddNodeCopy(node, static_cast<int32_t>(moved.size()));
-  Split split;
-  split.node = node;
-  split.new_node = copy;
-  split.tets.assign(moved.begin(), moved.end());
-  for (const int32_t t : moved) RetargetTet(t, node, copy);
-  if (event) event->splits.push_back(std::move(split));
+  MoveTetsToCopy(moved, node, copy);
+  if (event) {
+    Split split;
+    split.node = node;
+    split.new_node = copy;
+    split.tets.assign(moved.begin(), moved.end());
+    event->splits.push_back(std::move(split));
+  }
   return copy;
+}
+
+void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32_t to) {
+  CUTSIM_CHECK(Star(to).empty(), "tets move to a fresh copy only");
+  // All at once rather than RetargetTet one by one: a face between two
+  // moved tets stays interior (its neighbour_ entries are per local face,
+  // and the corner is replaced in place), a surface face keeps its slot
+  // (its triangle now names the copy), and only a face between a moved and
+  // an unmoved tet opens, as two new surface faces. One tet at a time, each
+  // face between two moved tets was opened and closed again (two slots
+  // made and freed, and a mate search in a star).
+  tet_marks_.Clear(kMoving);
+  for (const int32_t t : moved) tet_marks_.Insert(kMoving, t);
+  for (const int32_t t : moved) {
+    auto& n = tets_[Idx(t)];
+    int corner = -1;
+    for (int c = 0; c < 4; ++c)
+      if (n[Idx(c)] == from) corner = c;
+    CUTSIM_CHECK(corner >= 0, "retargeted tet does not use the node");
+    for (int f = 0; f < 4; ++f) {
+      if (f == corner) continue;  // the face opposite the corner keeps its nodes
+      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      if (u < 0) {
+        if (track_slots_) changed_slots_.push_back(slot_[Idx(t)][Idx(f)]);
+        continue;
+      }
+      if (tet_marks_.Contains(kMoving, u)) continue;
+      const int fu = MatchingFace(u, t, f);  // while t still holds `from`
+      neighbour_[Idx(t)][Idx(f)] = -1;
+      neighbour_[Idx(u)][Idx(fu)] = -1;
+      slot_[Idx(u)][Idx(fu)] = NewSlot(u, fu, true);
+      slot_[Idx(t)][Idx(f)] = NewSlot(t, f, true);
+    }
+    StarErase(from, t);
+    n[Idx(corner)] = to;
+    StarInsert(to, t);
+    if (journaling_) journal_.push_back(Op{t, from, to});  // undone one tet at a time
+  }
 }
 
 namespace {
@@ -487,9 +527,13 @@ int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {
 }
 
 bool CutMesh::SurfaceManifoldAt(int32_t node) const {
+  BuildLink(node);
+  return link_.empty() || LinkIsOneCycle();  // empty: an interior vertex
+}
+
+void CutMesh::BuildLink(int32_t node) const {
   // Link of the node in the surface: each surface triangle (node, p, q)
-  // contributes the directed link edge p → q. A closed, oriented manifold
-  // fan is exactly one cycle: every link vertex has one out- and one in-edge.
+  // contributes the directed link edge p → q.
   auto& link = link_;
   link.clear();
   for (const int32_t t : Star(node)) {
@@ -509,7 +553,13 @@ bool CutMesh::SurfaceManifoldAt(int32_t node) const {
       }
     }
   }
-  if (link.empty()) return true;  // interior vertex
+}
+
+bool CutMesh::LinkIsOneCycle() const {
+  // A closed, oriented manifold fan is exactly one cycle: every link vertex
+  // has one out- and one in-edge, and the walk from one edge visits all.
+  auto& link = link_;
+  if (link.empty()) return false;
   const size_t k = link.size();
   if (k <= 32) {
     // A handful of edges (a surface fan has ~6, a vertex on a cut ~12):
@@ -610,17 +660,20 @@ void CutMesh::ApplyEvent(const TopologyEvent& event) {
                   std::to_string(s.new_node) + ", expected new node " + std::to_string(num_nodes()) + ")";
       break;
     }
-    AddNodeCopy(s.node, static_cast<int32_t>(s.tets.size()));
+    tet_marks_.Clear(kMoving);
     for (const int32_t t : s.tets) {
       const bool uses = t >= 0 && t < num_tets() &&
                         std::find(tets_[Idx(t)].begin(), tets_[Idx(t)].end(), s.node) != tets_[Idx(t)].end();
-      if (!uses) {
+      if (!uses || !tet_marks_.Insert(kMoving, t)) {
         error_field = "event.splits[" + std::to_string(i) + "].tets";
-        error_why = "tet " + std::to_string(t) + " does not use node " + std::to_string(s.node);
+        error_why = "tet " + std::to_string(t) +
+                    (uses ? " is listed twice" : " does not use node " + std::to_string(s.node));
         break;
       }
-      RetargetTet(t, s.node, s.new_node);
     }
+    if (!error_field.empty()) break;
+    AddNodeCopy(s.node, static_cast<int32_t>(s.tets.size()));
+    MoveTetsToCopy(s.tets, s.node, s.new_node);
   }
   for (size_t i = 0; i < event.moves.size() && error_field.empty(); ++i) {
     if (event.moves[i].node < 0 || event.moves[i].node >= num_nodes()) {

@@ -95,7 +95,7 @@ namespace internal {
 /// position cached for the step (valid where x_generation is the step's)
 /// and the node stamp sets, in one line, so a node visited by the step
 /// costs one cache line of scratch.
-enum NodeMark : uint8_t { kSeen, kQueued, kPlaneDone, kRingNode, kSurfaceFree, kNumNodeMarks };
+enum NodeMark : uint8_t { kSeen, kQueued, kPlaneDone, kRingNode, kLinkOk, kNumNodeMarks };
 struct alignas(64) NodeScratch {
   Eigen::Vector3d x = Eigen::Vector3d::Zero();
   uint32_t x_generation = 0;
@@ -282,6 +282,9 @@ class CutMesh {
     std::array<uint32_t, kNumTetMarks> stamp{};
     int8_t side = 0;  // step 3's side, valid where kSideKnown
   };
+  // MoveTetsToCopy's set of moving tets shares kInSearch's stamps: the
+  // remeshing move's search runs only after every split of a step.
+  static constexpr TetMark kMoving = kInSearch;
   using TetMarks = StampRows<TetRow, kNumTetMarks>;
   using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
@@ -305,6 +308,9 @@ class CutMesh {
   int32_t AddNodeCopy(int32_t node, int32_t star_capacity = 4);
   void RemoveLastNode();
   void RetargetTet(int32_t t, int32_t from, int32_t to);
+  /// Re-points `moved` (distinct tets using `from`) at `to`, a copy with no
+  /// tets yet, in one pass (see the definition); journaled per tet.
+  void MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32_t to);
   /// Attaches local face f of t (just re-pointed) to its mate or the surface.
   void AddFaceTet(int32_t t, int f, bool opened_if_boundary);
   /// Detaches local face f of t; returns the opened flag the face had if
@@ -326,6 +332,11 @@ class CutMesh {
   /// True if the star of `node` is one face-connected group (StarGroups
   /// would return ≤ 1), without building the groups. O(star).
   [[nodiscard]] bool StarIsOneGroup(int32_t node);
+  /// The node's link in the surface into link_: one directed edge p → q per
+  /// surface triangle (node, p, q), outward. O(star).
+  void BuildLink(int32_t node) const;
+  /// True if link_ is one cycle through all its edges (false if empty).
+  [[nodiscard]] bool LinkIsOneCycle() const;
   /// Number of face-connected groups of the tets around edge (a, b).
   [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b);
   void Rollback(size_t journal_mark, int32_t node_mark);
@@ -371,8 +382,9 @@ class CutMesh {
   // Remeshing move: the twins, their star, its qualities before the move.
   std::vector<int32_t> move_twins_, move_star_;
   std::vector<double> q_rest_, q_world_;
-  // Node stamp sets (kSurfaceFree: nodes whose last visit in the
-  // singularity pass found no surface face) and cached world positions.
+  // Node stamp sets (kLinkOk: nodes whose last visit in the singularity
+  // pass found their surface link empty or one cycle) and cached world
+  // positions.
   NodeMarks node_marks_;
   // World positions read during one step (the FEM's, through a virtual
   // call) are cached in node_marks_.rows, valid where x_generation is

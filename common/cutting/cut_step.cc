@@ -352,39 +352,46 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
 
   // Steps 3–4 as one pass that the fragment guard may roll back and redo.
   auto separate = [&]() -> bool {
-    node_marks_.Clear(internal::kSurfaceFree);
+    node_marks_.Clear(internal::kLinkOk);
     for (const int32_t w : S) plane_split(w);
     // ---- 4. singularities ----------------------------------------------------
     while (work_head < work_.size()) {
       const int32_t v = work_[work_head++];
       node_marks_.Erase(internal::kQueued, v);
       if (static_cast<int32_t>(ev.splits.size()) > params.max_splits_per_step) return false;
-      // Surface faces through v: the edge rule's candidates (below), and a
-      // shortcut. A vertex with none has a closed star: every face through
-      // it is shared with another tet of its star, in the uncut mesh too
-      // (copies keep their origin's ids), so each group of its star is
-      // closed under the uncut star's face adjacency; if that star was one
-      // group, so is this one (it is all of it), and the edge rule has no
-      // candidate: nothing to do (about a third of the vertices queued).
+      // The link of v in the surface (one edge per surface face through v)
+      // decides most visits without the star's groups:
+      // - Empty: the star is closed, every face through v is shared with
+      //   another tet of its star, in the uncut mesh too (copies keep their
+      //   origin's ids), so each group of the star is closed under the uncut
+      //   star's face adjacency; if that star was one group, so is this one,
+      //   and the edge rule has no candidate (about a third of the visits).
+      // - One cycle (a manifold fan): if the uncut star was one group, so is
+      //   this one. Every group then has a surface face through v (a group's
+      //   uncut face to a tet outside it cannot still be shared: its mate
+      //   would hold v, so be in the group); and the two surface faces at a
+      //   link vertex q end the single fan of tets around edge (v, q) (a fan
+      //   that is a path ends in two surface faces, and q has only two), so
+      //   consecutive link edges lie in one group: all do. Every edge (v, u)
+      //   then has exactly two surface faces: no edge-rule candidate.
+      // Either way v is manifold now (kLinkOk), and the final check below
+      // skips it: a later change to its star would have queued it again.
+      BuildLink(v);
+      const bool link_ok = link_.empty() || LinkIsOneCycle();
+      if (link_ok) {
+        node_marks_.Insert(internal::kLinkOk, v);
+      } else {
+        node_marks_.Erase(internal::kLinkOk, v);
+      }
+      if (link_ok && star_connected0_[Idx(origin_[Idx(v)])] != 0) continue;
+      // Edge-rule candidates: the other two nodes of each surface face
+      // through v (gathered before a split below changes the link).
       std::vector<int32_t>& nbrs = nbrs_;
       nbrs.clear();
-      for (const int32_t t : Star(v)) {
-        const auto& tn = tets_[Idx(t)];
-        for (int f = 0; f < 4; ++f) {
-          if (tn[Idx(f)] == v || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v
-          for (int c = 0; c < 4; ++c)
-            if (c != f && tn[Idx(c)] != v) nbrs.push_back(tn[Idx(c)]);
-        }
+      for (const auto& [p, q] : link_) {
+        nbrs.push_back(p);
+        nbrs.push_back(q);
       }
-      // The final check below needs no link for a vertex whose last visit
-      // saw no surface face through it: a later change to its star would
-      // have queued it again.
-      if (nbrs.empty()) {
-        node_marks_.Insert(internal::kSurfaceFree, v);
-      } else {
-        node_marks_.Erase(internal::kSurfaceFree, v);
-      }
-      if (nbrs.empty() && star_connected0_[Idx(origin_[Idx(v)])] != 0) continue;
       // Vertex rule: parts of the star joined only through v. (A flood
       // answers the usual "one group" first; the groups only when split.)
       const int32_t num_groups = StarIsOneGroup(v) ? 1 : StarGroups(v);
@@ -448,10 +455,10 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     std::sort(check.begin(), check.end());
     check.erase(std::unique(check.begin(), check.end()), check.end());
     // Every vertex here was queued by the split that last changed its star
-    // and visited after it (the loop above ran dry), so a vertex with no
-    // surface face through it at that visit is interior: manifold.
+    // and visited after it (the loop above ran dry), so a vertex whose link
+    // was empty or one cycle at that visit is manifold now.
     for (const int32_t a : check)
-      if (!node_marks_.Contains(internal::kSurfaceFree, a) && !SurfaceManifoldAt(a)) return false;
+      if (!node_marks_.Contains(internal::kLinkOk, a) && !SurfaceManifoldAt(a)) return false;
     return true;
   };
 

@@ -1,5 +1,8 @@
 // Randomised cut paths on three meshes, every invariant after every step.
+#include <algorithm>
 #include <random>
+#include <tuple>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -22,9 +25,12 @@ struct MeshCase {
   Matrix3d A;  // world = A·rest (an affine deformation; identity = undeformed)
 };
 
-// FNV-1a over the cut result (tets, rest and world positions, surface slots,
-// the events' splits and moves): logged per case so a change that claims to
-// keep results identical can be checked by comparing the log before/after.
+// FNV-1a over the cut result (tets, rest and world positions, the surface
+// faces, the events' splits and moves): logged per case so a change that
+// claims to keep results identical can be checked by comparing the log
+// before/after. The surface enters as the set of live faces (tet, local
+// face, opened), not by slot id: which free slot a new face takes is
+// bookkeeping, not a result.
 struct ResultHash {
   uint64_t h = Fnv1a64(nullptr, 0);
   template <typename T>
@@ -41,12 +47,14 @@ uint64_t HashResult(const CutMesh& cm, const WorldAccess& world, const std::vect
     r.Add(cm.rest(v));
     r.Add(world.Get(v));
   }
-  for (const SurfaceFace& s : cm.surface_slots()) {
-    r.Add(s.alive);
-    if (!s.alive) continue;
-    r.Add(s.tet);
-    r.Add(s.local_face);
-    r.Add(s.opened);
+  std::vector<std::tuple<int32_t, int8_t, bool>> faces;
+  for (const SurfaceFace& s : cm.surface_slots())
+    if (s.alive) faces.emplace_back(s.tet, s.local_face, s.opened);
+  std::sort(faces.begin(), faces.end());
+  for (const auto& [tet, local_face, opened] : faces) {
+    r.Add(tet);
+    r.Add(local_face);
+    r.Add(opened);
   }
   for (const TopologyEvent& e : events) {
     r.Add(e.version);
