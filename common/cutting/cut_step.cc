@@ -325,10 +325,18 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   work_.clear();
   size_t work_head = 0;
   node_marks_.Clear(internal::kQueued);
-  auto enqueue_tets = [&](std::span<const int32_t> tets) {
+  // After a split of w that moved `tets` to a copy, the vertices whose
+  // star or link changed: the corners of the moved tets (the copy among
+  // them) and w. A face changes only between a moved and an unmoved tet,
+  // and all its nodes are corners of the moved one, so the other vertices
+  // of w's star keep their star and their link: they were manifold when
+  // the step began (every step leaves the mesh so) or were queued by the
+  // split that changed them.
+  auto enqueue_split = [&](int32_t w, std::span<const int32_t> tets) {
     for (const int32_t t : tets)
       for (const int32_t a : tets_[Idx(t)])
         if (node_marks_.Insert(internal::kQueued, a)) work_.push_back(a);
+    if (node_marks_.Insert(internal::kQueued, w)) work_.push_back(w);
   };
   node_marks_.Clear(internal::kPlaneDone);
   auto plane_split = [&](int32_t w) -> bool {
@@ -345,8 +353,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     }
     if (negative.empty() || !has_positive) return false;
     SplitNode(w, negative, &ev);
-    enqueue_tets(negative);
-    enqueue_tets(Star(w));
+    enqueue_split(w, negative);
     return true;
   };
 
@@ -400,9 +407,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
           const std::span<const int32_t> group(group_tets_.data() + group_begin_[Idx(g)],
                                                Idx(group_begin_[Idx(g) + 1] - group_begin_[Idx(g)]));
           SplitNode(v, group, &ev);
-          enqueue_tets(group);
+          enqueue_split(v, group);
         }
-        enqueue_tets(Star(v));
         continue;
       }
       // Edge rule: parts around an edge joined only through the edge. The
