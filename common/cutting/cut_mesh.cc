@@ -537,8 +537,9 @@ void CutMesh::BuildLink(int32_t node) const {
   auto& link = link_;
   link.clear();
   for (const int32_t t : Star(node)) {
-    const auto& n = tets_[Idx(t)];
     const auto& nb = neighbour_[Idx(t)];
+    if ((nb[0] | nb[1] | nb[2] | nb[3]) >= 0) continue;  // no surface face (the usual tet)
+    const auto& n = tets_[Idx(t)];
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node || nb[Idx(f)] >= 0) continue;
       const auto& lf = mesh::internal::kTetFaces[Idx(f)];

@@ -265,6 +265,21 @@ class CutMesh {
       rows[k].stamp[m] = generation[m];
       return true;
     }
+    /// Set m for a hot loop over ids below rows.size() (no growth check,
+    /// the generation and the rows' address held in registers: with the
+    /// member functions every stamp store may alias them).
+    struct Unchecked {
+      Row* rows;
+      uint32_t generation;
+      size_t m;
+      bool Insert(int32_t i) const {
+        uint32_t& s = rows[static_cast<size_t>(i)].stamp[m];
+        if (s == generation) return false;
+        s = generation;
+        return true;
+      }
+    };
+    [[nodiscard]] Unchecked View(size_t m) { return {rows.data(), generation[m], m}; }
     void Erase(size_t m, int32_t i) {
       if (static_cast<size_t>(i) < rows.size()) rows[static_cast<size_t>(i)].stamp[m] = 0;
     }

@@ -236,17 +236,22 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       walked.clear();
       // Every tet is looked at once (kSlab): the vertices seen, hence
       // S (sorted below), do not depend on the walk's order.
+      // No copies exist yet (they are made in step 3), and StepWorld sized
+      // the node rows for every node: unchecked stamp sets.
+      CUTSIM_CHECK(node_marks_.rows.size() >= Idx(n0) && tet_marks_.rows.size() >= tets_.size(), "step scratch");
       node_marks_.Clear(internal::kSeen);
       tet_marks_.Clear(kSlab);
-      node_marks_.Insert(internal::kSeen, step.v1);
-      node_marks_.Insert(internal::kSeen, step.v0);
+      const auto seen = node_marks_.View(internal::kSeen);
+      const auto slab_tets = tet_marks_.View(kSlab);
+      seen.Insert(step.v1);
+      seen.Insert(step.v0);
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
         const int32_t u = slab_queue_[head];
         for (const int32_t t : Star(u)) {
-          if (!tet_marks_.Insert(kSlab, t)) continue;
+          if (!slab_tets.Insert(t)) continue;
           for (const int32_t w : tets_[Idx(t)]) {
-            if (!node_marks_.Insert(internal::kSeen, w)) continue;
+            if (!seen.Insert(w)) continue;
             const Vector3d xw = W.Get(w);
             const int k = slab_level(xw);
             walked.emplace_back(w, k);
@@ -623,7 +628,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       }
       return p;
     };
-    auto quality = [](const std::array<Vector3d, 4>& p) { return mesh::MeanRatio(p[0], p[1], p[2], p[3]); };
+    // Mean-ratio quality cubed (no cbrt: every test below compares it with
+    // a threshold, cubed too; the cube root was a third of the move's cost).
+    auto quality = [](const std::array<Vector3d, 4>& p) { return mesh::MeanRatioCubed(p[0], p[1], p[2], p[3]); };
     // Qualities before the move, computed when first needed (NaN: not yet):
     // a tet at or above the floor after the move passes whatever it had.
     std::vector<double>& q_rest = q_rest_;
@@ -638,7 +645,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     // cut_mesh.h, step 5): v0 and v1 move at every step, passes over one
     // region move the same twins again and again, and with a floor of
     // min_quality alone each move may take a tet down to it.
-    const double floor_quality = std::max(params.min_quality, params.keep_quality);
+    const double floor_q = std::max(params.min_quality, params.keep_quality);
+    const double floor_quality = floor_q * floor_q * floor_q;  // cubed, as `quality`
     double f = 1.0;
     for (int k = 0; k <= params.max_move_halvings; ++k, f *= 0.5) {
       const Vector3d xn = x_old + f * (target - x_old);
@@ -646,10 +654,10 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       bool ok = true;
       for (size_t i = 0; i < star.size() && ok; ++i) {
         const double qr = quality(corners(star[i], true, &un));
+        ok = qr > 0.0 && (qr >= floor_quality || qr >= std::min(floor_quality, before(q_rest, i, true)));
+        if (!ok) break;
         const double qw = quality(corners(star[i], false, &xn));
-        ok = qr > 0.0 && qw > 0.0 &&
-             (qr >= floor_quality || qr >= std::min(floor_quality, before(q_rest, i, true))) &&
-             (qw >= floor_quality || qw >= std::min(floor_quality, before(q_world, i, false)));
+        ok = qw > 0.0 && (qw >= floor_quality || qw >= std::min(floor_quality, before(q_world, i, false)));
       }
       if (!ok) continue;
       for (const int32_t g : group) {

@@ -15,6 +15,14 @@ double MeanRatio(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2, con
   return std::min(1.0, 12.0 * std::cbrt(9.0 * vol * vol) / sum_l2);  // (3V)^(2/3) = cbrt(9V²)
 }
 
+double MeanRatioCubed(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2, const Vector3d& x3) {
+  const double vol = SignedVolume(x0, x1, x2, x3);
+  if (!(vol > 0.0)) return 0.0;
+  const double sum_l2 = (x1 - x0).squaredNorm() + (x2 - x0).squaredNorm() + (x3 - x0).squaredNorm() +
+                        (x2 - x1).squaredNorm() + (x3 - x1).squaredNorm() + (x3 - x2).squaredNorm();
+  return std::min(1.0, 1728.0 * 9.0 * vol * vol / (sum_l2 * sum_l2 * sum_l2));
+}
+
 double ShortestAltitude(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2, const Vector3d& x3) {
   const double vol3 = 3.0 * std::abs(SignedVolume(x0, x1, x2, x3));
   const double max_area = 0.5 * std::max({(x2 - x1).cross(x3 - x1).norm(), (x2 - x0).cross(x3 - x0).norm(),

@@ -18,6 +18,12 @@ namespace cutsim::mesh {
 double MeanRatio(const Eigen::Vector3d& x0, const Eigen::Vector3d& x1, const Eigen::Vector3d& x2,
                  const Eigen::Vector3d& x3);
 
+/// η³ = 1728·9V² / (Σ ℓᵢⱼ²)³, the cube of MeanRatio without its cube root:
+/// the same order, for comparisons against thresholds (cubed) in loops
+/// where cbrt is most of the cost. 0 if the signed volume is ≤ 0.
+double MeanRatioCubed(const Eigen::Vector3d& x0, const Eigen::Vector3d& x1, const Eigen::Vector3d& x2,
+                      const Eigen::Vector3d& x3);
+
 /// Shortest altitude of the tet: min over faces of 3|V| / area, m.
 double ShortestAltitude(const Eigen::Vector3d& x0, const Eigen::Vector3d& x1, const Eigen::Vector3d& x2,
                         const Eigen::Vector3d& x3);

@@ -1,6 +1,8 @@
 #include <algorithm>
 #include <numeric>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -63,6 +65,30 @@ TEST(Quality, SliverTendsToZero) {
     EXPECT_GE(q, 0.0);
   }
   EXPECT_EQ(MeanRatio(a, b, c, d), 0.0);  // flat
+}
+
+TEST(Quality, CubedMeanRatioIsTheCubeAndKeepsTheOrder) {
+  // Random tets of both orientations and every shape from sliver to regular.
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  auto random_point = [&] { return Vector3d(u(rng), u(rng), u(rng)); };
+  std::vector<std::pair<double, double>> q;  // (η, η³ computed directly)
+  for (int i = 0; i < 500; ++i) {
+    const Vector3d a = random_point(), b = random_point(), c = random_point(), d = random_point();
+    const double eta = MeanRatio(a, b, c, d);
+    const double eta3 = MeanRatioCubed(a, b, c, d);
+    if (eta == 0.0) {
+      EXPECT_EQ(eta3, 0.0);  // inverted or flat
+      continue;
+    }
+    EXPECT_NEAR(eta3, eta * eta * eta, 1e-13 * eta * eta * eta);
+    q.emplace_back(eta, eta3);
+  }
+  ASSERT_GT(q.size(), 100u);
+  std::sort(q.begin(), q.end());
+  for (size_t i = 1; i < q.size(); ++i) EXPECT_LE(q[i - 1].second, q[i].second * (1.0 + 1e-13));
+  const Vector3d a(1, 1, 1), b(-1, 1, -1), c(1, -1, -1), d(-1, -1, 1);
+  EXPECT_NEAR(MeanRatioCubed(a, b, c, d), 1.0, 1e-14);
 }
 
 TEST(Quality, BoxElementsHaveKnownQuality) {
