@@ -57,8 +57,9 @@
 ///    blade, the seed's: the twins of v0 (coincident copies of the same original
 ///    vertex) move to C_p(t0) and those of v1 to C_p(t): world to C_p, rest to
 ///    the barycentric preimage of C_p in the world tet around the vertex
-///    that contains it best (largest smallest barycentric coordinate; affine
-///    extrapolation if C_p lies slightly outside). A move is accepted if every
+///    (or next to its star) that contains it best (largest smallest
+///    barycentric coordinate; if none does, affine extrapolation from the
+///    tet around the vertex nearest to holding it). A move is accepted if every
 ///    tet around the moved twins keeps positive volume and mean-ratio quality
 ///    ≥ min(max(min_quality, keep_quality), its quality before the move), in
 ///    rest and in world; otherwise the displacement is halved (up to
@@ -391,7 +392,7 @@ class CutMesh {
   mutable std::vector<std::pair<int32_t, int32_t>> link_;
   mutable std::vector<int32_t> heads_;
   TetMarks tet_marks_;                       // side valid where kSideKnown
-  std::vector<int32_t> work_, negative_, nbrs_, check_, flood_, fragments_, slab_, slab_queue_;
+  std::vector<int32_t> work_, negative_, nbrs_, flood_, fragments_, slab_, slab_queue_;
   std::vector<int32_t> star_queue_, search_;
   std::vector<std::pair<int32_t, int>> slab_seen_;  // vertex, slab level
   // Remeshing move: the twins, their star, its qualities before the move.

@@ -454,22 +454,19 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         // Otherwise the final check below decides (and rejects if needed).
       }
     }
-    std::vector<int32_t>& check = check_;
-    check.clear();
     // Faces changed only on retargeted tets and on their neighbours across
     // the old faces, whose vertices are the split node and the other corners.
-    for (const Split& sp : ev.splits) {
-      check.push_back(sp.node);
-      for (const int32_t t : sp.tets)
-        for (const int32_t a : tets_[Idx(t)]) check.push_back(a);
-    }
-    std::sort(check.begin(), check.end());
-    check.erase(std::unique(check.begin(), check.end()), check.end());
     // Every vertex here was queued by the split that last changed its star
     // and visited after it (the loop above ran dry), so a vertex whose link
-    // was empty or one cycle at that visit is manifold now.
-    for (const int32_t a : check)
-      if (!node_marks_.Contains(internal::kLinkOk, a) && !SurfaceManifoldAt(a)) return false;
+    // was empty or one cycle at that visit is manifold now; the others (a
+    // visit that found a singularity it could not remove) are checked again.
+    auto manifold = [&](int32_t a) { return node_marks_.Contains(internal::kLinkOk, a) || SurfaceManifoldAt(a); };
+    for (const Split& sp : ev.splits) {
+      if (!manifold(sp.node)) return false;
+      for (const int32_t t : sp.tets)
+        for (const int32_t a : tets_[Idx(t)])
+          if (!manifold(a)) return false;
+    }
     return true;
   };
 
@@ -546,17 +543,21 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       star.erase(std::unique(star.begin(), star.end()), star.end());
     }
     // Rest preimage of the target: barycentric coordinates in the world tet
-    // (star and its neighbours) that contains it best, mapped to rest.
-    // Ties go to the lowest tet id, as a scan in ascending order keeping the
-    // first maximum would. The star first; then its neighbours, gathered
-    // through a stamp set. Once a tet holds the target (best score ≥ 0),
-    // only a tet holding it too can beat it (a score is the smallest
-    // barycentric coordinate: < 0 outside), so a neighbour whose world
-    // bounding box, padded by 1e-6 of its size, misses the target is
-    // skipped without its 3×3 inverse (outside the padded box the smallest
-    // coordinate is < −2.5e-7, far beyond rounding). One loop body serves
-    // both phases on purpose: a second copy of it (a lambda) was compiled
-    // with other FMA contractions and moved rest targets by an ulp.
+    // that contains it best (the largest smallest barycentric coordinate, a
+    // score < 0 outside), mapped to rest. Ties go to the lowest tet id, as a
+    // scan in ascending order keeping the first maximum would. Candidates:
+    // the star, and those of its neighbours (gathered through a stamp set)
+    // whose world bounding box, padded by 1e-6 of its size, holds the
+    // target: outside the padded box the smallest coordinate is < −2.5e-7,
+    // far beyond rounding, so a neighbour only counts if it holds the
+    // target. A target outside every candidate (a surface vertex moved onto
+    // P lies just outside the deformed body) is extrapolated affinely from
+    // the star tet nearest to holding it: the map of the vertex's own
+    // elements. (Scoring every neighbour too, ~100 3×3 inverses, was most of
+    // the move's cost, for an extrapolation from a tet one ring away.) One
+    // loop body serves both phases on purpose: a second copy of it (a
+    // lambda) was compiled with other FMA contractions and moved rest
+    // targets by an ulp.
     double best_score = -1e300;
     int32_t best_tet = -1;
     Vector3d u_target = u_old;
@@ -569,7 +570,6 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       if (i == search.size()) {  // the star is done: add its neighbours
         if (ring_added) break;
         ring_added = true;
-        const bool prune = best_score >= 0.0;
         // Each corner's star once (a corner is in ~6 star tets); the group's
         // own stars are the star itself. The order of `search` does not
         // matter: the best score wins, ties go to the lowest id.
@@ -580,7 +580,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
             if (!node_marks_.Insert(internal::kRingNode, a)) continue;
             for (const int32_t u : Star(a)) {
               if (!tet_marks_.Insert(kInSearch, u)) continue;
-              if (prune) {
+              {
                 const auto& un = tets_[Idx(u)];
                 Vector3d lo = W.Get(un[0]), hi = lo;
                 for (int c = 1; c < 4; ++c) {
