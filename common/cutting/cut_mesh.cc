@@ -51,7 +51,7 @@ int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
 }  // namespace
 
 int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
-  const auto& n = tets_[Idx(t)];
+  const auto& n = recs_[Idx(t)].nodes;
   const auto& lf = mesh::internal::kTetFaces[Idx(f)];
   int32_t a = n[Idx(lf[0])], b = n[Idx(lf[1])], c = n[Idx(lf[2])];
   // Search the smallest of the three stars (a just-made copy's, often): a
@@ -60,7 +60,7 @@ int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   if (star_block_[Idx(c)].size < star_block_[Idx(a)].size) std::swap(a, c);
   for (const int32_t u : Star(a)) {
     if (u == t) continue;
-    const auto& m = tets_[Idx(u)];
+    const auto& m = recs_[Idx(u)].nodes;
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
     const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
     if (has_b && has_c) return u;
@@ -70,8 +70,8 @@ int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
 
 int CutMesh::MatchingFace(int32_t u, int32_t t, int f) const {
   // The corner of u that is not on the face (the face's nodes are t's other corners).
-  const auto& n = tets_[Idx(t)];
-  const auto& m = tets_[Idx(u)];
+  const auto& n = recs_[Idx(t)].nodes;
+  const auto& m = recs_[Idx(u)].nodes;
   for (int k = 0; k < 4; ++k) {
     bool on_face = false;
     for (int c = 0; c < 4; ++c)
@@ -92,12 +92,12 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
     origin_.push_back(i);
   }
   star_block_.resize(Idx(n));
-  tets_.resize(Idx(mesh.num_tets()));
+  recs_.resize(Idx(mesh.num_tets()));
   for (int32_t t = 0; t < mesh.num_tets(); ++t) {
     for (int c = 0; c < 4; ++c) {
       const int32_t v = mesh.tets(t, c);
       CUTSIM_CHECK(v >= 0 && v < n, "tet node out of range (validate the mesh first)");
-      tets_[Idx(t)][Idx(c)] = v;
+      recs_[Idx(t)].nodes[Idx(c)] = v;
       ++star_block_[Idx(v)].capacity;
     }
   }
@@ -111,7 +111,7 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   star_pool_.reserve(Idx(offset) + Idx(offset) / 4);
   star_pool_.resize(Idx(offset));
   for (int32_t t = 0; t < num_tets(); ++t) {
-    for (const int32_t v : tets_[Idx(t)]) {
+    for (const int32_t v : recs_[Idx(t)].nodes) {
       StarBlock& b = star_block_[Idx(v)];
       star_pool_[Idx(b.begin + b.size++)] = t;  // ascending since t ascends
     }
@@ -120,36 +120,36 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   // Faces: pair tets through a hash of sorted face keys (construction
   // only), then assign surface slots in tet order (deterministic, like
   // mesh::ExtractSurface).
-  neighbour_.assign(tets_.size(), {-1, -1, -1, -1});
-  slot_.assign(tets_.size(), {-1, -1, -1, -1});
+  for (TetRecord& r : recs_) r.neighbour = {-1, -1, -1, -1};
+  slot_.assign(recs_.size(), {-1, -1, -1, -1});
   {
     std::unordered_map<mesh::internal::FaceKey, std::pair<int32_t, int>, mesh::internal::FaceKeyHash> first;  // key → (tet, face)
-    first.reserve(tets_.size() * 3);
+    first.reserve(recs_.size() * 3);
     for (int32_t t = 0; t < num_tets(); ++t) {
       for (int f = 0; f < 4; ++f) {
         const auto lf = mesh::LocalTetFace(f);
-        const auto& tn = tets_[Idx(t)];
+        const auto& tn = recs_[Idx(t)].nodes;
         std::array<int32_t, 3> k{tn[Idx(lf[0])], tn[Idx(lf[1])], tn[Idx(lf[2])]};
         std::sort(k.begin(), k.end());
         const auto [it, inserted] = first.try_emplace(k, t, f);
         if (inserted) continue;
         const auto [u, fu] = it->second;
         CUTSIM_CHECK(u >= 0, "face shared by more than two tets");
-        neighbour_[Idx(t)][Idx(f)] = u;
-        neighbour_[Idx(u)][Idx(fu)] = t;
+        recs_[Idx(t)].neighbour[Idx(f)] = u;
+        recs_[Idx(u)].neighbour[Idx(fu)] = t;
         it->second.first = -1;
       }
     }
   }
   for (int32_t t = 0; t < num_tets(); ++t) {
     for (int f = 0; f < 4; ++f) {
-      if (neighbour_[Idx(t)][Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
+      if (recs_[Idx(t)].neighbour[Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
     }
   }
   // Step scratch sized here, not in the first cut step (an O(N) fill).
   node_marks_.rows.reserve(Idx(cap));
   node_marks_.rows.resize(Idx(n));
-  tet_marks_.rows.resize(tets_.size());
+  tet_marks_.rows.resize(recs_.size());
   star_connected0_.resize(Idx(n));
   for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
 }
@@ -159,7 +159,7 @@ std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const 
   if (a < 0 || a >= num_nodes()) return out;
   int k = 0;
   for (const int32_t u : Star(a)) {
-    const auto& m = tets_[Idx(u)];
+    const auto& m = recs_[Idx(u)].nodes;
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
     const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
     if (has_b && has_c && k < 2) out[Idx(k++)] = u;
@@ -170,7 +170,7 @@ std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const 
 mesh::Tets CutMesh::TetsMatrix() const {
   mesh::Tets T(num_tets(), 4);
   for (int32_t t = 0; t < num_tets(); ++t)
-    for (int c = 0; c < 4; ++c) T(t, c) = tets_[Idx(t)][Idx(c)];
+    for (int c = 0; c < 4; ++c) T(t, c) = recs_[Idx(t)].nodes[Idx(c)];
   return T;
 }
 
@@ -189,7 +189,7 @@ mesh::Triangles CutMesh::SurfaceTriangles(std::vector<uint8_t>* opened) const {
   for (const SurfaceFace& s : surface_) {
     if (!s.alive) continue;
     const auto lf = mesh::LocalTetFace(s.local_face);
-    const auto& n = tets_[Idx(s.tet)];
+    const auto& n = recs_[Idx(s.tet)].nodes;
     tris.row(row++) << n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])];
     if (opened) opened->push_back(s.opened ? 1 : 0);
   }
@@ -199,7 +199,7 @@ mesh::Triangles CutMesh::SurfaceTriangles(std::vector<uint8_t>* opened) const {
 std::array<int32_t, 3> CutMesh::SurfaceTriangle(int32_t slot) const {
   const SurfaceFace& s = surface_[Idx(slot)];
   const auto lf = mesh::LocalTetFace(s.local_face);
-  const auto& n = tets_[Idx(s.tet)];
+  const auto& n = recs_[Idx(s.tet)].nodes;
   return {n[Idx(lf[0])], n[Idx(lf[1])], n[Idx(lf[2])]};
 }
 
@@ -255,7 +255,7 @@ void CutMesh::FreeSlot(int32_t slot) {
 }
 
 bool CutMesh::RemoveFaceTet(int32_t t, int f) {
-  const int32_t u = neighbour_[Idx(t)][Idx(f)];
+  const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
   if (u < 0) {  // a surface face: it travels with its tet
     const int32_t slot = slot_[Idx(t)][Idx(f)];
     CUTSIM_CHECK(slot >= 0, "surface face without a slot");
@@ -266,9 +266,9 @@ bool CutMesh::RemoveFaceTet(int32_t t, int f) {
   }
   // Interior face: the other tet is exposed, as a face opened by the cut.
   const int fu = MatchingFace(u, t, f);
-  CUTSIM_CHECK(neighbour_[Idx(u)][Idx(fu)] == t, "face owner mismatch");
-  neighbour_[Idx(t)][Idx(f)] = -1;
-  neighbour_[Idx(u)][Idx(fu)] = -1;
+  CUTSIM_CHECK(recs_[Idx(u)].neighbour[Idx(fu)] == t, "face owner mismatch");
+  recs_[Idx(t)].neighbour[Idx(f)] = -1;
+  recs_[Idx(u)].neighbour[Idx(fu)] = -1;
   slot_[Idx(u)][Idx(fu)] = NewSlot(u, fu, true);
   return true;
 }
@@ -282,9 +282,9 @@ void CutMesh::AddFaceTet(int32_t t, int f, bool opened_if_boundary) {
   // Two tets sharing a face both hold copies only moved together (see the
   // proof sketch in SplitNode), so a third user is a bug.
   const int fu = MatchingFace(u, t, f);
-  CUTSIM_CHECK(neighbour_[Idx(u)][Idx(fu)] < 0, "face would be shared by more than two tets");
-  neighbour_[Idx(t)][Idx(f)] = u;
-  neighbour_[Idx(u)][Idx(fu)] = t;
+  CUTSIM_CHECK(recs_[Idx(u)].neighbour[Idx(fu)] < 0, "face would be shared by more than two tets");
+  recs_[Idx(t)].neighbour[Idx(f)] = u;
+  recs_[Idx(u)].neighbour[Idx(fu)] = t;
   FreeSlot(slot_[Idx(u)][Idx(fu)]);
   slot_[Idx(u)][Idx(fu)] = -1;
 }
@@ -341,7 +341,7 @@ void CutMesh::StarErase(int32_t node, int32_t t) {
 }
 
 void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
-  auto& n = tets_[Idx(t)];
+  auto& n = recs_[Idx(t)].nodes;
   int corner = -1;
   for (int c = 0; c < 4; ++c)
     if (n[Idx(c)] == from) corner = c;
@@ -389,7 +389,7 @@ int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, Topolog
 void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32_t to) {
   CUTSIM_CHECK(Star(to).empty(), "tets move to a fresh copy only");
   // All at once rather than RetargetTet one by one: a face between two
-  // moved tets stays interior (its neighbour_ entries are per local face,
+  // moved tets stays interior (its neighbour entries are per local face,
   // and the corner is replaced in place), a surface face keeps its slot
   // (its triangle now names the copy), and only a face between a moved and
   // an unmoved tet opens, as two new surface faces. One tet at a time, each
@@ -398,22 +398,22 @@ void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32
   tet_marks_.Clear(kMoving);
   for (const int32_t t : moved) tet_marks_.Insert(kMoving, t);
   for (const int32_t t : moved) {
-    auto& n = tets_[Idx(t)];
+    auto& n = recs_[Idx(t)].nodes;
     int corner = -1;
     for (int c = 0; c < 4; ++c)
       if (n[Idx(c)] == from) corner = c;
     CUTSIM_CHECK(corner >= 0, "retargeted tet does not use the node");
     for (int f = 0; f < 4; ++f) {
       if (f == corner) continue;  // the face opposite the corner keeps its nodes
-      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
       if (u < 0) {
         if (track_slots_) changed_slots_.push_back(slot_[Idx(t)][Idx(f)]);
         continue;
       }
       if (tet_marks_.Contains(kMoving, u)) continue;
       const int fu = MatchingFace(u, t, f);  // while t still holds `from`
-      neighbour_[Idx(t)][Idx(f)] = -1;
-      neighbour_[Idx(u)][Idx(fu)] = -1;
+      recs_[Idx(t)].neighbour[Idx(f)] = -1;
+      recs_[Idx(u)].neighbour[Idx(fu)] = -1;
       slot_[Idx(u)][Idx(fu)] = NewSlot(u, fu, true);
       slot_[Idx(t)][Idx(f)] = NewSlot(t, f, true);
     }
@@ -464,10 +464,10 @@ int32_t CutMesh::StarGroups(int32_t node) {
   std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
   for (size_t i = 0; i < star.size(); ++i) {
     const int32_t t = star[i];
-    const auto& n = tets_[Idx(t)];
+    const auto& n = recs_[Idx(t)].nodes;
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
-      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
       if (u < 0) continue;
       const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
       UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
@@ -494,10 +494,10 @@ bool CutMesh::StarIsOneGroup(int32_t node) {
   star_queue_.assign(1, star[0]);
   for (size_t i = 0; i < star_queue_.size(); ++i) {
     const int32_t t = star_queue_[i];
-    const auto& n = tets_[Idx(t)];
+    const auto& n = recs_[Idx(t)].nodes;
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node) continue;
-      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
       if (u >= 0 && tet_marks_.Insert(kInStar, u)) star_queue_.push_back(u);
     }
   }
@@ -514,10 +514,10 @@ int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {
   std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
   for (size_t i = 0; i < around_.size(); ++i) {
     const int32_t t = around_[i];
-    const auto& n = tets_[Idx(t)];
+    const auto& n = recs_[Idx(t)].nodes;
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
-      const int32_t u = neighbour_[Idx(t)][Idx(f)];
+      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
       if (u < 0) continue;
       const auto j = std::lower_bound(around_.begin(), around_.end(), u) - around_.begin();
       UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
@@ -537,9 +537,9 @@ void CutMesh::BuildLink(int32_t node) const {
   auto& link = link_;
   link.clear();
   for (const int32_t t : Star(node)) {
-    const auto& nb = neighbour_[Idx(t)];
+    const auto& nb = recs_[Idx(t)].neighbour;
     if ((nb[0] | nb[1] | nb[2] | nb[3]) >= 0) continue;  // no surface face (the usual tet)
-    const auto& n = tets_[Idx(t)];
+    const auto& n = recs_[Idx(t)].nodes;
     for (int f = 0; f < 4; ++f) {
       if (n[Idx(f)] == node || nb[Idx(f)] >= 0) continue;
       const auto& lf = mesh::internal::kTetFaces[Idx(f)];
@@ -606,9 +606,9 @@ bool CutMesh::LinkIsOneCycle() const {
 }
 
 std::vector<int32_t> CutMesh::ConnectedComponents(int32_t* count) const {
-  DisjointSets ds(tets_.size());
+  DisjointSets ds(recs_.size());
   for (int32_t t = 0; t < num_tets(); ++t)
-    for (const int32_t u : neighbour_[Idx(t)])
+    for (const int32_t u : recs_[Idx(t)].neighbour)
       if (u > t) ds.Union(t, u);
   std::vector<int32_t> labels;
   const int32_t k = Relabel(ds, labels);
@@ -664,7 +664,7 @@ void CutMesh::ApplyEvent(const TopologyEvent& event) {
     tet_marks_.Clear(kMoving);
     for (const int32_t t : s.tets) {
       const bool uses = t >= 0 && t < num_tets() &&
-                        std::find(tets_[Idx(t)].begin(), tets_[Idx(t)].end(), s.node) != tets_[Idx(t)].end();
+                        std::find(recs_[Idx(t)].nodes.begin(), recs_[Idx(t)].nodes.end(), s.node) != recs_[Idx(t)].nodes.end();
       if (!uses || !tet_marks_.Insert(kMoving, t)) {
         error_field = "event.splits[" + std::to_string(i) + "].tets";
         error_why = "tet " + std::to_string(t) +

@@ -156,11 +156,11 @@ class CutMesh {
   explicit CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity = 0);
 
   [[nodiscard]] int32_t num_nodes() const { return static_cast<int32_t>(rest_.size()); }
-  [[nodiscard]] int32_t num_tets() const { return static_cast<int32_t>(tets_.size()); }
+  [[nodiscard]] int32_t num_tets() const { return static_cast<int32_t>(recs_.size()); }
   /// Topology version: number of events applied (0 for the uncut mesh).
   [[nodiscard]] uint64_t version() const { return version_; }
   [[nodiscard]] const Eigen::Vector3d& rest(int32_t node) const { return rest_[Idx(node)]; }
-  [[nodiscard]] const std::array<int32_t, 4>& tet(int32_t t) const { return tets_[Idx(t)]; }
+  [[nodiscard]] const std::array<int32_t, 4>& tet(int32_t t) const { return recs_[Idx(t)].nodes; }
   /// Tets using `node`, ascending. Valid until the next topology change.
   [[nodiscard]] std::span<const int32_t> node_tets(int32_t node) const { return Star(node); }
   /// The uncut-mesh node this one descends from (itself for original nodes).
@@ -181,7 +181,7 @@ class CutMesh {
   [[nodiscard]] int32_t SurfaceSlot(int32_t t, int f) const { return slot_[Idx(t)][Idx(f)]; }
   /// The tet across local face `f` of tet `t`, −1 if that face is on the
   /// surface. O(1).
-  [[nodiscard]] int32_t Neighbour(int32_t t, int f) const { return neighbour_[Idx(t)][Idx(f)]; }
+  [[nodiscard]] int32_t Neighbour(int32_t t, int f) const { return recs_[Idx(t)].neighbour[Idx(f)]; }
   /// Nodes of surface slot `slot` (alive), outward.
   [[nodiscard]] std::array<int32_t, 3> SurfaceTriangle(int32_t slot) const;
   /// Change log for incremental consumers (the sim's BVH and surface):
@@ -358,12 +358,18 @@ class CutMesh {
   void Rollback(size_t journal_mark, int32_t node_mark);
 
   std::vector<Eigen::Vector3d> rest_;            // #N, m
-  std::vector<std::array<int32_t, 4>> tets_;     // #T
-  // Face adjacency, flat: neighbour_[t][f] is the tet across local face f
-  // (opposite corner f) of t, −1 on the surface; slot_[t][f] its surface
-  // slot, −1 if interior. Replaces a hash map of sorted face keys (the
-  // cut step's main cost, issue 4).
-  std::vector<std::array<int32_t, 4>> neighbour_;  // #T×4
+  // Per tet, in one 32-byte record: its nodes and its face adjacency,
+  // neighbour[f] = the tet across local face f (opposite corner f), −1 on
+  // the surface (a flat table replacing a hash map of sorted face keys, the
+  // cut step's main cost once, issue 4). Together because a cut step reads
+  // both for every tet it visits, on caches the FEM steps in between have
+  // evicted: one line instead of two. slot_[t][f] is the face's surface
+  // slot, −1 if interior (read only where the surface changes).
+  struct alignas(32) TetRecord {
+    std::array<int32_t, 4> nodes;
+    std::array<int32_t, 4> neighbour;
+  };
+  std::vector<TetRecord> recs_;                    // #T
   std::vector<std::array<int32_t, 4>> slot_;       // #T×4
   // Node → its tets, ascending: one pool with a block per node (CSR with
   // slack) instead of a vector per node, so a node's star is one load away

@@ -82,9 +82,9 @@ int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vect
   int32_t best = -1;
   double best_cos = -2.0;
   for (const int32_t t : Star(v1)) {
-    const auto& tn = tets_[Idx(t)];
+    const auto& tn = recs_[Idx(t)].nodes;
     for (int f = 0; f < 4; ++f) {
-      if (tn[Idx(f)] == v1 || neighbour_[Idx(t)][Idx(f)] >= 0) continue;  // surface faces through v1
+      if (tn[Idx(f)] == v1 || recs_[Idx(t)].neighbour[Idx(f)] >= 0) continue;  // surface faces through v1
       for (int c = 0; c < 4; ++c) {
         const int32_t vi = tn[Idx(c)];
         if (c == f || vi == v1 || origin_[Idx(vi)] == origin_[Idx(v0)] || origin_[Idx(vi)] == origin_[Idx(v1)])
@@ -137,7 +137,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   double h = 0.0;
   int edges = 0;
   for (const int32_t t : Star(step.v1)) {
-    for (const int32_t a : tets_[Idx(t)]) {
+    for (const int32_t a : recs_[Idx(t)].nodes) {
       if (a == step.v1) continue;
       h += (W.Get(a) - x1).norm();
       ++edges;
@@ -238,7 +238,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       // S (sorted below), do not depend on the walk's order.
       // No copies exist yet (they are made in step 3), and StepWorld sized
       // the node rows for every node: unchecked stamp sets.
-      CUTSIM_CHECK(node_marks_.rows.size() >= Idx(n0) && tet_marks_.rows.size() >= tets_.size(), "step scratch");
+      CUTSIM_CHECK(node_marks_.rows.size() >= Idx(n0) && tet_marks_.rows.size() >= recs_.size(), "step scratch");
       node_marks_.Clear(internal::kSeen);
       tet_marks_.Clear(kSlab);
       const auto seen = node_marks_.View(internal::kSeen);
@@ -248,9 +248,18 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
         const int32_t u = slab_queue_[head];
-        for (const int32_t t : Star(u)) {
+        // At 100k tets the step runs on caches the FEM steps in between have
+        // evicted: ask for the star's tets (and the next vertex's star
+        // record) before walking them, so the misses overlap.
+        if (head + 1 < slab_queue_.size()) __builtin_prefetch(&star_block_[Idx(slab_queue_[head + 1])]);
+        const std::span<const int32_t> star = Star(u);
+        for (const int32_t t : star) {
+          __builtin_prefetch(&recs_[Idx(t)]);
+          __builtin_prefetch(&tet_marks_.rows[Idx(t)]);
+        }
+        for (const int32_t t : star) {
           if (!slab_tets.Insert(t)) continue;
-          for (const int32_t w : tets_[Idx(t)]) {
+          for (const int32_t w : recs_[Idx(t)].nodes) {
             if (!seen.Insert(w)) continue;
             const Vector3d xw = W.Get(w);
             const int k = slab_level(xw);
@@ -313,7 +322,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   auto side = [&](int32_t t) -> int8_t {
     if (tet_marks_.Contains(kSideKnown, t)) return tet_marks_.rows[Idx(t)].side;
     double far = 0.0;
-    for (const int32_t a : tets_[Idx(t)]) {
+    for (const int32_t a : recs_[Idx(t)].nodes) {
       const double da = plane_dist(W.Get(a));
       if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
     }
@@ -339,7 +348,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   // split that changed them.
   auto enqueue_split = [&](int32_t w, std::span<const int32_t> tets) {
     for (const int32_t t : tets)
-      for (const int32_t a : tets_[Idx(t)])
+      for (const int32_t a : recs_[Idx(t)].nodes)
         if (node_marks_.Insert(internal::kQueued, a)) work_.push_back(a);
     if (node_marks_.Insert(internal::kQueued, w)) work_.push_back(w);
   };
@@ -464,7 +473,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     for (const Split& sp : ev.splits) {
       if (!manifold(sp.node)) return false;
       for (const int32_t t : sp.tets)
-        for (const int32_t a : tets_[Idx(t)])
+        for (const int32_t a : recs_[Idx(t)].nodes)
           if (!manifold(a)) return false;
     }
     return true;
@@ -493,7 +502,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         for (size_t i = 0; i < comp.size() && comp.size() < limit; ++i) {
           const int32_t t = comp[i];
           for (int f = 0; f < 4; ++f) {
-            const int32_t u = neighbour_[Idx(t)][Idx(f)];
+            const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
             if (u >= 0 && tet_marks_.Insert(kInFlood, u)) comp.push_back(u);
           }
         }
@@ -576,12 +585,12 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         node_marks_.Clear(internal::kRingNode);
         for (const int32_t g : group) node_marks_.Insert(internal::kRingNode, g);
         for (const int32_t st : star) {
-          for (const int32_t a : tets_[Idx(st)]) {
+          for (const int32_t a : recs_[Idx(st)].nodes) {
             if (!node_marks_.Insert(internal::kRingNode, a)) continue;
             for (const int32_t u : Star(a)) {
               if (!tet_marks_.Insert(kInSearch, u)) continue;
               {
-                const auto& un = tets_[Idx(u)];
+                const auto& un = recs_[Idx(u)].nodes;
                 Vector3d lo = W.Get(un[0]), hi = lo;
                 for (int c = 1; c < 4; ++c) {
                   const Vector3d pc = W.Get(un[Idx(c)]);
@@ -598,7 +607,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
         if (i == search.size()) break;
       }
       const int32_t t = search[i];
-      const auto& tn = tets_[Idx(t)];
+      const auto& tn = recs_[Idx(t)].nodes;
       const Vector3d p0 = W.Get(tn[0]);
       Eigen::Matrix3d D;
       D << W.Get(tn[1]) - p0, W.Get(tn[2]) - p0, W.Get(tn[3]) - p0;
@@ -619,7 +628,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     auto corners = [&](int32_t t, bool rest_config, const Vector3d* moved) {
       std::array<Vector3d, 4> p;
       for (int c = 0; c < 4; ++c) {
-        const int32_t a = tets_[Idx(t)][Idx(c)];
+        const int32_t a = recs_[Idx(t)].nodes[Idx(c)];
         if (moved && in_group(a)) {
           p[Idx(c)] = *moved;
         } else {
