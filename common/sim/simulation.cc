@@ -243,10 +243,10 @@ class Engine final : public Simulation {
     double elapsed = 0;
     while (remaining > 0) {
       double dt_max = static_cast<double>(fem::CurrentTimeStep(model_, state_, step_options_));
-      if (facet_.touching) dt_max = ContactLimitedStep(dt_max);
+      if (Loaded()) dt_max = ContactLimitedStep(dt_max);
       const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
       const double dt = remaining / std::max(1.0, n);
-      if (facet_.touching) {
+      if (Loaded()) {
         const double s = (elapsed + dt) / frame_time;
         ApplyContactForce(start.tip + s * (pose_.tip - start.tip), tool_velocity);
       }
@@ -280,7 +280,7 @@ class Engine final : public Simulation {
   const std::vector<CutStepTiming>& CutTimings() const override { return cut_timings_; }
 
   Eigen::Matrix3d ContactStiffness() const override {
-    if (!facet_.touching) return Eigen::Matrix3d::Zero();
+    if (!Loaded()) return Eigen::Matrix3d::Zero();
     // The contact spring k in series with the tissue's point stiffness along
     // the direction it pushes (PatchStiffness). The tip penalty acts along
     // n: K = k_eff·n nᵀ. The edge grip acts across the blade, K = k_eff·
@@ -603,6 +603,7 @@ class Engine final : public Simulation {
       surface_.setConstant(-1);
       opened_.assign(static_cast<size_t>(surface_.rows()), 0);
       surface_tet_.assign(static_cast<size_t>(surface_.rows()), -1);
+      wall_node_.assign(static_cast<size_t>(model_.node_capacity()), 0);
       for (int32_t f = 0; f < num_slots_; ++f) {
         const cutting::SurfaceFace& face = slots[static_cast<size_t>(f)];
         if (!face.alive) continue;
@@ -610,6 +611,7 @@ class Engine final : public Simulation {
         surface_.row(f) << tri[0], tri[1], tri[2];
         opened_[static_cast<size_t>(f)] = face.opened ? 1 : 0;
         surface_tet_[static_cast<size_t>(f)] = face.tet;
+        if (face.opened) FlagWallNodes(tri);
       }
       std::vector<int32_t> drained;
       cut_->TakeChangedSlots(drained);  // all covered above
@@ -625,6 +627,15 @@ class Engine final : public Simulation {
     FlagDebris();
     CopyWorld();
     bvh_ = mesh::TriangleBvh(world_, surface_);
+  }
+
+  /// Marks the nodes of a face a cut opened (tool_contact.h: walls and lips
+  /// of a cut). A node stays on a cut once it is: cuts never close.
+  void FlagWallNodes(const std::array<int32_t, 3>& tri) {
+    if (wall_node_.size() < static_cast<size_t>(model_.node_capacity())) {
+      wall_node_.resize(static_cast<size_t>(model_.node_capacity()), 0);
+    }
+    for (const int32_t v : tri) wall_node_[static_cast<size_t>(v)] = 1;
   }
 
   /// Surface update after a cut: only the slots the cut created or freed
@@ -659,6 +670,7 @@ class Engine final : public Simulation {
       surface_.row(f) << tri[0], tri[1], tri[2];
       opened_[i] = face.opened ? 1 : 0;
       surface_tet_[i] = face.tet;
+      if (face.opened) FlagWallNodes(tri);
       if (!debris_facet_.empty()) debris_facet_[i] = debris_tet_[static_cast<size_t>(face.tet)];
       // World rows of the triangle's nodes (new copies included), then a
       // local insert: amortised O(log F), the tree is rebuilt only after
@@ -796,8 +808,15 @@ class Engine final : public Simulation {
     CopyWorld();
     bvh_.Refit(world_, model_.num_nodes());
     facet_ = FindContactFacet(bvh_, world_, surface_, pose_.tip, pose_.blade_dir, blade_length_,
-                              mean_edge_, hits_scratch_, box_scratch_, debris_facet_, in_cut_);
-    if (!facet_.touching) in_cut_ = false;  // the blade left the tissue (see tool_contact.h)
+                              mean_edge_, hits_scratch_, box_scratch_, debris_facet_, in_cut_, wall_node_);
+    if (!facet_.touching) {
+      in_cut_ = false;  // the blade left the tissue (see tool_contact.h)
+      sweeps_.clear();
+    }
+    // Behind its own cut front the tissue is cut (tool_contact.h, in its own cut).
+    if (in_cut_ && facet_.touching && !facet_.on_cut) {
+      facet_.on_cut = InSweptArea(sweeps_, facet_.point, indent_limit_);
+    }
     if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
     UpdateGrip();
     report_.touching = facet_.touching;
@@ -805,7 +824,14 @@ class Engine final : public Simulation {
     report_.point = facet_.point;
     report_.normal = facet_.normal;
     report_.depth = facet_.depth;
-    if (!facet_.touching) report_.force_on_tool.setZero();
+    if (!Loaded()) report_.force_on_tool.setZero();
+  }
+
+  /// The blade loads the tissue this frame: it touches it, not only a wall
+  /// or lip of its own cut, and in its slit it still holds a grip. Other
+  /// in-cut contacts keep the cut's t0 but take no load (tool_contact.h).
+  bool Loaded() const {
+    return facet_.touching && !facet_.on_cut && (!facet_.in_slit || grip_.active);
   }
 
   /// Edge coupling (tool_contact.h): the blade is inside once the contact
@@ -813,15 +839,25 @@ class Engine final : public Simulation {
   /// A grip from an older topology is released (a cut: the tissue gave
   /// way, the spring restarts unloaded at the new crossing); one whose
   /// tissue end drifted more than half the limit from its material point
-  /// moves to the current crossing, keeping its world point.
+  /// moves to the current crossing, keeping its world point. In its own
+  /// cut a facet on the cut releases the grip, and an in-slit contact keeps
+  /// one but never takes one (tool_contact.h, in its own cut).
   void UpdateGrip() {
-    const bool inside = facet_.touching && (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
+    if (facet_.on_cut || facet_.in_slit) facet_.depth = 0.0;  // never a tip penalty in the slit
+    const bool inside = facet_.touching && !facet_.on_cut &&
+                        (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
     if (!inside) {
       grip_.active = false;
       return;
     }
     const uint64_t version = model_.topology_version();
     if (!grip_.active || grip_.topology_version != version) {
+      // A new grip only where the edge crosses uncut tissue; in the slit it
+      // may only keep the one it holds (tool_contact.h, in-cut rule).
+      if (facet_.in_slit) {
+        grip_.active = false;
+        return;
+      }
       grip_ = MakeGrip(facet_, facet_.point, version);
     } else if (grip_.offset.norm() > 0.5 * grip_limit_) {
       const auto& nd = grip_.nodes;
@@ -1073,6 +1109,7 @@ class Engine final : public Simulation {
     }
     tracker_->OnCutExecuted();
     in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
+    sweeps_.push_back({anchor_tip_, pose_.tip, pose_.blade_dir});
     anchor_tip_ = pose_.tip;  // t0 := t: the next step sweeps from here
     Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
                 cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
@@ -1158,6 +1195,7 @@ class Engine final : public Simulation {
   mesh::Triangles surface_;        // #S×3
   int32_t num_slots_ = 0;
   std::vector<uint8_t> opened_;    // #S
+  std::vector<uint8_t> wall_node_;  // #node_capacity (or empty): node on a face a cut opened
   std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
   std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
   std::vector<uint8_t> debris_tet_;   // #T (or empty): tet of a debris piece
@@ -1194,6 +1232,7 @@ class Engine final : public Simulation {
   double cut_wall_time_ = 0;
   bool warned_capacity_ = false;
   bool in_cut_ = false;  // a cut executed since the blade last lost contact
+  std::vector<CutSweep> sweeps_;  // areas those cuts swept (tool_contact.h)
 
   // ---- checkpoints (engineer ops; common/sim/checkpoint.h) ---------------
  public:

@@ -77,14 +77,31 @@ void SmoothNormal(ContactFacet& c, const mesh::TriangleBvh& bvh, const mesh::Pos
   c.depth = std::max(0.0, (c.point - tip).dot(c.normal));
 }
 
+/// Facet `f` is a wall or a lip of a cut: two of its nodes (an edge: a
+/// wall's own, or a lip's edge on the cut line) lie on faces a cut opened.
+/// Uncut tissue ahead of a cut front shares only the front vertex with them.
+bool OnCut(const mesh::Triangles& surface, const std::vector<uint8_t>& wall_nodes, int32_t f) {
+  if (wall_nodes.empty()) return false;
+  int on_wall = 0;
+  for (int k = 0; k < 3; ++k) on_wall += wall_nodes[static_cast<size_t>(surface(f, k))] != 0 ? 1 : 0;
+  return on_wall >= 2;
+}
+
 }  // namespace
 
 ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
-                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored, bool in_cut) {
+                              std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored, bool in_cut,
+                              const std::vector<uint8_t>& wall_nodes) {
   ContactFacet best;
+  // In its own cut a wall or lip is touched, not gripped (header, in-cut rule).
+  auto finish = [&](ContactFacet& c) {
+    if (!c.touching) return;
+    SmoothNormal(c, bvh, world, surface, tip, boxes);
+    if (in_cut) c.on_cut = OnCut(surface, wall_nodes, c.surface_tri);
+  };
   auto skip = [&](int32_t f) { return !ignored.empty() && ignored[static_cast<size_t>(f)] != 0; };
   // 1. Where the blade enters: crossing nearest the handle, facing it.
   const Eigen::Vector3d handle = tip + blade_length * blade_dir;
@@ -98,7 +115,7 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     Fill(best, surface, h.tri, facet, h.point, h.bary, tip);
   }
   if (best.touching) {
-    SmoothNormal(best, bvh, world, surface, tip, boxes);
+    finish(best);
     return best;
   }
   // 2. The tip just under a facing facet (no crossing, e.g. pressed flat).
@@ -122,12 +139,12 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }
   if (best.touching || !in_cut) {
-    if (best.touching) SmoothNormal(best, bvh, world, surface, tip, boxes);
+    finish(best);
     return best;
   }
   // 3. Inside its own cut: the blade lies in the slit it opened and crosses
   // no facing facet. Take the facing facet nearest to the blade segment
-  // (the lips of the slit around the cut front).
+  // (the lips of the slit, or the last uncut tissue around the cut front).
   const Eigen::Vector3d lo = tip.cwiseMin(handle) - r, hi = tip.cwiseMax(handle) + r;
   bvh.QueryBox(lo, hi, boxes);
   const Eigen::Vector3d seg = handle - tip;
@@ -152,7 +169,8 @@ ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Position
     best_distance = hit.distance;
     Fill(best, surface, f, facet, hit.point, hit.bary, tip);
   }
-  if (best.touching) SmoothNormal(best, bvh, world, surface, tip, boxes);
+  finish(best);
+  best.in_slit = best.touching;
   return best;
 }
 
@@ -167,6 +185,23 @@ Eigen::Vector3d PenaltyForce(ContactFacet& facet, const Eigen::Vector3d& x0, con
   const double vn = approach_velocity.dot(facet.normal);  // < 0: tool moving inward
   const double push = stiffness * facet.depth + damping * std::max(0.0, -vn);
   return -push * facet.normal;
+}
+
+bool InSweptArea(const std::vector<CutSweep>& sweeps, const Eigen::Vector3d& point, double tolerance) {
+  for (const CutSweep& sweep : sweeps) {
+    // Along the cut: the sweep's part across the blade (sliding along
+    // itself sweeps no area).
+    const Eigen::Vector3d& d = sweep.blade_dir;
+    Eigen::Vector3d along = sweep.to - sweep.from;
+    along -= along.dot(d) * d;
+    const double len2 = along.squaredNorm();
+    if (!(len2 > 0.0)) continue;
+    const Eigen::Vector3d rel = point - sweep.from;
+    const double u = rel.dot(along) / len2;  // 0 at t0, 1 at the front
+    const Eigen::Vector3d across = along.cross(d).normalized();
+    if (u >= 0.0 && u <= 1.0 && std::abs(rel.dot(across)) <= tolerance) return true;
+  }
+  return false;
 }
 
 EdgeGrip MakeGrip(const ContactFacet& facet, const Eigen::Vector3d& hold, uint64_t topology_version) {

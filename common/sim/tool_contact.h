@@ -64,6 +64,42 @@
 ///   re-taken at the new crossing. When the offset exceeds half the cap
 ///   the grip moves to the current crossing, keeping its world point, so
 ///   the force stays continuous and acts on the facet at the blade.
+/// - In its own cut (a cut executed since the blade last lost contact).
+///   The cut opens a slit around the blade, which may then cross no facing
+///   facet: the in-cut test takes the facing facet nearest to the blade
+///   segment within one mean edge (`in_slit`), so the contact, C_p and
+///   v_c, and with them the cut's t0, persist while the blade stands in
+///   its slit. In the slit the blade's faces lie along the walls and the
+///   lips close up behind it: a real blade there feels at most friction
+///   (not modelled); only tissue not yet cut resists its edge. Gripping
+///   whatever the contact found instead dragged the cut's own lips after
+///   the blade: a severed ligament's stump was pulled along at ≈ k·limit
+///   until the blade was lifted out, and a blade drawn back along its slit
+///   was held at k·limit. So, in its own cut, a contact facet is *on the
+///   cut* (`on_cut`), touched but never gripped and never pushed by the
+///   tip (any grip is released), when
+///   * it is a wall or lip of a cut: two of its nodes (an edge) lie on
+///     faces a cut opened, while the tissue ahead of a cut front shares
+///     only the front vertex with them; or
+///   * C_p lies behind the cut front: in the area the blade swept in this
+///     contact's cut steps (CutSweep: tip at t0 → tip at the cut, along
+///     the blade), within the indentation limit across it. The separation
+///     follows element faces, up to an element off the blade's plane, so
+///     an element the cut left whole can still straddle the blade there;
+///     the blade has cut through it all the same.
+///   A new grip is taken only where the blade crosses (or the tip lies
+///   under) tissue that is not on the cut, which is where the blade drawn
+///   forward meets the tissue ahead of the front: there the steady
+///   resistance and the stress that reaches K_I are unchanged. An in-slit
+///   contact keeps a grip the blade still holds but never takes one: the
+///   last bridge of a cut can deform past the edge (the blade's line
+///   leaves the body through its end face while the tissue is still
+///   hooked on it, as at the block's far end), whereas what lies near a
+///   blade that has cut through is the side of a severed part, not tissue
+///   at its edge. A cut releases every grip, so after the step that severs
+///   a part nothing is held. At the mesh's resolution a lip is the whole
+///   facet along the slit: a blade turned out of its slit into the lip's
+///   tissue is gripped a facet further on.
 /// - The haptic stiffness is derived from the FEM, not a constant (see
 ///   Simulation::ContactStiffness): the tissue's local stiffness at the
 ///   contact k_t = 1/(fᵀK⁻¹f), the point stiffness for the load f = b ⊗ n
@@ -93,6 +129,11 @@ struct ContactFacet {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ(); ///< outward, unit
   double depth = 0.0;                                 ///< δ ≥ 0, m
   int32_t closest_node = -1;                          ///< v_c: facet node nearest to C_p
+  bool in_slit = false;  ///< Found by the in-cut test: the blade crosses no facet (file comment).
+  /// On the blade's own cut, touched but not gripped (file comment): a wall
+  /// or lip (set here with in_cut) or behind the cut front (InSweptArea,
+  /// set by the caller).
+  bool on_cut = false;
 };
 
 /// The blade's grip on the tissue it is inside (file comment, edge coupling).
@@ -104,6 +145,19 @@ struct EdgeGrip {
   Eigen::Vector3d stretch = Eigen::Vector3d::Zero();  ///< Last capped e (⟂ blade), m.
   uint64_t topology_version = 0;                      ///< Mesh version the nodes belong to.
 };
+
+/// The area one cut step's blade swept: the blade from the tip at t0 to the
+/// tip at the cut. Tissue there is cut, whatever element faces the
+/// separation followed (file comment, in its own cut).
+struct CutSweep {
+  Eigen::Vector3d from = Eigen::Vector3d::Zero();       ///< Tip at t0, m.
+  Eigen::Vector3d to = Eigen::Vector3d::Zero();         ///< Tip at the cut, m.
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< Unit, tip → handle.
+};
+
+/// `point` lies behind a cut front: in the area one of `sweeps` covers
+/// along the cut, within `tolerance` (m) across it.
+bool InSweptArea(const std::vector<CutSweep>& sweeps, const Eigen::Vector3d& point, double tolerance);
 
 /// Grips `facet` (its nodes, barycentrics and current point C_p) so that
 /// the spring's tissue end is at `hold` (world, m): hold = C_p starts
@@ -126,13 +180,15 @@ Eigen::Vector3d EdgeGripForce(EdgeGrip& grip, const Eigen::Vector3d& x0, const E
 /// length) on a surface (see file comment). `near_radius` is the reach of
 /// the tip-only test and of the in-cut test; `hits` and `boxes` are
 /// scratch; `ignored` (empty, or one flag per surface triangle) marks facets
-/// never taken; `in_cut` enables the in-cut test (file comment).
+/// never taken; `in_cut` enables the in-cut test and the `on_cut` flag,
+/// read from `wall_nodes` (empty, or one flag per node: on a face a cut
+/// opened) (file comment).
 ContactFacet FindContactFacet(const mesh::TriangleBvh& bvh, const mesh::Positions& world,
                               const mesh::Triangles& surface, const Eigen::Vector3d& tip,
                               const Eigen::Vector3d& blade_dir, double blade_length,
                               double near_radius, std::vector<mesh::SegmentHit>& hits,
                               std::vector<int32_t>& boxes, const std::vector<uint8_t>& ignored = {},
-                              bool in_cut = false);
+                              bool in_cut = false, const std::vector<uint8_t>& wall_nodes = {});
 
 /// Penalty force on the tissue at the facet for the current facet node
 /// positions: returns F (the force on the tissue, N, to be split as bᵢF) and

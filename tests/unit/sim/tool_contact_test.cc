@@ -2,10 +2,13 @@
 // inside the tissue, alone and in a Simulation drawing a blade through the
 // block. Properties, not golden values: the force acts across the blade
 // only, is continuous, bounded by k·limit, opposes the blade's sideways
-// motion, and gives way when the tissue is cut.
+// motion, gives way when the tissue is cut, and in the blade's own slit
+// comes only from tissue not yet cut.
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 #include <gtest/gtest.h>
@@ -83,6 +86,20 @@ TEST(EdgeGrip, RegrippingAtTheSameWorldPointKeepsTheForce) {
   EXPECT_LT((after - before).norm(), 1e-12);
 }
 
+TEST(CutSweep, BehindTheFrontInThePlaneOfTheCutOnly) {
+  // A blade along +z drawn from x = 0 to x = 0.01 cut the plane y = 0.
+  const std::vector<CutSweep> sweeps{{Vector3d(0, 0, -0.001), Vector3d(0.01, 0, -0.001), kUp}};
+  const double tol = 0.001;
+  EXPECT_TRUE(InSweptArea(sweeps, Vector3d(0.005, 0, 0.004), tol));       // in the slit
+  EXPECT_TRUE(InSweptArea(sweeps, Vector3d(0.0099, 0.0009, 0.004), tol)); // at the front, off by < tol
+  EXPECT_FALSE(InSweptArea(sweeps, Vector3d(0.0101, 0, 0.004), tol));     // ahead of the front
+  EXPECT_FALSE(InSweptArea(sweeps, Vector3d(-0.0001, 0, 0.004), tol));    // before its start
+  EXPECT_FALSE(InSweptArea(sweeps, Vector3d(0.005, 0.0011, 0.004), tol)); // beside the slit
+  // A blade slid along itself sweeps no area.
+  EXPECT_FALSE(InSweptArea({{Vector3d::Zero(), Vector3d(0, 0, 0.005), kUp}}, Vector3d(0, 0, 0.002), tol));
+  EXPECT_FALSE(InSweptArea({}, Vector3d::Zero(), tol));
+}
+
 // scenes/block.pbtxt with a path given inline; a coarse copy keeps it quick.
 std::unique_ptr<Simulation> Block(const std::string& keyframes, double critical_stress) {
   const std::string text = R"pb(name: "contact-block"
@@ -145,6 +162,66 @@ TEST(ToolContact, TheForceGivesWayWhenTheTissueIsCut) {
   }
   EXPECT_GE(cuts, 2);
   EXPECT_EQ(drops, cuts);
+}
+
+// In its own cut (tool_contact.h): walls and lips are touched, never
+// gripped; only tissue not yet cut resists the edge.
+TEST(ToolContact, ABladeThatHasSeveredTheTissueDragsNoStump) {
+  // The shipped ligament and stroke: the blade cuts through mid-stroke, then
+  // is drawn on beside the stumps and lifted out.
+  auto sim = Simulation::Create(LoadScene(std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt"));
+  const double end = sim->path_end_time();
+  double severed_at = -1, cut_force = 0, after = 0, peak_before = 0;
+  while (sim->sim_time() < end - 1e-9) {
+    ASSERT_EQ(sim->AdvanceFrame(), SimStatus::kOk);
+    const ToolReport tool = sim->Tool();
+    const double f = tool.force_on_tool.norm();
+    if (severed_at < 0) {
+      peak_before = std::max(peak_before, f);
+      if (tool.cut_this_frame && sim->Summary().components >= 2) {
+        severed_at = sim->sim_time();
+        cut_force = f;
+      }
+    } else if (sim->sim_time() > severed_at + 0.05) {  // past the release transient
+      after = std::max(after, f);
+    }
+  }
+  ASSERT_GT(severed_at, 0) << "the stroke still cuts through (sigma_c reached K_I)";
+  EXPECT_GT(peak_before, 0.1);  // the edge was resisted while cutting
+  // The old in-cut grip dragged a stump after the blade at about half the
+  // cutting force until it was lifted out.
+  EXPECT_LT(after, 0.1 * cut_force) << "severed at t=" << severed_at;
+  EXPECT_EQ(sim->Summary().components, 2);
+}
+
+TEST(ToolContact, InItsSlitOnlyUncutTissueResistsTheEdge) {
+  // Drawn along +x into the block (cutting), then back along its own slit.
+  auto sim = Block(Key(0, -0.003, 0.0101, -0.001) + Key(0.6, 0.028, 0.0101, -0.001) +
+                       Key(1.2, 0.002, 0.0101, -0.001),
+                   10000);
+  int cuts = 0, resisted_after_cut = 0, in_slit = 0;
+  double front = -1, back = 0;
+  while (sim->sim_time() < 1.2 - 1e-9) {
+    ASSERT_EQ(sim->AdvanceFrame(), SimStatus::kOk);
+    const ToolReport tool = sim->Tool();
+    const double x = tool.pose.tip.x();
+    if (sim->sim_time() <= 0.6) {
+      if (tool.cut_this_frame) {
+        ++cuts;
+        front = x;  // the cut reaches the blade: behind it the tissue is cut
+      }
+      // Drawn on after a cut: the tissue ahead of the front holds the edge.
+      if (cuts > 0 && tool.force_on_tool.x() < -0.05) ++resisted_after_cut;
+    } else if (x < front - 0.002 && x > 0.002) {  // back inside the slit
+      ++in_slit;
+      back = std::max(back, tool.force_on_tool.norm());
+    }
+  }
+  ASSERT_GE(cuts, 1);
+  EXPECT_GT(resisted_after_cut, 10);
+  EXPECT_GT(in_slit, 10);
+  // Only its own walls and lips there: the old in-cut grip dragged them back.
+  EXPECT_LT(back, 0.01);
 }
 
 TEST(ToolContact, PressingOnTheTopFaceIsAPenaltyAlongTheNormal) {
