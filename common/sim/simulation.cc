@@ -681,8 +681,8 @@ class Engine final : public Simulation {
   }
 
   /// Facets the blade does not touch: those of pieces a cut has separated
-  /// with less than kDebrisMassFraction of the total mass (see
-  /// tool_contact.h). Whole-mesh at set-up (connected components); after a
+  /// with less than kDebrisMassFraction of the total mass and fewer than
+  /// kDebrisMaxTets tets (see tool_contact.h). Whole-mesh at set-up (connected components); after a
   /// cut, FlagDebrisNear floods only from the tets the cut changed.
   void FlagDebris() {
     debris_facet_.clear();
@@ -701,11 +701,17 @@ class Engine final : public Simulation {
     const std::vector<int32_t> label = cut_->ConnectedComponents(&count);
     if (count <= 1) return;
     std::vector<double> mass(static_cast<size_t>(count), 0.0);
-    for (int32_t t = 0; t < T_count; ++t)
-      mass[static_cast<size_t>(label[static_cast<size_t>(t)])] += static_cast<double>(model_.element_mass(t));
+    std::vector<int32_t> size(static_cast<size_t>(count), 0);
+    for (int32_t t = 0; t < T_count; ++t) {
+      const auto c = static_cast<size_t>(label[static_cast<size_t>(t)]);
+      mass[c] += static_cast<double>(model_.element_mass(t));
+      ++size[c];
+    }
     const double limit = kDebrisMassFraction * total_mass_;
-    for (int32_t t = 0; t < T_count; ++t)
-      debris_tet_[static_cast<size_t>(t)] = mass[static_cast<size_t>(label[static_cast<size_t>(t)])] < limit ? 1 : 0;
+    for (int32_t t = 0; t < T_count; ++t) {
+      const auto c = static_cast<size_t>(label[static_cast<size_t>(t)]);
+      debris_tet_[static_cast<size_t>(t)] = mass[c] < limit && size[c] < kDebrisMaxTets ? 1 : 0;
+    }
     for (int32_t f = 0; f < num_slots_; ++f) {
       const int32_t t = surface_tet_[static_cast<size_t>(f)];
       if (t >= 0) debris_facet_[static_cast<size_t>(f)] = debris_tet_[static_cast<size_t>(t)];
@@ -720,9 +726,11 @@ class Engine final : public Simulation {
   /// After a cut: refresh the face neighbours of the retargeted tets and of
   /// their former neighbours, then flood from each retargeted tet and from
   /// the tets left on the split node, stopping once a piece weighs
-  /// kDebrisMassFraction of the body. A flood that stops short found a
-  /// piece cut loose: its tets and facets become debris (for good: pieces
-  /// never rejoin). O(touched + 1 % of the tets) per cut, not O(T).
+  /// kDebrisMassFraction of the body or holds kDebrisMaxTets tets. A flood
+  /// that stops short found a piece cut loose: its tets and facets become
+  /// debris (for good: pieces never rejoin). O(touched + kDebrisMaxTets)
+  /// per cut whatever the mesh size (a flood bounded by the mass alone
+  /// walked 1 % of the tets: ~1 000 at 100k, half the sim's cut phase).
   void FlagDebrisNear(const cutting::TopologyEvent& event) {
     if (debris_tet_.empty()) return;
     starts_.clear();
@@ -761,7 +769,7 @@ class Engine final : public Simulation {
       for (size_t i = 0; i < flood_.size(); ++i) {
         const int32_t t = flood_[i];
         mass += static_cast<double>(model_.element_mass(t));
-        if (mass >= limit) {
+        if (mass >= limit || static_cast<int32_t>(i) + 1 >= kDebrisMaxTets) {
           big = true;
           break;
         }
@@ -1206,7 +1214,13 @@ class Engine final : public Simulation {
   std::vector<int32_t> changed_slots_, starts_, affected_, flood_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
   std::vector<CutStepTiming> cut_timings_;
+  // Debris: a piece cut loose that the blade passes through rather than
+  // flings with a force sized for the body. Small in mass and in elements:
+  // what makes a crumb fly is a few elements (each node's mass is set by
+  // its elements, not by the piece), and the element bound keeps the flood
+  // that finds one local (see FlagDebrisNear).
   static constexpr double kDebrisMassFraction = 0.01;
+  static constexpr int32_t kDebrisMaxTets = 64;
   mesh::TriangleBvh bvh_;
   std::vector<mesh::SegmentHit> hits_scratch_;
   std::vector<int32_t> box_scratch_;

@@ -18,10 +18,10 @@
 ///   behind the plane of a slanted facet beside a ridge is outside).
 /// - Only tissue the blade can push counts: facets flagged in `ignored`
 ///   (the sim flags those of debris, pieces cut loose with less than 1% of
-///   the body's mass) are passed through. A penalty force sized for the
-///   body (k·δ with δ capped at the indentation limit, reached at once when
-///   the blade is already inside) would accelerate such a crumb of a few
-///   milligrams to metres per second.
+///   the body's mass and fewer than 64 tets) are passed through. A penalty
+///   force sized for the body (k·δ with δ capped at the indentation limit,
+///   reached at once when the blade is already inside) would accelerate
+///   such a crumb of a few milligrams to metres per second.
 /// - Indentation δ = (C_p − tip)·n, capped at `indent_limit` (one mean edge
 ///   length): a blade pushed deeper is inside the tissue (in its own cut),
 ///   where the cut, not the surface layer, carries it.
