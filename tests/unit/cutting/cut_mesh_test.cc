@@ -1,5 +1,9 @@
 // CutMesh: complex and surface bookkeeping, the straight cut through a box,
 // singularity removal, event replay.
+#include <algorithm>
+#include <array>
+#include <vector>
+
 #include <gtest/gtest.h>
 
 #include "common/core/error.h"
@@ -198,6 +202,7 @@ TEST(CutMesh, BadEventThrowsAndChangesNothing) {
   CutMesh replay(sc.m);
   replay.ApplyEvent(sc.events[0]);
   const mesh::Tets before = replay.TetsMatrix();
+  const mesh::Triangles surface_before = replay.SurfaceTriangles();
   const int32_t nodes_before = replay.num_nodes();
   EXPECT_THROW(replay.ApplyEvent(sc.events[0]), InputError) << "version out of order";
   TopologyEvent bad = sc.events[1];
@@ -208,8 +213,17 @@ TEST(CutMesh, BadEventThrowsAndChangesNothing) {
     FAIL() << "expected InputError";
   } catch (const InputError& e) {
     EXPECT_NE(e.source().field.find("event.splits"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("listed twice"), std::string::npos) << e.what();
   }
   EXPECT_TRUE(replay.TetsMatrix() == before);
+  // The same surface faces (a rollback may put them in other free slots).
+  auto sorted_rows = [](const mesh::Triangles& tris) {
+    std::vector<std::array<int32_t, 3>> rows;
+    for (Eigen::Index i = 0; i < tris.rows(); ++i) rows.push_back({tris(i, 0), tris(i, 1), tris(i, 2)});
+    std::sort(rows.begin(), rows.end());
+    return rows;
+  };
+  EXPECT_EQ(sorted_rows(replay.SurfaceTriangles()), sorted_rows(surface_before));
   EXPECT_EQ(replay.num_nodes(), nodes_before);
   EXPECT_EQ(replay.version(), 1u);
   replay.ApplyEvent(sc.events[1]);  // the good one still applies
