@@ -225,8 +225,11 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
         last_version = version;
         const uint64_t digest = TopologyDigest(*simulation, &view);
         if (f.topology_hash() != 0 && digest != f.topology_hash()) {
-          fail(fmt::format("frame {}: topology digest {:016x}, recorded {:016x} (the cut split "
-                           "different nodes)",
+          // The digest covers the tets and the surface in slot order: a
+          // build that splits the same nodes but fills other free surface
+          // slots differs too.
+          fail(fmt::format("frame {}: topology digest {:016x}, recorded {:016x} (the cut left "
+                           "other tets or other surface slots than recorded)",
                            f.frame(), digest, f.topology_hash()));
           break;
         }
