@@ -589,17 +589,15 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
             if (!node_marks_.Insert(internal::kRingNode, a)) continue;
             for (const int32_t u : Star(a)) {
               if (!tet_marks_.Insert(kInSearch, u)) continue;
-              {
-                const auto& un = recs_[Idx(u)].nodes;
-                Vector3d lo = W.Get(un[0]), hi = lo;
-                for (int c = 1; c < 4; ++c) {
-                  const Vector3d pc = W.Get(un[Idx(c)]);
-                  lo = lo.cwiseMin(pc);
-                  hi = hi.cwiseMax(pc);
-                }
-                const double pad = 1e-6 * (hi - lo).maxCoeff();
-                if ((target.array() < lo.array() - pad).any() || (target.array() > hi.array() + pad).any()) continue;
+              const auto& un = recs_[Idx(u)].nodes;
+              Vector3d lo = W.Get(un[0]), hi = lo;
+              for (int c = 1; c < 4; ++c) {
+                const Vector3d pc = W.Get(un[Idx(c)]);
+                lo = lo.cwiseMin(pc);
+                hi = hi.cwiseMax(pc);
               }
+              const double pad = 1e-6 * (hi - lo).maxCoeff();
+              if ((target.array() < lo.array() - pad).any() || (target.array() > hi.array() + pad).any()) continue;
               search.push_back(u);
             }
           }
@@ -656,17 +654,19 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     // min_quality alone each move may take a tet down to it.
     const double floor_q = std::max(params.min_quality, params.keep_quality);
     const double floor_quality = floor_q * floor_q * floor_q;  // cubed, as `quality`
+    auto passes = [&](double q, size_t i, bool rest_config) {
+      if (!(q > 0.0)) return false;
+      if (q >= floor_quality) return true;
+      return q >= std::min(floor_quality, before(rest_config ? q_rest : q_world, i, rest_config));
+    };
     double f = 1.0;
     for (int k = 0; k <= params.max_move_halvings; ++k, f *= 0.5) {
       const Vector3d xn = x_old + f * (target - x_old);
       const Vector3d un = u_old + f * (u_target - u_old);
-      bool ok = true;
+      bool ok = true;  // rest first: no world quality for a tet that fails in rest
       for (size_t i = 0; i < star.size() && ok; ++i) {
-        const double qr = quality(corners(star[i], true, &un));
-        ok = qr > 0.0 && (qr >= floor_quality || qr >= std::min(floor_quality, before(q_rest, i, true)));
-        if (!ok) break;
-        const double qw = quality(corners(star[i], false, &xn));
-        ok = qw > 0.0 && (qw >= floor_quality || qw >= std::min(floor_quality, before(q_world, i, false)));
+        ok = passes(quality(corners(star[i], true, &un)), i, true) &&
+             passes(quality(corners(star[i], false, &xn)), i, false);
       }
       if (!ok) continue;
       for (const int32_t g : group) {

@@ -2,24 +2,33 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace cutsim::mesh {
 
 using Eigen::Vector3d;
 
+namespace {
+
+// Signed volume and Σ ℓᵢⱼ² of tet (x0..x3), the two terms of the mean ratio.
+std::pair<double, double> VolumeAndEdgeSum(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2,
+                                           const Vector3d& x3) {
+  return {SignedVolume(x0, x1, x2, x3), (x1 - x0).squaredNorm() + (x2 - x0).squaredNorm() +
+                                            (x3 - x0).squaredNorm() + (x2 - x1).squaredNorm() +
+                                            (x3 - x1).squaredNorm() + (x3 - x2).squaredNorm()};
+}
+
+}  // namespace
+
 double MeanRatio(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2, const Vector3d& x3) {
-  const double vol = SignedVolume(x0, x1, x2, x3);
+  const auto [vol, sum_l2] = VolumeAndEdgeSum(x0, x1, x2, x3);
   if (!(vol > 0.0)) return 0.0;
-  const double sum_l2 = (x1 - x0).squaredNorm() + (x2 - x0).squaredNorm() + (x3 - x0).squaredNorm() +
-                        (x2 - x1).squaredNorm() + (x3 - x1).squaredNorm() + (x3 - x2).squaredNorm();
   return std::min(1.0, 12.0 * std::cbrt(9.0 * vol * vol) / sum_l2);  // (3V)^(2/3) = cbrt(9V²)
 }
 
 double MeanRatioCubed(const Vector3d& x0, const Vector3d& x1, const Vector3d& x2, const Vector3d& x3) {
-  const double vol = SignedVolume(x0, x1, x2, x3);
+  const auto [vol, sum_l2] = VolumeAndEdgeSum(x0, x1, x2, x3);
   if (!(vol > 0.0)) return 0.0;
-  const double sum_l2 = (x1 - x0).squaredNorm() + (x2 - x0).squaredNorm() + (x3 - x0).squaredNorm() +
-                        (x2 - x1).squaredNorm() + (x3 - x1).squaredNorm() + (x3 - x2).squaredNorm();
   return std::min(1.0, 1728.0 * 9.0 * vol * vol / (sum_l2 * sum_l2 * sum_l2));
 }
 

@@ -825,7 +825,11 @@ class Engine final : public Simulation {
     if (in_cut_ && facet_.touching && !facet_.on_cut) {
       facet_.on_cut = InSweptArea(sweeps_, facet_.point, indent_limit_);
     }
-    if (facet_.touching) facet_.depth = std::min(facet_.depth, indent_limit_);
+    // Capped at the indentation limit; none in its own cut, where the tip
+    // never pushes (tool_contact.h, in its own cut).
+    if (facet_.touching) {
+      facet_.depth = facet_.on_cut || facet_.in_slit ? 0.0 : std::min(facet_.depth, indent_limit_);
+    }
     UpdateGrip();
     report_.touching = facet_.touching;
     report_.pose = pose_;
@@ -851,7 +855,6 @@ class Engine final : public Simulation {
   /// cut a facet on the cut releases the grip, and an in-slit contact keeps
   /// one but never takes one (tool_contact.h, in its own cut).
   void UpdateGrip() {
-    if (facet_.on_cut || facet_.in_slit) facet_.depth = 0.0;  // never a tip penalty in the slit
     const bool inside = facet_.touching && !facet_.on_cut &&
                         (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
     if (!inside) {
