@@ -564,24 +564,28 @@ bool CutMesh::LinkIsOneCycle() const {
   const size_t k = link.size();
   if (k <= 32) {
     // A handful of edges (a surface fan has ~6, a vertex on a cut ~12):
-    // pairwise checks beat sorting. Same answer as the sorted path below.
-    for (size_t i = 0; i < k; ++i) {
-      bool head_is_tail = false;
+    // scans beat sorting. Walk from link[0] along the one out-edge of each
+    // vertex reached (its index; −1: none or two). If the walk is back at
+    // its start after exactly k edges, they are k distinct edges (each the
+    // only one from its tail, and a deterministic walk that first returns
+    // after k steps meets k distinct tails): all of them, one cycle, every
+    // vertex with one out- and one in-edge. Same answer as the sorted path.
+    auto out_edge = [&](int32_t v) {
+      int found = -1;
       for (size_t j = 0; j < k; ++j) {
-        if (j != i && (link[j].first == link[i].first || link[j].second == link[i].second)) return false;
-        head_is_tail |= link[j].first == link[i].second;
+        if (link[j].first != v) continue;
+        if (found >= 0) return -1;
+        found = static_cast<int>(j);
       }
-      if (!head_is_tail) return false;  // a link vertex without an out-edge
-    }
-    // Tails distinct, heads distinct and every head a tail: a permutation of
-    // the link vertices, so the walk from link[0] returns to its start. One
-    // cycle through all edges if that takes k steps.
+      return found;
+    };
     const int32_t start = link[0].first;
+    if (out_edge(start) != 0) return false;
     size_t steps = 1;
     for (int32_t v = link[0].second; v != start; ++steps) {
-      size_t j = 0;
-      while (link[j].first != v) ++j;
-      v = link[j].second;
+      const int j = out_edge(v);
+      if (j < 0 || steps == k) return false;
+      v = link[static_cast<size_t>(j)].second;
     }
     return steps == k;
   }

@@ -26,17 +26,22 @@ class StepWorld final : public WorldAccess {
   // generation is `generation`; the caller takes a new one per step.
   StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event,
             std::vector<internal::NodeScratch>& cache, uint32_t generation)
-      : base_(base), base_nodes_(base_nodes), event_(event), cache_(cache), generation_(generation) {
+      : base_(base),
+        xyz_(base.Xyz()),
+        base_nodes_(base_nodes),
+        event_(event),
+        cache_(cache),
+        generation_(generation) {
     if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
   }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
     // Fast path (most reads: a node that existed before the step, nothing
     // moved yet): the cached FEM position.
-    if (moved_.empty() && node < base_nodes_) return Cached(node);
+    if (moved_.empty() && node < base_nodes_) return Base(node);
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
     if (const Vector3d* x = Find(node)) return *x;
-    return Cached(node);
+    return Base(node);
   }
   void Set(int32_t node, const Vector3d& x) override {
     for (auto& [k, v] : moved_) {
@@ -50,12 +55,20 @@ class StepWorld final : public WorldAccess {
 
  private:
   const WorldAccess& base_;
+  const double* xyz_;  // the base's packed positions, or nullptr (then read through Get, cached)
   int32_t base_nodes_;
   const TopologyEvent& event_;
   std::vector<internal::NodeScratch>& cache_;
   uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
+  [[nodiscard]] Vector3d Base(int32_t node) const {
+    if (xyz_ != nullptr) {
+      const double* p = xyz_ + 3 * static_cast<size_t>(node);
+      return {p[0], p[1], p[2]};
+    }
+    return Cached(node);
+  }
   [[nodiscard]] const Vector3d& Cached(int32_t node) const {
     internal::NodeScratch& c = cache_[static_cast<size_t>(node)];
     if (c.x_generation != generation_) [[unlikely]] {
@@ -577,7 +590,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     bool ring_added = false;
     for (size_t i = 0;; ++i) {
       if (i == search.size()) {  // the star is done: add its neighbours
-        if (ring_added) break;
+        // A target strictly inside a star tet is in no other tet: the ring
+        // cannot score higher (its scores are < 0).
+        if (ring_added || best_score > 1e-9) break;
         ring_added = true;
         // Each corner's star once (a corner is in ~6 star tets); the group's
         // own stars are the star itself. The order of `search` does not

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <type_traits>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Sparse>
@@ -147,6 +148,10 @@ class StateWorld final : public cutting::WorldAccess {
   void Set(int32_t n, const Eigen::Vector3d& p) override {
     const size_t i = 3 * static_cast<size_t>(n);
     for (int k = 0; k < 3; ++k) x_[i + static_cast<size_t>(k)] = static_cast<T>(p[k]);
+  }
+  [[nodiscard]] const double* Xyz() const override {
+    if constexpr (std::is_same_v<T, double>) return x_.data();
+    return nullptr;
   }
 
  private:

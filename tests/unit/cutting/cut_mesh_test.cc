@@ -150,6 +150,66 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
   EXPECT_EQ(n_opened, 2 * 2 * 4 * 2) << "both sides of the 4 × 2 cell faces";
 }
 
+// A world that holds its positions elsewhere (the FEM's float state):
+// no packed doubles, every read through Get.
+class UnpackedWorld final : public WorldAccess {
+ public:
+  explicit UnpackedWorld(VectorWorld& inner) : inner_(inner) {}
+  [[nodiscard]] Vector3d Get(int32_t node) const override { return inner_.Get(node); }
+  void Set(int32_t node, const Vector3d& x) override { inner_.Set(node, x); }
+
+ private:
+  VectorWorld& inner_;
+};
+
+TEST(CutMesh, AWorldWithoutPackedPositionsCutsTheSame) {
+  // The cut step reads packed positions directly where a world has them
+  // (Xyz) and through Get, cached, where it does not: same events.
+  const mesh::TetMesh m = Box();
+  CutMesh packed_mesh(m), unpacked_mesh(m);
+  VectorWorld packed = WorldFromRest(m), unpacked_store = WorldFromRest(m);
+  UnpackedWorld unpacked(unpacked_store);
+  ASSERT_NE(packed.Xyz(), nullptr);
+  ASSERT_EQ(unpacked.Xyz(), nullptr);
+  const CutParams params;
+  const double top = 2 * kH, y = 1.2 * kH;
+  auto node_at = [&](int i, int j) { return static_cast<int32_t>(i + 5 * (j + 4 * 2)); };  // top layer
+  int32_t v0 = node_at(0, 1);
+  Vector3d tip0(-0.2 * kH, y, -0.5 * kH);
+  int splits = 0;
+  for (int i = 1; i <= 4; ++i) {
+    CutStep step;
+    step.v0 = v0;
+    step.v1 = node_at(i, 1);
+    step.cp0 = Vector3d(tip0.x(), y, top);
+    step.cp = Vector3d(i * kH, y, top);
+    const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
+    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
+    const CutOutcome a = packed_mesh.ExecuteCut(step, packed, params);
+    const CutOutcome b = unpacked_mesh.ExecuteCut(step, unpacked, params);
+    ASSERT_EQ(a.status, CutStatus::kExecuted) << "step " << i;
+    ASSERT_EQ(b.status, a.status) << "step " << i;
+    ASSERT_EQ(b.event.splits.size(), a.event.splits.size()) << "step " << i;
+    for (size_t k = 0; k < a.event.splits.size(); ++k) {
+      EXPECT_EQ(b.event.splits[k].node, a.event.splits[k].node);
+      EXPECT_EQ(b.event.splits[k].tets, a.event.splits[k].tets);
+    }
+    ASSERT_EQ(b.event.moves.size(), a.event.moves.size()) << "step " << i;
+    for (size_t k = 0; k < a.event.moves.size(); ++k) {
+      EXPECT_EQ(b.event.moves[k].node, a.event.moves[k].node);
+      EXPECT_TRUE(b.event.moves[k].rest == a.event.moves[k].rest);
+      EXPECT_TRUE(b.event.moves[k].world == a.event.moves[k].world);
+    }
+    splits += static_cast<int>(a.event.splits.size());
+    packed.ApplyEvent(a.event);
+    unpacked_store.ApplyEvent(b.event);
+    v0 = step.v1;
+    tip0 = tip;
+  }
+  EXPECT_GT(splits, 0);
+  EXPECT_TRUE(packed_mesh.TetsMatrix() == unpacked_mesh.TetsMatrix());
+}
+
 TEST(CutMesh, ShallowBladeDoesNotSeparate) {
   // A blade reaching half the thickness opens a slit but the bottom holds.
   const mesh::TetMesh m = Box();
