@@ -92,15 +92,19 @@
 namespace cutsim::cutting {
 
 namespace internal {
-/// Per-node scratch of a cut step (see CutMesh::node_marks_): the world
-/// position cached for the step (valid where x_generation is the step's)
-/// and the node stamp sets, in one line, so a node visited by the step
-/// costs one cache line of scratch.
+/// Per-node scratch of a cut step (see CutMesh::node_marks_): the node
+/// stamp sets, 20 bytes, so the rows of nearby nodes share cache lines
+/// (the step visits a few hundred nodes on caches the FEM steps in between
+/// have evicted).
 enum NodeMark : uint8_t { kSeen, kQueued, kPlaneDone, kRingNode, kLinkOk, kNumNodeMarks };
-struct alignas(64) NodeScratch {
-  Eigen::Vector3d x = Eigen::Vector3d::Zero();
-  uint32_t x_generation = 0;
+struct NodeScratch {
   std::array<uint32_t, kNumNodeMarks> stamp{};
+};
+/// A world position cached for one step, valid where `generation` is the
+/// step's (worlds without packed positions only, see WorldAccess::Xyz).
+struct CachedPosition {
+  Eigen::Vector3d x = Eigen::Vector3d::Zero();
+  uint32_t generation = 0;
 };
 }  // namespace internal
 
@@ -405,12 +409,12 @@ class CutMesh {
   std::vector<int32_t> move_twins_, move_star_;
   std::vector<double> q_rest_, q_world_;
   // Node stamp sets (kLinkOk: nodes whose last visit in the singularity
-  // pass found their surface link empty or one cycle) and cached world
-  // positions.
+  // pass found their surface link empty or one cycle).
   NodeMarks node_marks_;
-  // World positions read during one step (the FEM's, through a virtual
-  // call) are cached in node_marks_.rows, valid where x_generation is
-  // pos_generation_ (a new one every step).
+  // World positions read during one step from a world without packed
+  // positions (the FEM's float state, through a virtual call), valid where
+  // their generation is pos_generation_ (a new one every step).
+  std::vector<internal::CachedPosition> x_cache_;
   uint32_t pos_generation_ = 0;
   // Per uncut node: its uncut star is face-connected around it (one group).
   // Then a vertex with no surface face through it cannot have k > 1 star

@@ -21,18 +21,21 @@ using Eigen::Vector3d;
 // staged moves. Nothing is written to the FEM: the event carries it.
 class StepWorld final : public WorldAccess {
  public:
-  // `cache`/`generation`: a per-node cache of base_.Get (a virtual call
-  // into the FEM state, read many times per step), valid where an entry's
-  // generation is `generation`; the caller takes a new one per step.
+  // `cache`/`generation`: for a base without packed positions, a per-node
+  // cache of base_.Get (a virtual call into the FEM state, read many times
+  // per step), valid where an entry's generation is `generation`; the
+  // caller takes a new one per step.
   StepWorld(const WorldAccess& base, int32_t base_nodes, const TopologyEvent& event,
-            std::vector<internal::NodeScratch>& cache, uint32_t generation)
+            std::vector<internal::CachedPosition>& cache, uint32_t generation)
       : base_(base),
         xyz_(base.Xyz()),
         base_nodes_(base_nodes),
         event_(event),
         cache_(cache),
         generation_(generation) {
-    if (cache_.size() < static_cast<size_t>(base_nodes_)) cache_.resize(static_cast<size_t>(base_nodes_));
+    if (xyz_ == nullptr && cache_.size() < static_cast<size_t>(base_nodes_)) {
+      cache_.resize(static_cast<size_t>(base_nodes_));
+    }
   }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
     // Fast path (most reads: a node that existed before the step, nothing
@@ -58,7 +61,7 @@ class StepWorld final : public WorldAccess {
   const double* xyz_;  // the base's packed positions, or nullptr (then read through Get, cached)
   int32_t base_nodes_;
   const TopologyEvent& event_;
-  std::vector<internal::NodeScratch>& cache_;
+  std::vector<internal::CachedPosition>& cache_;
   uint32_t generation_;
   // Staged moves: a handful per step (the twins of v0 and v1), so a list.
   std::vector<std::pair<int32_t, Vector3d>> moved_;
@@ -70,10 +73,10 @@ class StepWorld final : public WorldAccess {
     return Cached(node);
   }
   [[nodiscard]] const Vector3d& Cached(int32_t node) const {
-    internal::NodeScratch& c = cache_[static_cast<size_t>(node)];
-    if (c.x_generation != generation_) [[unlikely]] {
+    internal::CachedPosition& c = cache_[static_cast<size_t>(node)];
+    if (c.generation != generation_) [[unlikely]] {
       c.x = base_.Get(node);
-      c.x_generation = generation_;
+      c.generation = generation_;
     }
     return c.x;
   }
@@ -138,10 +141,13 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   }
   TopologyEvent ev;
   if (++pos_generation_ == 0) {  // wrap-around, once in 4 billion steps
-    for (auto& c : node_marks_.rows) c.x_generation = 0;
+    for (auto& c : x_cache_) c.generation = 0;
     pos_generation_ = 1;
   }
-  StepWorld W(world, n0, ev, node_marks_.rows, pos_generation_);
+  // Node rows for every node before the step: the slab walk's stamp sets
+  // are unchecked.
+  if (node_marks_.rows.size() < Idx(n0)) node_marks_.rows.resize(Idx(n0));
+  StepWorld W(world, n0, ev, x_cache_, pos_generation_);
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
   const Vector3d n = step.normal.normalized();
@@ -249,8 +255,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       walked.clear();
       // Every tet is looked at once (kSlab): the vertices seen, hence
       // S (sorted below), do not depend on the walk's order.
-      // No copies exist yet (they are made in step 3), and StepWorld sized
-      // the node rows for every node: unchecked stamp sets.
+      // No copies exist yet (they are made in step 3), and the node rows
+      // were sized for every node above: unchecked stamp sets.
       CUTSIM_CHECK(node_marks_.rows.size() >= Idx(n0) && tet_marks_.rows.size() >= recs_.size(), "step scratch");
       node_marks_.Clear(internal::kSeen);
       tet_marks_.Clear(kSlab);
