@@ -93,18 +93,77 @@ namespace cutsim::cutting {
 
 namespace internal {
 /// Per-node scratch of a cut step (see CutMesh::node_marks_): the node
-/// stamp sets, 20 bytes, so the rows of nearby nodes share cache lines
+/// stamp sets, 10 bytes, so the rows of nearby nodes share cache lines
 /// (the step visits a few hundred nodes on caches the FEM steps in between
 /// have evicted).
 enum NodeMark : uint8_t { kSeen, kQueued, kPlaneDone, kRingNode, kLinkOk, kNumNodeMarks };
 struct NodeScratch {
-  std::array<uint32_t, kNumNodeMarks> stamp{};
+  std::array<uint16_t, kNumNodeMarks> stamp{};
 };
 /// A world position cached for one step, valid where `generation` is the
 /// step's (worlds without packed positions only, see WorldAccess::Xyz).
 struct CachedPosition {
   Eigen::Vector3d x = Eigen::Vector3d::Zero();
   uint32_t generation = 0;
+};
+/// Sets of small integer ids (nodes or tets), each cleared in O(1): id i
+/// is in set m while rows[i].stamp[m] equals generation[m]. The sets over
+/// one kind of id share a row per id (with other per-id scratch), so an
+/// id visited by several passes of a step costs one cache line: the step
+/// visits a few hundred scattered tets and nodes, and at 100k tets it runs
+/// on caches the FEM steps in between have evicted. Grows on demand and
+/// never shrinks, so a cut step does not allocate once warm. Stamps are
+/// 16-bit, so rows are small (nearby ids share a line): a set's stamps
+/// are reset once in 65 535 clears of it (O(rows), a few hundred µs at
+/// 100k tets, once in thousands of cut steps).
+template <typename Row, size_t kSets>
+struct StampRows {
+  using Stamp = uint16_t;
+  std::vector<Row> rows;
+  std::array<Stamp, kSets> generation = MakeGenerations();
+  void Clear(size_t m) {
+    if (++generation[m] == 0) {  // wrap-around
+      for (Row& r : rows) r.stamp[m] = 0;
+      generation[m] = 1;
+    }
+  }
+  [[nodiscard]] bool Contains(size_t m, int32_t i) const {
+    return static_cast<size_t>(i) < rows.size() && rows[static_cast<size_t>(i)].stamp[m] == generation[m];
+  }
+  /// True if `i` was not in set `m`.
+  bool Insert(size_t m, int32_t i) {
+    const auto k = static_cast<size_t>(i);
+    if (k >= rows.size()) [[unlikely]] Grow(k);
+    if (rows[k].stamp[m] == generation[m]) return false;
+    rows[k].stamp[m] = generation[m];
+    return true;
+  }
+  /// Set m for a hot loop over ids below rows.size() (no growth check,
+  /// the generation and the rows' address held in registers: with the
+  /// member functions every stamp store may alias them).
+  struct Unchecked {
+    Row* rows;
+    Stamp generation;
+    size_t m;
+    bool Insert(int32_t i) const {
+      Stamp& s = rows[static_cast<size_t>(i)].stamp[m];
+      if (s == generation) return false;
+      s = generation;
+      return true;
+    }
+  };
+  [[nodiscard]] Unchecked View(size_t m) { return {rows.data(), generation[m], m}; }
+  void Erase(size_t m, int32_t i) {
+    if (static_cast<size_t>(i) < rows.size()) rows[static_cast<size_t>(i)].stamp[m] = 0;
+  }
+  // The vector's capacity doubles, so growing one id at a time is
+  // amortised O(1); the constructor reserves room for the copies.
+  [[gnu::noinline]] void Grow(size_t k) { rows.resize(k + 1); }
+  static std::array<Stamp, kSets> MakeGenerations() {
+    std::array<Stamp, kSets> g{};
+    g.fill(Stamp{1});
+    return g;
+  }
 };
 }  // namespace internal
 
@@ -242,71 +301,17 @@ class CutMesh {
   struct Op {  ///< Journal entry for rollback.
     int32_t tet, from, to;
   };
-  /// Sets of small integer ids (nodes or tets), each cleared in O(1): id i
-  /// is in set m while rows[i].stamp[m] equals generation[m]. The sets over
-  /// one kind of id share a row per id (with other per-id scratch), so an
-  /// id visited by several passes of a step costs one cache line: the step
-  /// visits a few hundred scattered tets and nodes, and at 100k tets it runs
-  /// on caches the FEM steps in between have evicted. Grows on demand and
-  /// never shrinks, so a cut step does not allocate once warm.
-  template <typename Row, size_t kSets>
-  struct StampRows {
-    std::vector<Row> rows;
-    std::array<uint32_t, kSets> generation = MakeGenerations();
-    void Clear(size_t m) {
-      if (++generation[m] == 0) {  // wrap-around, once in 4 billion clears
-        for (Row& r : rows) r.stamp[m] = 0;
-        generation[m] = 1;
-      }
-    }
-    [[nodiscard]] bool Contains(size_t m, int32_t i) const {
-      return static_cast<size_t>(i) < rows.size() && rows[static_cast<size_t>(i)].stamp[m] == generation[m];
-    }
-    /// True if `i` was not in set `m`.
-    bool Insert(size_t m, int32_t i) {
-      const auto k = static_cast<size_t>(i);
-      if (k >= rows.size()) [[unlikely]] Grow(k);
-      if (rows[k].stamp[m] == generation[m]) return false;
-      rows[k].stamp[m] = generation[m];
-      return true;
-    }
-    /// Set m for a hot loop over ids below rows.size() (no growth check,
-    /// the generation and the rows' address held in registers: with the
-    /// member functions every stamp store may alias them).
-    struct Unchecked {
-      Row* rows;
-      uint32_t generation;
-      size_t m;
-      bool Insert(int32_t i) const {
-        uint32_t& s = rows[static_cast<size_t>(i)].stamp[m];
-        if (s == generation) return false;
-        s = generation;
-        return true;
-      }
-    };
-    [[nodiscard]] Unchecked View(size_t m) { return {rows.data(), generation[m], m}; }
-    void Erase(size_t m, int32_t i) {
-      if (static_cast<size_t>(i) < rows.size()) rows[static_cast<size_t>(i)].stamp[m] = 0;
-    }
-    // The vector's capacity doubles, so growing one id at a time is
-    // amortised O(1); the constructor reserves room for the copies.
-    [[gnu::noinline]] void Grow(size_t k) { rows.resize(k + 1); }
-    static std::array<uint32_t, kSets> MakeGenerations() {
-      std::array<uint32_t, kSets> g{};
-      g.fill(1u);
-      return g;
-    }
-  };
   enum TetMark : uint8_t { kSlab, kSideKnown, kFlipped, kInStar, kInFlood, kFloodDone, kInSearch, kNumTetMarks };
-  struct TetRow {
-    std::array<uint32_t, kNumTetMarks> stamp{};
+  struct TetRow {  // 16 bytes: four to a line
+    std::array<uint16_t, kNumTetMarks> stamp{};
     int8_t side = 0;  // step 3's side, valid where kSideKnown
   };
+  static_assert(sizeof(TetRow) == 16);
   // MoveTetsToCopy's set of moving tets shares kInSearch's stamps: the
   // remeshing move's search runs only after every split of a step.
   static constexpr TetMark kMoving = kInSearch;
-  using TetMarks = StampRows<TetRow, kNumTetMarks>;
-  using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
+  using TetMarks = internal::StampRows<TetRow, kNumTetMarks>;
+  using NodeMarks = internal::StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
   [[nodiscard]] std::span<const int32_t> Star(int32_t node) const {
