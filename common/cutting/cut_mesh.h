@@ -79,6 +79,7 @@
 #include <cstdint>
 #include <optional>
 #include <span>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -118,7 +119,9 @@ struct CachedPosition {
 /// 100k tets, once in thousands of cut steps).
 template <typename Row, size_t kSets>
 struct StampRows {
-  using Stamp = uint16_t;
+  // The rows' stamp type: the generation wraps where the stamps do.
+  using Stamp = std::remove_cvref_t<decltype(std::declval<Row&>().stamp[0])>;
+  static_assert(std::is_unsigned_v<Stamp>);
   std::vector<Row> rows;
   std::array<Stamp, kSets> generation = MakeGenerations();
   void Clear(size_t m) {

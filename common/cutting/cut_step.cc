@@ -39,7 +39,7 @@ class StepWorld final : public WorldAccess {
   }
   [[nodiscard]] Vector3d Get(int32_t node) const override {
     // Fast path (most reads: a node that existed before the step, nothing
-    // moved yet): the cached FEM position.
+    // moved yet): the FEM position.
     if (moved_.empty() && node < base_nodes_) return Base(node);
     if (const Vector3d* x = Find(node)) return *x;
     while (node >= base_nodes_) node = event_.splits[static_cast<size_t>(node - base_nodes_)].node;
@@ -257,7 +257,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       // S (sorted below), do not depend on the walk's order.
       // No copies exist yet (they are made in step 3), and the node rows
       // were sized for every node above: unchecked stamp sets.
-      CUTSIM_CHECK(node_marks_.rows.size() >= Idx(n0) && tet_marks_.rows.size() >= recs_.size(), "step scratch");
+      CUTSIM_CHECK(tet_marks_.rows.size() >= recs_.size(), "step scratch");
       node_marks_.Clear(internal::kSeen);
       tet_marks_.Clear(kSlab);
       const auto seen = node_marks_.View(internal::kSeen);

@@ -20,7 +20,7 @@ class WorldAccess {
   virtual void Set(int32_t node, const Eigen::Vector3d& x) = 0;
   /// The positions as one packed #N×3 array of doubles, if the world holds
   /// them so (nullptr otherwise), valid until the next Set or resize: a cut
-  /// step reads and prefetches them without a virtual call per node.
+  /// step reads them without a virtual call per node.
   [[nodiscard]] virtual const double* Xyz() const { return nullptr; }
 };
 
