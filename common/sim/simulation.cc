@@ -32,6 +32,7 @@
 #include "common/fem/stable_dt.h"
 #include "common/fem/state.h"
 #include "common/mesh/mesh_io.h"
+#include "common/sim/debris.h"
 #include "common/mesh/quality.h"
 #include "common/sim/scene_mesh.h"
 #include "common/sim/checkpoint.h"  // checkpoints (ops)
@@ -658,7 +659,7 @@ class Engine final : public Simulation {
       surface_.bottomRows(rows - old_rows).setConstant(-1);
       opened_.resize(static_cast<size_t>(rows), 0);
       surface_tet_.resize(static_cast<size_t>(rows), -1);
-      if (!debris_tet_.empty()) debris_facet_.resize(static_cast<size_t>(rows), 0);
+      if (debris_) debris_facet_.resize(static_cast<size_t>(rows), 0);
     }
     for (const int32_t f : changed_slots_) {
       const cutting::SurfaceFace& face = slots[static_cast<size_t>(f)];
@@ -676,7 +677,7 @@ class Engine final : public Simulation {
       opened_[i] = face.opened ? 1 : 0;
       surface_tet_[i] = face.tet;
       if (face.opened) FlagWallNodes(tri);
-      if (!debris_facet_.empty()) debris_facet_[i] = debris_tet_[static_cast<size_t>(face.tet)];
+      if (debris_) debris_facet_[i] = debris_->is_debris(face.tet) ? 1 : 0;
       // World rows of the triangle's nodes (new copies included), then a
       // local insert: amortised O(log F), the tree is rebuilt only after
       // as many inserts as half its faces (see bvh.h).
@@ -685,114 +686,35 @@ class Engine final : public Simulation {
     }
   }
 
-  /// Facets the blade does not touch: those of pieces a cut has separated
-  /// with less than kDebrisMassFraction of the total mass and fewer than
-  /// kDebrisMaxTets tets (see tool_contact.h). Whole-mesh at set-up (connected components); after a
-  /// cut, FlagDebrisNear floods only from the tets the cut changed.
+  /// Facets the blade does not touch: those of debris (debris.h), whole-mesh
+  /// here (set-up, restore); FlagDebrisNear updates them after each cut.
   void FlagDebris() {
     debris_facet_.clear();
-    debris_tet_.clear();
+    debris_.reset();
     if (!cut_) return;
     const int32_t T_count = model_.num_tets();
-    // Face neighbours of every tet, kept up to date locally after cuts.
-    neighbor_.assign(4 * static_cast<size_t>(T_count), -1);
-    for (int32_t t = 0; t < T_count; ++t) UpdateNeighbors(t);
-    visit_stamp_.assign(static_cast<size_t>(T_count), 0);
-    stamp_ = 0;
-    debris_tet_.assign(static_cast<size_t>(T_count), 0);
+    std::vector<double> element_mass(static_cast<size_t>(T_count));
+    for (int32_t t = 0; t < T_count; ++t) element_mass[static_cast<size_t>(t)] = static_cast<double>(model_.element_mass(t));
+    debris_.emplace(std::move(element_mass), model_.TotalMass(),
+                    DebrisTracker::Limits{.mass_fraction = kDebrisMassFraction, .max_tets = kDebrisMaxTets});
+    debris_->Reset(*cut_);
     debris_facet_.assign(static_cast<size_t>(surface_.rows()), 0);
-    total_mass_ = model_.TotalMass();
-    int32_t count = 0;
-    const std::vector<int32_t> label = cut_->ConnectedComponents(&count);
-    if (count <= 1) return;
-    std::vector<double> mass(static_cast<size_t>(count), 0.0);
-    std::vector<int32_t> size(static_cast<size_t>(count), 0);
-    for (int32_t t = 0; t < T_count; ++t) {
-      const auto c = static_cast<size_t>(label[static_cast<size_t>(t)]);
-      mass[c] += static_cast<double>(model_.element_mass(t));
-      ++size[c];
-    }
-    const double limit = kDebrisMassFraction * total_mass_;
-    for (int32_t t = 0; t < T_count; ++t) {
-      const auto c = static_cast<size_t>(label[static_cast<size_t>(t)]);
-      debris_tet_[static_cast<size_t>(t)] = mass[c] < limit && size[c] < kDebrisMaxTets ? 1 : 0;
-    }
     for (int32_t f = 0; f < num_slots_; ++f) {
       const int32_t t = surface_tet_[static_cast<size_t>(f)];
-      if (t >= 0) debris_facet_[static_cast<size_t>(f)] = debris_tet_[static_cast<size_t>(t)];
+      if (t >= 0) debris_facet_[static_cast<size_t>(f)] = debris_->is_debris(t) ? 1 : 0;
     }
   }
 
-  /// neighbor_ entries of tet t from the cut complex's face table.
-  void UpdateNeighbors(int32_t t) {
-    for (int f = 0; f < 4; ++f) neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)] = cut_->Neighbour(t, f);
-  }
-
-  /// After a cut: refresh the face neighbours of the retargeted tets and of
-  /// their former neighbours, then flood from each retargeted tet and from
-  /// the tets left on the split node, stopping once a piece weighs
-  /// kDebrisMassFraction of the body or holds kDebrisMaxTets tets. A flood
-  /// that stops short found a piece cut loose: its tets and facets become
-  /// debris (for good: pieces never rejoin). O(touched + kDebrisMaxTets)
-  /// per cut whatever the mesh size (a flood bounded by the mass alone
-  /// walked 1 % of the tets: ~1 000 at 100k, half the sim's cut phase).
+  /// After a cut: the debris pieces it cut loose (DebrisTracker::Update,
+  /// local), and their facets.
   void FlagDebrisNear(const cutting::TopologyEvent& event) {
-    if (debris_tet_.empty()) return;
-    starts_.clear();
-    for (const cutting::Split& split : event.splits) {
-      for (const int32_t t : split.tets) starts_.push_back(t);
-      for (const int32_t t : cut_->node_tets(split.node)) starts_.push_back(t);
-    }
-    if (starts_.empty()) return;
-    affected_.clear();
-    for (const int32_t t : starts_) {
-      affected_.push_back(t);
+    if (!debris_) return;
+    flagged_.clear();
+    debris_->Update(*cut_, event, &flagged_);
+    for (const int32_t t : flagged_) {
       for (int f = 0; f < 4; ++f) {
-        const int32_t u = neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)];
-        if (u >= 0) affected_.push_back(u);
-      }
-    }
-    std::sort(affected_.begin(), affected_.end());
-    affected_.erase(std::unique(affected_.begin(), affected_.end()), affected_.end());
-    for (const int32_t t : affected_) UpdateNeighbors(t);
-    const double limit = kDebrisMassFraction * total_mass_;
-    if (stamp_ > 0xF0000000u) {  // wrap-around guard, once in billions of floods
-      std::fill(visit_stamp_.begin(), visit_stamp_.end(), 0u);
-      stamp_ = 0;
-    }
-    const uint32_t first_stamp = stamp_ + 1;
-    for (const int32_t start : starts_) {
-      if (debris_tet_[static_cast<size_t>(start)] != 0 || visit_stamp_[static_cast<size_t>(start)] >= first_stamp) {
-        continue;  // already debris, or reached by an earlier flood of this cut (same piece)
-      }
-      const uint32_t mark = ++stamp_;  // one stamp per flood
-      flood_.clear();
-      flood_.push_back(start);
-      visit_stamp_[static_cast<size_t>(start)] = mark;
-      double mass = 0;
-      bool big = false;
-      for (size_t i = 0; i < flood_.size(); ++i) {
-        const int32_t t = flood_[i];
-        mass += static_cast<double>(model_.element_mass(t));
-        if (mass >= limit || static_cast<int32_t>(i) + 1 >= kDebrisMaxTets) {
-          big = true;
-          break;
-        }
-        for (int f = 0; f < 4; ++f) {
-          const int32_t u = neighbor_[4 * static_cast<size_t>(t) + static_cast<size_t>(f)];
-          if (u >= 0 && visit_stamp_[static_cast<size_t>(u)] != mark) {
-            visit_stamp_[static_cast<size_t>(u)] = mark;
-            flood_.push_back(u);
-          }
-        }
-      }
-      if (big) continue;
-      for (const int32_t t : flood_) {
-        debris_tet_[static_cast<size_t>(t)] = 1;
-        for (int f = 0; f < 4; ++f) {
-          const int32_t slot = cut_->SurfaceSlot(t, f);
-          if (slot >= 0) debris_facet_[static_cast<size_t>(slot)] = 1;
-        }
+        const int32_t slot = cut_->SurfaceSlot(t, f);
+        if (slot >= 0) debris_facet_[static_cast<size_t>(slot)] = 1;
       }
     }
   }
@@ -1214,12 +1136,8 @@ class Engine final : public Simulation {
   std::vector<uint8_t> wall_node_;  // #node_capacity (or empty): node on a face a cut opened
   std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
   std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
-  std::vector<uint8_t> debris_tet_;   // #T (or empty): tet of a debris piece
-  std::vector<int32_t> neighbor_;     // #T×4 face neighbour across local face f (−1: none)
-  std::vector<uint32_t> visit_stamp_; // #T flood-fill marks
-  uint32_t stamp_ = 0;
-  double total_mass_ = 0;             // kg
-  std::vector<int32_t> changed_slots_, starts_, affected_, flood_;  // scratch
+  std::optional<DebrisTracker> debris_;  // with cutting only
+  std::vector<int32_t> changed_slots_, flagged_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
   std::vector<CutStepTiming> cut_timings_;
   // Debris: a piece cut loose that the blade passes through rather than

@@ -1,7 +1,9 @@
 // The cut step's local bookkeeping against whole-mesh recomputation:
 // the FEM's node → element incidence after splits (including its
 // compaction), and the simulation's slot-indexed surface (fed to the BVH
-// by Insert/Remove) after real cuts, compared with a fresh extraction.
+// by Insert/Remove) after real cuts, compared with a fresh extraction; and
+// the debris flags kept by local floods after each cut, compared with the
+// connected components of the whole mesh.
 #include <algorithm>
 #include <array>
 #include <random>
@@ -14,7 +16,10 @@
 #include "common/mesh/generators.h"
 #include "common/mesh/surface.h"
 #include "common/sim/scene_loader.h"
+#include "common/sim/debris.h"
 #include "common/sim/simulation.h"
+#include "tests/unit/cutting/cut_driver.h"
+#include "tests/unit/cutting/test_util.h"
 
 namespace cutsim {
 namespace {
@@ -128,6 +133,74 @@ cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }
   EXPECT_GE(sim->Summary().cuts, 4u);
   EXPECT_GE(sim->Summary().components, 2) << "the blade reaches below the block: through-cut";
   EXPECT_EQ(sim->CutTimings().size(), sim->Summary().cuts);
+}
+
+
+// Random strokes through the whole depth of a thin jittered block cut
+// corners and strips loose. After every cut the tracker's local update must
+// flag exactly what the whole-mesh rule (connected components, mass and tet
+// count) flags. The mass bound is raised to 5 % so that pieces of a few
+// cells count as debris on this small mesh.
+TEST(IncrementalDebris, LocalFloodsMatchTheWholeMeshRuleAfterEveryCut) {
+  using Eigen::Vector3d;
+  const sim::DebrisTracker::Limits limits{.mass_fraction = 0.05, .max_tets = 64};
+  int32_t flagged_total = 0;
+  int cuts = 0;
+  for (uint32_t seed = 1; seed <= 6; ++seed) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    const mesh::TetMesh m = cutting::testing::KuhnBox(Vector3d::Zero(), Vector3d(0.06, 0.04, 0.02), 6, 4, 2, 0.2, seed);
+    cutting::CutMesh cm(m);
+    cutting::VectorWorld world = cutting::testing::WorldFromRest(m);
+    std::vector<double> mass(static_cast<size_t>(m.num_tets()));
+    double total = 0.0;
+    for (int32_t t = 0; t < m.num_tets(); ++t) {
+      mass[static_cast<size_t>(t)] = 1000.0 * mesh::SignedVolume(m, t);
+      total += mass[static_cast<size_t>(t)];
+    }
+    sim::DebrisTracker tracker(mass, total, limits);
+    tracker.Reset(cm);
+    ASSERT_EQ(tracker.num_debris_tets(), 0);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    cutting::CutParams params;
+    std::vector<cutting::TopologyEvent> events;
+    std::vector<int32_t> flagged;
+    for (int stroke = 0; stroke < 6; ++stroke) {
+      // A chord of the top face between two random points on its sides.
+      auto on_side = [&](int side) {
+        const double s = 0.05 + 0.9 * u(rng);
+        switch (side) {
+          case 0: return Vector3d(0.0005, 0.04 * s, 0.02);
+          case 1: return Vector3d(0.0595, 0.04 * s, 0.02);
+          case 2: return Vector3d(0.06 * s, 0.0005, 0.02);
+          default: return Vector3d(0.06 * s, 0.0395, 0.02);
+        }
+      };
+      const int a = static_cast<int>(4 * u(rng)) % 4;
+      const int b = (a + 1 + static_cast<int>(3 * u(rng)) % 3) % 4;
+      const Vector3d p = on_side(a), q = on_side(b);
+      const int n = std::max(2, static_cast<int>((q - p).norm() / 0.0015));
+      size_t seen_events = events.size();
+      cuts += cutting::testing::DrivePath(cm, world, cutting::testing::Segment(p, q, n), 0.025, params, &events,
+                                          [&](int) {
+                                            if (events.size() == seen_events) return;  // nothing changed
+                                            seen_events = events.size();
+                                            flagged.clear();
+                                            tracker.Update(cm, events.back(), &flagged);
+                                            flagged_total += static_cast<int32_t>(flagged.size());
+                                            sim::DebrisTracker fresh(mass, total, limits);
+                                            fresh.Reset(cm);
+                                            ASSERT_EQ(tracker.num_debris_tets(), fresh.num_debris_tets());
+                                            for (int32_t t = 0; t < cm.num_tets(); ++t) {
+                                              ASSERT_EQ(tracker.is_debris(t), fresh.is_debris(t)) << "tet " << t;
+                                            }
+                                          })
+                  .executed;
+      if (::testing::Test::HasFatalFailure()) return;
+    }
+  }
+  EXPECT_GE(cuts, 100);
+  EXPECT_GT(flagged_total, 0) << "no piece came loose: the comparison above checked nothing";
 }
 
 }  // namespace
