@@ -79,12 +79,12 @@
 #include <cstdint>
 #include <optional>
 #include <span>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "common/core/stamp_sets.h"
 #include "common/cutting/cut_params.h"
 #include "common/cutting/topology_event.h"
 #include "common/cutting/world_access.h"
@@ -106,67 +106,6 @@ struct NodeScratch {
 struct CachedPosition {
   Eigen::Vector3d x = Eigen::Vector3d::Zero();
   uint32_t generation = 0;
-};
-/// Sets of small integer ids (nodes or tets), each cleared in O(1): id i
-/// is in set m while rows[i].stamp[m] equals generation[m]. The sets over
-/// one kind of id share a row per id (with other per-id scratch), so an
-/// id visited by several passes of a step costs one cache line: the step
-/// visits a few hundred scattered tets and nodes, and at 100k tets it runs
-/// on caches the FEM steps in between have evicted. Grows on demand and
-/// never shrinks, so a cut step does not allocate once warm. Stamps are
-/// 16-bit, so rows are small (nearby ids share a line): a set's stamps
-/// are reset once in 65 535 clears of it (O(rows), a few hundred µs at
-/// 100k tets, once in thousands of cut steps).
-template <typename Row, size_t kSets>
-struct StampRows {
-  // The rows' stamp type: the generation wraps where the stamps do.
-  using Stamp = std::remove_cvref_t<decltype(std::declval<Row&>().stamp[0])>;
-  static_assert(std::is_unsigned_v<Stamp>);
-  std::vector<Row> rows;
-  std::array<Stamp, kSets> generation = MakeGenerations();
-  void Clear(size_t m) {
-    if (++generation[m] == 0) {  // wrap-around
-      for (Row& r : rows) r.stamp[m] = 0;
-      generation[m] = 1;
-    }
-  }
-  [[nodiscard]] bool Contains(size_t m, int32_t i) const {
-    return static_cast<size_t>(i) < rows.size() && rows[static_cast<size_t>(i)].stamp[m] == generation[m];
-  }
-  /// True if `i` was not in set `m`.
-  bool Insert(size_t m, int32_t i) {
-    const auto k = static_cast<size_t>(i);
-    if (k >= rows.size()) [[unlikely]] Grow(k);
-    if (rows[k].stamp[m] == generation[m]) return false;
-    rows[k].stamp[m] = generation[m];
-    return true;
-  }
-  /// Set m for a hot loop over ids below rows.size() (no growth check,
-  /// the generation and the rows' address held in registers: with the
-  /// member functions every stamp store may alias them).
-  struct Unchecked {
-    Row* rows;
-    Stamp generation;
-    size_t m;
-    bool Insert(int32_t i) const {
-      Stamp& s = rows[static_cast<size_t>(i)].stamp[m];
-      if (s == generation) return false;
-      s = generation;
-      return true;
-    }
-  };
-  [[nodiscard]] Unchecked View(size_t m) { return {rows.data(), generation[m], m}; }
-  void Erase(size_t m, int32_t i) {
-    if (static_cast<size_t>(i) < rows.size()) rows[static_cast<size_t>(i)].stamp[m] = 0;
-  }
-  // The vector's capacity doubles, so growing one id at a time is
-  // amortised O(1); the constructor reserves room for the copies.
-  [[gnu::noinline]] void Grow(size_t k) { rows.resize(k + 1); }
-  static std::array<Stamp, kSets> MakeGenerations() {
-    std::array<Stamp, kSets> g{};
-    g.fill(Stamp{1});
-    return g;
-  }
 };
 }  // namespace internal
 
@@ -313,8 +252,8 @@ class CutMesh {
   // MoveTetsToCopy's set of moving tets shares kInSearch's stamps: the
   // remeshing move's search runs only after every split of a step.
   static constexpr TetMark kMoving = kInSearch;
-  using TetMarks = internal::StampRows<TetRow, kNumTetMarks>;
-  using NodeMarks = internal::StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
+  using TetMarks = StampRows<TetRow, kNumTetMarks>;
+  using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
   [[nodiscard]] std::span<const int32_t> Star(int32_t node) const {

@@ -225,10 +225,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     // slab, so a closest vertex on the far row cannot stretch it.
     // Level 2 (walked through, not split) bridges level-1 vertices that
     // share no tet: up to 1.5 bands from P and a band below the tip, over
-    // the same stretch along the sweep. (Until the eighth session it was
-    // 2 bands from P and 2 behind and ahead: the same cuts in every test
-    // and bench mesh, 16 % more instructions per step; a level-2 stretch no
-    // deeper than level 1 changed two stress-test results, so it stays.)
+    // the same stretch along the sweep (2 bands, and 2 behind and ahead,
+    // walk 16 % more for the same cuts; 1.25 bands, or no band below the
+    // tip, change cuts in the stress test).
     // 1 if in the swept slab, 2 if only in the walk's, else 0.
     auto slab_level = [&](const Vector3d& x) -> int {
       const double dist = std::abs(plane_dist(x));

@@ -11,8 +11,9 @@ DebrisTracker::DebrisTracker(std::vector<double> element_mass, double total_mass
     : element_mass_(std::move(element_mass)),
       limit_(limits.mass_fraction * total_mass),
       max_tets_(limits.max_tets),
-      debris_(element_mass_.size(), 0),
-      stamp_of_(element_mass_.size(), 0) {}
+      debris_(element_mass_.size(), 0) {
+  marks_.rows.resize(element_mass_.size());
+}
 
 void DebrisTracker::Reset(const cutting::CutMesh& cut) {
   CUTSIM_CHECK(static_cast<size_t>(cut.num_tets()) == element_mass_.size(), "DebrisTracker: tet count");
@@ -37,32 +38,27 @@ void DebrisTracker::Reset(const cutting::CutMesh& cut) {
 void DebrisTracker::Update(const cutting::CutMesh& cut, const cutting::TopologyEvent& event,
                            std::vector<int32_t>* flagged) {
   if (event.splits.empty()) return;  // moves only: no piece can come loose
-  if (stamp_ > 0xF0000000u) {        // wrap-around guard, once in billions of floods
-    std::fill(stamp_of_.begin(), stamp_of_.end(), 0u);
-    stamp_ = 0;
-  }
-  const uint32_t first_stamp = stamp_ + 1;
+  marks_.Clear(kThisCut);
   for (const cutting::Split& split : event.splits) {
-    for (const int32_t t : split.tets) FloodFrom(cut, t, first_stamp, flagged);
-    for (const int32_t t : cut.node_tets(split.node)) FloodFrom(cut, t, first_stamp, flagged);
+    for (const int32_t t : split.tets) FloodFrom(cut, t, flagged);
+    for (const int32_t t : cut.node_tets(split.node)) FloodFrom(cut, t, flagged);
   }
 }
 
 // One flood, stopped once its piece weighs the limit or holds max_tets
 // tets: O(max_tets). It also stops, as big, on reaching a tet an earlier
-// flood of this cut (stamp ≥ first_stamp) reached: that flood was big (a
-// small one took its whole piece, which would then hold `start`), and so is
-// this piece. After a cut the tets around the slit are usually one piece:
-// the first flood walks max_tets tets and the others stop within a few,
-// instead of max_tets each.
-void DebrisTracker::FloodFrom(const cutting::CutMesh& cut, int32_t start, uint32_t first_stamp,
-                              std::vector<int32_t>* flagged) {
-  const auto s = static_cast<size_t>(start);
-  if (debris_[s] != 0 || stamp_of_[s] >= first_stamp) return;  // debris already, or flooded this cut
-  const uint32_t mark = ++stamp_;
+// flood of this cut reached: that flood was big (a small one took its
+// whole piece, which would then hold `start`), and so is this piece. After
+// a cut the tets around the slit are usually one piece: the first flood
+// walks max_tets tets and the others stop within a few, instead of
+// max_tets each.
+void DebrisTracker::FloodFrom(const cutting::CutMesh& cut, int32_t start, std::vector<int32_t>* flagged) {
+  if (debris_[static_cast<size_t>(start)] != 0 || marks_.Contains(kThisCut, start)) return;
+  marks_.Clear(kThisFlood);
   flood_.clear();
   flood_.push_back(start);
-  stamp_of_[s] = mark;
+  marks_.Insert(kThisFlood, start);
+  marks_.Insert(kThisCut, start);
   double mass = 0.0;
   for (size_t i = 0; i < flood_.size(); ++i) {
     const int32_t t = flood_[i];
@@ -70,11 +66,8 @@ void DebrisTracker::FloodFrom(const cutting::CutMesh& cut, int32_t start, uint32
     if (mass >= limit_ || static_cast<int32_t>(i) + 1 >= max_tets_) return;
     for (int f = 0; f < 4; ++f) {
       const int32_t u = cut.Neighbour(t, f);
-      if (u < 0) continue;
-      const uint32_t seen = stamp_of_[static_cast<size_t>(u)];
-      if (seen == mark) continue;
-      if (seen >= first_stamp) return;  // an earlier (big) flood's piece
-      stamp_of_[static_cast<size_t>(u)] = mark;
+      if (u < 0 || !marks_.Insert(kThisFlood, u)) continue;
+      if (!marks_.Insert(kThisCut, u)) return;  // an earlier (big) flood's piece
       flood_.push_back(u);
     }
   }

@@ -4,9 +4,11 @@
 // few tets ahead of it. Kept apart from the Simulation so its incremental
 // rule can be checked against the whole-mesh one.
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
+#include "common/core/stamp_sets.h"
 #include "common/cutting/cut_mesh.h"
 #include "common/cutting/topology_event.h"
 
@@ -44,15 +46,20 @@ class DebrisTracker {
   [[nodiscard]] int32_t num_debris_tets() const { return num_debris_; }
 
  private:
-  void FloodFrom(const cutting::CutMesh& cut, int32_t start, uint32_t first_stamp, std::vector<int32_t>* flagged);
+  void FloodFrom(const cutting::CutMesh& cut, int32_t start, std::vector<int32_t>* flagged);
+
+  // Tets reached by any flood of the current cut, and by the current flood.
+  enum Mark : uint8_t { kThisCut, kThisFlood, kNumMarks };
+  struct Row {
+    std::array<uint16_t, kNumMarks> stamp{};
+  };
 
   std::vector<double> element_mass_;  // #T, kg
   double limit_;                      // kg: mass_fraction × total mass
   int32_t max_tets_;
   std::vector<uint8_t> debris_;       // #T
   int32_t num_debris_ = 0;
-  std::vector<uint32_t> stamp_of_;    // #T, the flood that last reached a tet
-  uint32_t stamp_ = 0;
+  StampRows<Row, kNumMarks> marks_;   // #T rows
   std::vector<int32_t> flood_;        // scratch: the current flood's tets
 };
 
