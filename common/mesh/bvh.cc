@@ -80,6 +80,14 @@ double BoxDistance2(const Vector3d& q, const Vector3d& lo, const Vector3d& hi) {
   return (lo - q).cwiseMax(q - hi).cwiseMax(0.0).squaredNorm();
 }
 
+// Box culling never drops a triangle its own exact test would keep: a box
+// test rounds differently from the triangle test (a closest point on a
+// box face, a segment through a box corner), and which triangles share a
+// box depends on the tree's shape. So boxes are culled with a relative
+// slack, and only the triangle tests decide: answers that do not depend on
+// the tree (bvh.h).
+constexpr double kCullSlack = 1e-9;
+
 // Slab test of the segment a + t·dir, t ∈ [0, t_max], against the box.
 bool SegmentHitsBox(const Vector3d& a, const Vector3d& inv_dir, double t_max, const Vector3d& lo,
                     const Vector3d& hi) {
@@ -93,7 +101,7 @@ bool SegmentHitsBox(const Vector3d& a, const Vector3d& inv_dir, double t_max, co
     if (ta > tb) std::swap(ta, tb);
     t0 = std::max(t0, ta);
     t1 = std::min(t1, tb);
-    if (t0 > t1) return false;
+    if (t0 > t1 + kCullSlack) return false;
   }
   return true;
 }
@@ -342,13 +350,14 @@ std::optional<ClosestPointHit> TriangleBvh::ClosestPoint(const Vector3d& q, doub
   stack[static_cast<size_t>(top++)] = 0;
   while (top > 0) {
     const Node& n = nodes_[static_cast<size_t>(stack[static_cast<size_t>(--top)])];
-    if (BoxDistance2(q, n.lo, n.hi) > best_d2) continue;
+    if (BoxDistance2(q, n.lo, n.hi) > best_d2 * (1.0 + kCullSlack)) continue;
     if (n.count >= 0) {
       for (int32_t k = n.first; k < n.first + n.count; ++k) {
         const int32_t f = order_[static_cast<size_t>(k)];
         ClosestPointHit hit = ClosestPointOnTriangle(q, Corner(f, 0), Corner(f, 1), Corner(f, 2));
-        if (hit.distance * hit.distance <= best_d2) {
-          best_d2 = hit.distance * hit.distance;
+        const double d2 = hit.distance * hit.distance;
+        if (d2 < best_d2 || (d2 == best_d2 && (!best || f < best->tri))) {
+          best_d2 = d2;
           hit.tri = f;
           best = hit;
         }
@@ -390,7 +399,7 @@ std::optional<SegmentHit> TriangleBvh::FirstHit(const Vector3d& a, const Vector3
   std::optional<SegmentHit> best;
   ForEachSegmentCandidate(order_, nodes_, a, b, [&](int32_t f) {
     auto hit = IntersectSegmentTriangle(a, b, Corner(f, 0), Corner(f, 1), Corner(f, 2));
-    if (hit && (!best || hit->t < best->t)) {
+    if (hit && (!best || hit->t < best->t || (hit->t == best->t && f < best->tri))) {
       hit->tri = f;
       best = hit;
     }
@@ -406,6 +415,7 @@ void TriangleBvh::AllHits(const Vector3d& a, const Vector3d& b, std::vector<Segm
       hits.push_back(*hit);
     }
   });
+  std::sort(hits.begin(), hits.end(), [](const SegmentHit& x, const SegmentHit& y) { return x.tri < y.tri; });
 }
 
 void TriangleBvh::QueryBox(const Vector3d& lo, const Vector3d& hi, std::vector<int32_t>& out) const {
@@ -432,6 +442,7 @@ void TriangleBvh::QueryBox(const Vector3d& lo, const Vector3d& hi, std::vector<i
       stack[static_cast<size_t>(top++)] = n.first + 1;
     }
   }
+  std::sort(out.begin(), out.end());
 }
 
 }  // namespace cutsim::mesh

@@ -83,16 +83,24 @@ class TriangleBvh {
   /// Full rebuilds so far (construction excluded).
   [[nodiscard]] int64_t rebuilds() const { return rebuilds_; }
 
+  // Queries do not depend on the tree's shape, only on the live triangles
+  // and positions: lists come sorted by id and ties go to the lowest id. A
+  // tree edited by a thousand cuts and one built from scratch over the same
+  // surface give the same contact, bit for bit (summation orders included),
+  // so the insertion policy can change without changing the physics.
+
   /// Closest surface point to `q` no farther than `radius`, or nullopt.
+  /// Equal distances: the lowest id.
   [[nodiscard]] std::optional<ClosestPointHit> ClosestPoint(const Eigen::Vector3d& q, double radius) const;
 
-  /// First intersection along a→b (smallest t), or nullopt.
+  /// First intersection along a→b (smallest t, then the lowest id), or nullopt.
   [[nodiscard]] std::optional<SegmentHit> FirstHit(const Eigen::Vector3d& a, const Eigen::Vector3d& b) const;
 
-  /// Every intersection of a→b, unordered; `hits` is cleared first.
+  /// Every intersection of a→b, sorted by triangle id; `hits` is cleared first.
   void AllHits(const Eigen::Vector3d& a, const Eigen::Vector3d& b, std::vector<SegmentHit>& hits) const;
 
-  /// Triangles whose bounding box overlaps [lo, hi]; `out` is cleared first.
+  /// Triangles whose bounding box overlaps [lo, hi], sorted by id; `out` is
+  /// cleared first.
   void QueryBox(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, std::vector<int32_t>& out) const;
 
   /// Size of the id space (live and dead ids).

@@ -44,7 +44,7 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
       if (s.tris(f, 0) < 0) continue;  // dead id
       const double d = ClosestPointOnTriangle(p, corner(f, 0), corner(f, 1), corner(f, 2)).distance;
-      if (d <= best) {
+      if (d < best || (d == best && best_f < 0)) {  // ascending ids: ties keep the lowest
         best = d;
         best_f = static_cast<int32_t>(f);
       }
@@ -52,7 +52,8 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     const auto hit = bvh.ClosestPoint(p, radius);
     ASSERT_EQ(hit.has_value(), best_f >= 0);
     if (hit) {
-      EXPECT_NEAR(hit->distance, best, 1e-12);
+      EXPECT_EQ(hit->tri, best_f) << "ties go to the lowest id, whatever the tree's shape";
+      EXPECT_EQ(hit->distance, best);
       const Vector3d rebuilt = hit->bary[0] * corner(hit->tri, 0) + hit->bary[1] * corner(hit->tri, 1) +
                                hit->bary[2] * corner(hit->tri, 2);
       EXPECT_NEAR((rebuilt - hit->point).norm(), 0.0, 1e-12);
@@ -63,22 +64,26 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
     const Vector3d a(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng));
     std::vector<int32_t> brute;
     double first_t = 2.0;
+    int32_t first_f = -1;
     for (Eigen::Index f = 0; f < s.tris.rows(); ++f) {
       if (s.tris(f, 0) < 0) continue;
       if (auto h = IntersectSegmentTriangle(a, b, corner(f, 0), corner(f, 1), corner(f, 2))) {
         brute.push_back(static_cast<int32_t>(f));
-        first_t = std::min(first_t, h->t);
+        if (h->t < first_t) {
+          first_t = h->t;
+          first_f = static_cast<int32_t>(f);
+        }
       }
     }
     bvh.AllHits(a, b, hits);
     std::vector<int32_t> got;
     for (const auto& h : hits) got.push_back(h.tri);
-    std::sort(got.begin(), got.end());
-    EXPECT_EQ(got, brute);
+    EXPECT_EQ(got, brute) << "sorted by id";
     const auto first = bvh.FirstHit(a, b);
     ASSERT_EQ(first.has_value(), !brute.empty());
     if (first) {
-      EXPECT_DOUBLE_EQ(first->t, first_t);
+      EXPECT_EQ(first->t, first_t);
+      EXPECT_EQ(first->tri, first_f);
     }
     // Boxes.
     const Vector3d lo = p - Vector3d::Constant(0.2), hi = p + Vector3d::Constant(0.25);
@@ -90,8 +95,7 @@ void CheckAgainstBruteForce(const Scene& s, const TriangleBvh& bvh, std::mt19937
       if ((tl.array() <= hi.array()).all() && (lo.array() <= th.array()).all()) brute_box.push_back(static_cast<int32_t>(f));
     }
     bvh.QueryBox(lo, hi, boxed);
-    std::sort(boxed.begin(), boxed.end());
-    EXPECT_EQ(boxed, brute_box);
+    EXPECT_EQ(boxed, brute_box) << "sorted by id";
   }
 }
 
@@ -158,6 +162,66 @@ TEST(TriangleBvh, InsertRemoveMatchBruteForce) {
     CheckAgainstBruteForce(s, bvh, rng);
   }
   EXPECT_GT(bvh.rebuilds(), 0) << "enough insertions to rebuild at least once";
+}
+
+// A tree edited as cuts edit it (faces removed, re-inserted under other
+// ids, leaves split) answers exactly as one built from scratch over the same
+// faces: same ids in the same order, same points bit for bit. The queries
+// sit just outside surface vertices, where the faces around a vertex tie on
+// the closest point (all their closest points are the vertex itself).
+TEST(TriangleBvh, EditedTreeAnswersExactlyAsARebuiltOne) {
+  std::mt19937 rng(5);
+  const TetMesh box = MakeBox(Vector3d::Zero(), Vector3d(1.0, 0.6, 0.4), 10, 6, 4);
+  const Triangles surface = ExtractSurface(box.tets).tris;
+  const auto num_faces = static_cast<int32_t>(surface.rows());
+  // Id space twice the faces: every face lives under id f or f + num_faces.
+  Triangles tris = Triangles::Constant(2 * num_faces, 3, -1);
+  tris.topRows(num_faces) = surface;
+  TriangleBvh edited(box.nodes, tris);
+  std::uniform_int_distribution<int32_t> pick(0, num_faces - 1);
+  for (int op = 0; op < 3 * num_faces; ++op) {
+    const int32_t f = pick(rng);
+    const int32_t from = tris(f, 0) >= 0 ? f : f + num_faces;
+    const int32_t to = from == f ? f + num_faces : f;
+    tris.row(to) = tris.row(from);
+    tris.row(from).setConstant(-1);
+    edited.Remove(from);
+    edited.Insert(to, {tris(to, 0), tris(to, 1), tris(to, 2)}, box.nodes);
+  }
+  const TriangleBvh rebuilt(box.nodes, tris);
+  const Vector3d hi(1.0, 0.6, 0.4), centre = 0.5 * hi;
+  std::vector<int32_t> boxes_a, boxes_b;
+  std::vector<SegmentHit> hits_a, hits_b;
+  int ties = 0;
+  for (Eigen::Index v = 0; v < box.nodes.rows(); ++v) {
+    const Vector3d x = box.nodes.row(v).transpose();
+    // Outward along the box's faces through x: every face around x has its
+    // closest point at x.
+    Vector3d out = Vector3d::Zero();
+    for (int k = 0; k < 3; ++k) out[k] = x[k] == 0.0 ? -1.0 : (x[k] == hi[k] ? 1.0 : 0.0);
+    const Vector3d q = x + 1e-3 * out;
+    const auto a = edited.ClosestPoint(q, 0.05), b = rebuilt.ClosestPoint(q, 0.05);
+    ASSERT_EQ(a.has_value(), b.has_value());
+    if (!a) continue;
+    EXPECT_EQ(a->tri, b->tri) << "vertex " << v;
+    EXPECT_EQ(a->point, b->point);
+    if (a->point == x) ++ties;
+    const Vector3d r = Vector3d::Constant(1e-3);
+    edited.QueryBox(x - r, x + r, boxes_a);
+    rebuilt.QueryBox(x - r, x + r, boxes_b);
+    EXPECT_EQ(boxes_a, boxes_b) << "vertex " << v;
+    edited.AllHits(q, centre, hits_a);
+    rebuilt.AllHits(q, centre, hits_b);
+    ASSERT_EQ(hits_a.size(), hits_b.size());
+    for (size_t k = 0; k < hits_a.size(); ++k) {
+      EXPECT_EQ(hits_a[k].tri, hits_b[k].tri);
+      EXPECT_EQ(hits_a[k].point, hits_b[k].point);
+    }
+    const auto fa = edited.FirstHit(q, centre), fb = rebuilt.FirstHit(q, centre);
+    ASSERT_EQ(fa.has_value(), fb.has_value());
+    if (fa) EXPECT_EQ(fa->tri, fb->tri);
+  }
+  EXPECT_GT(ties, 100) << "the queries should exercise ties";
 }
 
 TEST(ClosestPointOnTriangle, RegionsAndDegenerate) {
