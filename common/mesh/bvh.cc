@@ -119,6 +119,8 @@ void TriangleBvh::Build() {
   ++rebuilds_;
   inserted_since_build_ = 0;
   nodes_.clear();
+  parent_.clear();
+  last_leaf_ = -1;
   order_.clear();
   leaf_of_.assign(tris_.size(), -1);
   pos_of_.assign(tris_.size(), -1);
@@ -135,17 +137,20 @@ void TriangleBvh::Build() {
   if (ids.empty()) return;
   const size_t leaves = ids.size() / kLeafSize + 2;
   nodes_.reserve(2 * leaves);
+  parent_.reserve(2 * leaves);
   order_.reserve(kLeafCapacity * leaves);
   nodes_.emplace_back();
+  parent_.push_back(-1);
   BuildRange(0, 0, num_live_, ids, centroids, 0);
   Refit(positions_);
 }
 
-int32_t TriangleBvh::NewLeaf(std::span<const int32_t> ids) {
+int32_t TriangleBvh::NewLeaf(std::span<const int32_t> ids, int32_t parent) {
   const auto first = static_cast<int32_t>(order_.size());
   order_.resize(order_.size() + kLeafCapacity, -1);
   const auto self = static_cast<int32_t>(nodes_.size());
   nodes_.emplace_back();
+  parent_.push_back(parent);
   for (size_t k = 0; k < ids.size(); ++k) {
     order_[static_cast<size_t>(first) + k] = ids[k];
     leaf_of_[static_cast<size_t>(ids[k])] = self;
@@ -190,6 +195,8 @@ void TriangleBvh::BuildRange(int32_t self, int32_t begin, int32_t end, std::vect
   nodes_[static_cast<size_t>(self)].count = -1;
   nodes_.emplace_back();  // children are allocated together, after their parent
   nodes_.emplace_back();
+  parent_.push_back(self);
+  parent_.push_back(self);
   BuildRange(left, begin, mid, ids, centroids, depth + 1);
   BuildRange(left + 1, mid, end, ids, centroids, depth + 1);
 }
@@ -243,8 +250,8 @@ void TriangleBvh::Remove(int32_t id) {
 
 void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Positions& positions) {
   CUTSIM_CHECK(id >= 0 && tri[0] >= 0 && tri[1] >= 0 && tri[2] >= 0, "TriangleBvh::Insert: bad id or node");
-  Remove(id);
   const auto i = static_cast<size_t>(id);
+  const bool was_alive = alive(id);
   if (i >= tris_.size()) {
     tris_.resize(i + 1, {-1, -1, -1});
     leaf_of_.resize(i + 1, -1);
@@ -257,6 +264,26 @@ void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Po
     positions_ = std::move(grown);
   }
   for (const int32_t v : tri) positions_.row(v) = positions.row(v);
+  auto corner = [&](int k) -> Vector3d { return positions_.row(tri[static_cast<size_t>(k)]).transpose(); };
+  const Vector3d lo = corner(0).cwiseMin(corner(1)).cwiseMin(corner(2));
+  const Vector3d hi = corner(0).cwiseMax(corner(1)).cwiseMax(corner(2));
+  auto holds = [&](int32_t node) {
+    const Node& n = nodes_[static_cast<size_t>(node)];
+    return (n.lo.array() <= lo.array()).all() && (hi.array() <= n.hi.array()).all();
+  };
+  // Where to start: the id's own leaf if it is re-inserted (a cut re-points
+  // a surface face to a split copy, in place: same box), else the leaf the
+  // previous insertion went to (a cut inserts the faces of one slit).
+  int32_t start = last_leaf_;
+  if (was_alive) {
+    start = leaf_of_[i];
+    if (holds(start)) {  // still fits its leaf: the tree is unchanged
+      tris_[i] = tri;
+      last_leaf_ = start;
+      return;
+    }
+    Remove(id);
+  }
   tris_[i] = tri;
   ++num_live_;
   ++inserted_since_build_;
@@ -264,15 +291,30 @@ void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Po
     Build();  // amortised: paid by the insertions since the last build
     return;
   }
-  Vector3d lo = Corner(id, 0).cwiseMin(Corner(id, 1)).cwiseMin(Corner(id, 2));
-  Vector3d hi = Corner(id, 0).cwiseMax(Corner(id, 1)).cwiseMax(Corner(id, 2));
   const Vector3d centre = 0.5 * (lo + hi);
   auto area = [](const Vector3d& l, const Vector3d& h) {
     const Vector3d e = (h - l).cwiseMax(0.0);
     return e.x() * e.y() + e.y() * e.z() + e.z() * e.x();
   };
+  // Descend from the lowest ancestor of `start` whose box holds the
+  // triangle (the root at worst): above it every box already holds it, and
+  // a cut's faces share a subtree a few levels up, so the descent is short
+  // instead of the tree's whole depth. `depth`: the start's depth, for the
+  // traversal stack's limit.
   int32_t at = 0;
   int depth = 0;
+  if (start >= 0) {
+    int32_t found = -1;
+    for (int32_t a = start; a >= 0; a = parent_[static_cast<size_t>(a)]) {
+      if (found >= 0) {
+        ++depth;
+      } else if (holds(a)) {
+        found = a;
+      }
+    }
+    if (found >= 0) at = found;
+    else depth = 0;
+  }
   while (true) {
     Node& n = nodes_[static_cast<size_t>(at)];
     const bool empty = !(n.lo.x() <= n.hi.x());
@@ -308,6 +350,7 @@ void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Po
     order_[static_cast<size_t>(p)] = id;
     leaf_of_[i] = at;
     pos_of_[i] = p;
+    last_leaf_ = at;
     return;
   }
   if (leaf.count > kLeafCapacity || depth + 2 >= kMaxDepth - 1) {
@@ -319,26 +362,30 @@ void TriangleBvh::Insert(int32_t id, const std::array<int32_t, 3>& tri, const Po
   std::array<int32_t, kLeafCapacity + 1> ids{};
   for (int k = 0; k < kLeafCapacity; ++k) ids[static_cast<size_t>(k)] = order_[static_cast<size_t>(leaf.first + k)];
   ids[kLeafCapacity] = id;
-  auto centroid = [&](int32_t f) -> Vector3d { return (Corner(f, 0) + Corner(f, 1) + Corner(f, 2)) / 3.0; };
+  std::array<Vector3d, kLeafCapacity + 1> centroids;  // once each, not per comparison
   Vector3d clo = Vector3d::Constant(std::numeric_limits<double>::infinity()), chi = -clo;
-  for (const int32_t f : ids) {
-    clo = clo.cwiseMin(centroid(f));
-    chi = chi.cwiseMax(centroid(f));
+  for (size_t k = 0; k < ids.size(); ++k) {
+    centroids[k] = (Corner(ids[k], 0) + Corner(ids[k], 1) + Corner(ids[k], 2)) / 3.0;
+    clo = clo.cwiseMin(centroids[k]);
+    chi = chi.cwiseMax(centroids[k]);
   }
   int axis = 0;
   (chi - clo).maxCoeff(&axis);
+  std::array<std::pair<double, int32_t>, kLeafCapacity + 1> keyed;
+  for (size_t k = 0; k < ids.size(); ++k) keyed[k] = {centroids[k][axis], ids[k]};
   constexpr size_t kMid = (kLeafCapacity + 1) / 2;
-  std::nth_element(ids.begin(), ids.begin() + kMid, ids.end(),
-                   [&](int32_t x, int32_t y) { return centroid(x)[axis] < centroid(y)[axis]; });
+  std::nth_element(keyed.begin(), keyed.begin() + kMid, keyed.end());
+  for (size_t k = 0; k < ids.size(); ++k) ids[k] = keyed[k].second;
   // The old leaf's order_ segment is abandoned (reclaimed at the next build).
-  const int32_t left = NewLeaf(std::span<const int32_t>(ids.data(), kMid));
-  const int32_t right = NewLeaf(std::span<const int32_t>(ids.data() + kMid, ids.size() - kMid));
+  const int32_t left = NewLeaf(std::span<const int32_t>(ids.data(), kMid), at);
+  const int32_t right = NewLeaf(std::span<const int32_t>(ids.data() + kMid, ids.size() - kMid), at);
   CUTSIM_CHECK(right == left + 1, "TriangleBvh: children must be adjacent");
   LeafBox(nodes_[static_cast<size_t>(left)]);
   LeafBox(nodes_[static_cast<size_t>(right)]);
   Node& parent = nodes_[static_cast<size_t>(at)];  // nodes_ may have moved
   parent.first = left;
   parent.count = -1;
+  last_leaf_ = leaf_of_[i];
 }
 
 std::optional<ClosestPointHit> TriangleBvh::ClosestPoint(const Vector3d& q, double radius) const {

@@ -50,10 +50,16 @@ std::optional<SegmentHit> IntersectSegmentTriangle(const Eigen::Vector3d& a, con
 /// tree by its own slot numbers (e.g. CutMesh surface slots).
 ///
 /// Local edits: Remove(id) takes the id out of its leaf in O(1) (boxes stay
-/// conservative until the next Refit). Insert(id, tri) descends from the
-/// root into the child whose box grows least (enlarging boxes on the way,
-/// so the tree is valid at once) and appends to a leaf, which has room for
-/// kLeafCapacity ids; a full leaf splits into two new leaves at its median.
+/// conservative until the next Refit). Insert(id, tri) of a live id whose
+/// new box still fits its leaf's only renames its nodes (a cut re-points a
+/// face to a split copy at the same place). Otherwise it climbs by parent
+/// links from the id's old leaf, or else from the previous insertion's
+/// leaf (a cut inserts the faces of one slit), to the lowest box that holds
+/// the triangle, descends from there into the child whose box grows least
+/// (enlarging boxes on the way, so the tree is valid at once) and appends
+/// to a leaf, which has room for kLeafCapacity ids; a full leaf splits into
+/// two new leaves at its median. (From the root every time, an insert cost
+/// ~2 000 instructions at 10k tets; from the climb, ~860.)
 /// After more insertions than half the live triangles (≥ 64), or a path
 /// deeper than the traversal stack allows, the tree is rebuilt from
 /// scratch: amortised O(log F) per insertion.
@@ -121,7 +127,7 @@ class TriangleBvh {
   void Build();
   void BuildRange(int32_t self, int32_t begin, int32_t end, std::vector<int32_t>& ids,
                   const std::vector<Eigen::Vector3d>& centroids, int depth);
-  int32_t NewLeaf(std::span<const int32_t> ids);
+  int32_t NewLeaf(std::span<const int32_t> ids, int32_t parent);
   void LeafBox(Node& n) const;
   Eigen::Vector3d Corner(int32_t f, int k) const {
     return positions_.row(tris_[static_cast<size_t>(f)][static_cast<size_t>(k)]).transpose();
@@ -131,6 +137,8 @@ class TriangleBvh {
   Positions positions_;           // #N×3 copy of the last build/refit positions
   std::vector<int32_t> order_;    // kLeafCapacity entries per leaf, the first `count` used
   std::vector<Node> nodes_;       // children always after their parent
+  std::vector<int32_t> parent_;   // #nodes: parent node (−1: the root)
+  int32_t last_leaf_ = -1;        // leaf of the last insertion (−1: none since the build)
   std::vector<int32_t> leaf_of_;  // #ids: leaf node holding the id (−1: none)
   std::vector<int32_t> pos_of_;   // #ids: index in order_
   int32_t num_live_ = 0;

@@ -128,7 +128,8 @@ TEST(TriangleBvh, RefitTracksMovedNodes) {
 
 // Local edits (what a cut does to the surface): random removals and
 // insertions by id, reusing freed ids and growing the id space, enough to
-// split full leaves and trigger the amortised rebuild; queries must match
+// split full leaves and trigger the amortised rebuild, and re-inserting
+// live ids with a moved corner; queries must match
 // brute force over the live ids after every batch, with and without a refit.
 TEST(TriangleBvh, InsertRemoveMatchBruteForce) {
   std::mt19937 rng(11);
@@ -148,6 +149,13 @@ TEST(TriangleBvh, InsertRemoveMatchBruteForce) {
         EXPECT_FALSE(bvh.alive(f));
       } else if (s.tris(f, 0) < 0) {
         s.tris.row(f) = all.tris.row(f);
+        bvh.Insert(f, {s.tris(f, 0), s.tris(f, 1), s.tris(f, 2)}, s.x);
+        EXPECT_TRUE(bvh.alive(f));
+      } else {
+        // Re-insert a live id with a corner moved (soup: no other triangle
+        // has it), by a little (stays in its leaf's box) or a lot (leaves).
+        const double step = coin(rng) == 0 ? 0.3 : 1e-4;
+        s.x(s.tris(f, 0), 0) += step;
         bvh.Insert(f, {s.tris(f, 0), s.tris(f, 1), s.tris(f, 2)}, s.x);
         EXPECT_TRUE(bvh.alive(f));
       }
@@ -219,7 +227,9 @@ TEST(TriangleBvh, EditedTreeAnswersExactlyAsARebuiltOne) {
     }
     const auto fa = edited.FirstHit(q, centre), fb = rebuilt.FirstHit(q, centre);
     ASSERT_EQ(fa.has_value(), fb.has_value());
-    if (fa) EXPECT_EQ(fa->tri, fb->tri);
+    if (fa) {
+      EXPECT_EQ(fa->tri, fb->tri);
+    }
   }
   EXPECT_GT(ties, 100) << "the queries should exercise ties";
 }
