@@ -562,7 +562,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     const Vector3d x_old = W.Get(node);
     const Vector3d u_old = rest_[Idx(node)];
     if (!((target - x_old).norm() > 1e-12 * h)) return;
-    std::vector<int32_t> star;
+    std::vector<int32_t>& star = move_star_;
+    star.clear();
     for (const int32_t g : group) star.insert(star.end(), Star(g).begin(), Star(g).end());
     if (group.size() > 1) {  // one node's tets are sorted and unique already
       std::sort(star.begin(), star.end());
@@ -581,9 +582,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     // the star tet nearest to holding it: the map of the vertex's own
     // elements. (Scoring every neighbour too, ~100 3×3 inverses, was most of
     // the move's cost, for an extrapolation from a tet one ring away.) One
-    // loop body serves both phases on purpose: a second copy of it (a
-    // lambda) was compiled with other FMA contractions and moved rest
-    // targets by an ulp.
+    // loop body serves both phases.
     double best_score = -1e300;
     int32_t best_tet = -1;
     Vector3d u_target = u_old;

@@ -1052,9 +1052,9 @@ class Engine final : public Simulation {
     Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
                 cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
                 outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
-    if (!outcome.event.empty()) ApplyEvent(outcome.event);
     timing_.splits = static_cast<int32_t>(outcome.event.splits.size());
     timing_.touched_tets = static_cast<int32_t>(outcome.event.touched_tets.size());
+    if (!outcome.event.empty()) ApplyEvent(std::move(outcome.event));
     cut_timings_.push_back(timing_);
     ++cuts_;
     report_.cuts = cuts_;
@@ -1068,7 +1068,8 @@ class Engine final : public Simulation {
 
   /// Applies a cut's topology event to the FEM in the order the cut code
   /// documents (topology_event.h), then refreshes what depends on topology.
-  void ApplyEvent(const cutting::TopologyEvent& event) {
+  /// The event is kept (moved, not copied) for checkpoints.
+  void ApplyEvent(cutting::TopologyEvent&& event) {
     Stopwatch watch;
     for (const cutting::Split& split : event.splits) {
       const int32_t copy = model_.AddNodeCopy(split.node, state_);
@@ -1089,7 +1090,6 @@ class Engine final : public Simulation {
     model_.CommitTopology();
     fem::UpdateStableStep(model_, state_, event.touched_tets,
                           step_options_.viscous == fem::ViscousTreatment::kExplicit);
-    events_.push_back(event);
     timing_.fem = watch.ElapsedSeconds();
     if (has_tool_) {
       Stopwatch surface_watch;
@@ -1097,6 +1097,7 @@ class Engine final : public Simulation {
       FlagDebrisNear(event);
       timing_.surface = surface_watch.ElapsedSeconds();
     }
+    events_.push_back(std::move(event));
   }
 
   LoadedScene scene_;
@@ -1270,9 +1271,9 @@ class Engine final : public Simulation {
     }
 
     // Apply for real: the cut complex, then the FEM (the same ApplyEvent as a live cut).
-    for (const cutting::TopologyEvent& e : events) {
+    for (cutting::TopologyEvent& e : events) {
       ReplayEvent(*cut_, e);
-      ApplyEvent(e);
+      ApplyEvent(std::move(e));
     }
     for (size_t i = 0; i < static_cast<size_t>(n3); ++i) {
       state_.x[i] = static_cast<T>(b.positions(static_cast<int>(i)));
