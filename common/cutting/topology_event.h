@@ -32,8 +32,11 @@ struct Move {
 /// One cut step. The sim applies, in order: for each split AddNodeCopy(node)
 /// (which must return new_node) then RetargetTet for each listed tet (the
 /// corner whose index equals `node`); for each move SetRestPosition + world
-/// position; then RecomputeElements(touched_tets) and
-/// RecomputeNodeMasses(touched_nodes).
+/// position; then RecomputeElements of the moved nodes' tets (a tet only
+/// re-pointed to a copy keeps its rest shape: the copy starts at its
+/// original's rest position) and RecomputeNodeMasses(touched_nodes).
+/// `touched_tets` also lists the re-pointed ones (their world shape, e.g.
+/// for the stable step, and observers).
 struct TopologyEvent {
   uint64_t version = 0;               ///< Topology version after this event (1, 2, …).
   std::vector<Split> splits;

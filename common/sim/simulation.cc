@@ -1085,7 +1085,20 @@ class Engine final : public Simulation {
       model_.SetRestPosition(move.node, move.rest.template cast<T>());
       world_access_.Set(move.node, move.world);
     }
-    model_.RecomputeElements(event.touched_tets);
+    // An element depends on its corners' rest positions only
+    // (fem::Model::ComputeElement), and a split copy starts at its
+    // original's: a tet only re-pointed to a copy is unchanged, bit for bit.
+    // Only the stars of moved nodes are recomputed.
+    moved_tets_.clear();
+    const int32_t* slots = model_.incidence_slots();
+    for (const cutting::Move& move : event.moves) {
+      for (int32_t s = model_.incidence_begin(move.node); s < model_.incidence_end(move.node); ++s) {
+        moved_tets_.push_back(slots[s] / 12);
+      }
+    }
+    std::sort(moved_tets_.begin(), moved_tets_.end());
+    moved_tets_.erase(std::unique(moved_tets_.begin(), moved_tets_.end()), moved_tets_.end());
+    model_.RecomputeElements(moved_tets_);
     model_.RecomputeNodeMasses(event.touched_nodes);
     model_.CommitTopology();
     fem::UpdateStableStep(model_, state_, event.touched_tets,
@@ -1138,7 +1151,7 @@ class Engine final : public Simulation {
   std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
   std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
   std::optional<DebrisTracker> debris_;  // with cutting only
-  std::vector<int32_t> changed_slots_, flagged_;  // scratch
+  std::vector<int32_t> changed_slots_, flagged_, moved_tets_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
   std::vector<CutStepTiming> cut_timings_;
   // Debris: a piece cut loose that the blade passes through rather than

@@ -59,6 +59,39 @@ TEST(FemModel, PerRegionMaterials) {
   EXPECT_EQ(model.mus()[5], 5000);
 }
 
+// The sim recomputes only the elements of moved nodes after a cut
+// (simulation.cc, ApplyEvent): a tet re-pointed to a fresh split copy must
+// keep its element data bit for bit, since the copy starts at its
+// original's rest position and the corner order is kept.
+TEST(FemModel, RetargetingToAFreshCopyLeavesTheElementUnchanged) {
+  const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.03, 0.03, 0.03);
+  Model<double> model(mesh, std::span(&kTissue, 1), {.node_capacity = mesh.num_nodes() + 8});
+  State<double> state(model);
+  const int node = (1 * 4 + 1) * 4 + 1 + 1;
+  std::vector<int32_t> retargeted;
+  std::vector<Mat3<double>> dm_inv;
+  std::vector<double> volume, grad;
+  const int copy = model.AddNodeCopy(node, state);
+  for (int t = 0; t < model.num_tets(); ++t) {
+    for (int c = 0; c < 4; ++c) {
+      if (model.tet_node(t, c) != node || t % 2 != 0) continue;
+      retargeted.push_back(t);
+      dm_inv.push_back(model.DmInv(t));
+      volume.push_back(model.rest_volume(t));
+      grad.push_back(model.grad_sq_max(t));
+      model.RetargetTet(t, c, copy);
+    }
+  }
+  ASSERT_GE(retargeted.size(), 2u);
+  ASSERT_EQ(model.RecomputeElements(retargeted), 0);
+  for (size_t i = 0; i < retargeted.size(); ++i) {
+    const int32_t t = retargeted[i];
+    EXPECT_TRUE(model.DmInv(t) == dm_inv[i]) << "tet " << t;
+    EXPECT_EQ(model.rest_volume(t), volume[i]) << "tet " << t;
+    EXPECT_EQ(model.grad_sq_max(t), grad[i]) << "tet " << t;
+  }
+}
+
 TEST(FemModel, SplitConservesMassExactly) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.03, 0.03, 0.03);
   Model<double> model(mesh, std::span(&kTissue, 1), {.node_capacity = mesh.num_nodes() + 8});
