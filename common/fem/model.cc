@@ -262,6 +262,16 @@ int Model<T>::RecomputeElements(std::span<const int32_t> tets) {
 }
 
 template <typename T>
+void Model<T>::IncidentTets(std::span<const int32_t> nodes, std::vector<int32_t>& out) const {
+  out.clear();
+  for (const int32_t n : nodes) {
+    for (int32_t k = inc_range_[2 * n]; k < inc_range_[2 * n + 1]; ++k) out.push_back(inc_slots_[k] / 12);
+  }
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+}
+
+template <typename T>
 void Model<T>::RecomputeNodeMasses(std::span<const int32_t> nodes) {
   if (topology_dirty_) CommitTopology();  // O(1): the incidence is already current
   for (const int32_t n : nodes) {

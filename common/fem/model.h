@@ -132,6 +132,9 @@ class Model {
   [[nodiscard]] const int32_t* incidence_slots() const { return inc_slots_.data(); }   // 4·#T + slack
   [[nodiscard]] int32_t incidence_begin(int32_t n) const { return inc_range_[2 * n]; }
   [[nodiscard]] int32_t incidence_end(int32_t n) const { return inc_range_[2 * n + 1]; }
+  /// Every element with a corner in `nodes`, once, ascending, into `out`
+  /// (cleared first; no allocation once `out` is large enough).
+  void IncidentTets(std::span<const int32_t> nodes, std::vector<int32_t>& out) const;
   /// How many times the incidence was compacted since construction.
   [[nodiscard]] int64_t incidence_compactions() const { return inc_compactions_; }
   [[nodiscard]] bool topology_dirty() const { return topology_dirty_; }

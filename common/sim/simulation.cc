@@ -922,14 +922,8 @@ class Engine final : public Simulation {
   /// compliance is not positive.
   double SolvePatchCompliance(const std::array<int32_t, 3>& nodes, const Eigen::Vector3d& w,
                               const Eigen::Vector3d& u) const {
-    const int32_t* slots = model_.incidence_slots();
     std::vector<int32_t>& tets = patch_tets_;  // every element touching an unknown, once
-    tets.clear();
-    for (const int32_t node : patch_unknown_) {
-      for (int32_t s = model_.incidence_begin(node); s < model_.incidence_end(node); ++s) tets.push_back(slots[s] / 12);
-    }
-    std::sort(tets.begin(), tets.end());
-    tets.erase(std::unique(tets.begin(), tets.end()), tets.end());
+    model_.IncidentTets(patch_unknown_, tets);
     // The lower triangle only: the element tangents are symmetric and
     // SimplicialLDLT reads the lower part.
     std::vector<Eigen::Triplet<double>>& entries = patch_entries_;
@@ -1089,15 +1083,9 @@ class Engine final : public Simulation {
     // (fem::Model::ComputeElement), and a split copy starts at its
     // original's: a tet only re-pointed to a copy is unchanged, bit for bit.
     // Only the stars of moved nodes are recomputed.
-    moved_tets_.clear();
-    const int32_t* slots = model_.incidence_slots();
-    for (const cutting::Move& move : event.moves) {
-      for (int32_t s = model_.incidence_begin(move.node); s < model_.incidence_end(move.node); ++s) {
-        moved_tets_.push_back(slots[s] / 12);
-      }
-    }
-    std::sort(moved_tets_.begin(), moved_tets_.end());
-    moved_tets_.erase(std::unique(moved_tets_.begin(), moved_tets_.end()), moved_tets_.end());
+    moved_nodes_.clear();
+    for (const cutting::Move& move : event.moves) moved_nodes_.push_back(move.node);
+    model_.IncidentTets(moved_nodes_, moved_tets_);
     model_.RecomputeElements(moved_tets_);
     model_.RecomputeNodeMasses(event.touched_nodes);
     model_.CommitTopology();
@@ -1151,7 +1139,7 @@ class Engine final : public Simulation {
   std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
   std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
   std::optional<DebrisTracker> debris_;  // with cutting only
-  std::vector<int32_t> changed_slots_, flagged_, moved_tets_;  // scratch
+  std::vector<int32_t> changed_slots_, flagged_, moved_nodes_, moved_tets_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
   std::vector<CutStepTiming> cut_timings_;
   // Debris: a piece cut loose that the blade passes through rather than

@@ -83,6 +83,10 @@ TEST(FemModel, RetargetingToAFreshCopyLeavesTheElementUnchanged) {
     }
   }
   ASSERT_GE(retargeted.size(), 2u);
+  std::vector<int32_t> incident;
+  const std::vector<int32_t> copies = {copy, copy};  // listed twice: still each tet once
+  model.IncidentTets(copies, incident);
+  EXPECT_EQ(incident, retargeted);
   ASSERT_EQ(model.RecomputeElements(retargeted), 0);
   for (size_t i = 0; i < retargeted.size(); ++i) {
     const int32_t t = retargeted[i];
