@@ -1082,15 +1082,17 @@ class Engine final : public Simulation {
     // An element depends on its corners' rest positions only
     // (fem::Model::ComputeElement), and a split copy starts at its
     // original's: a tet only re-pointed to a copy is unchanged, bit for bit.
-    // Only the stars of moved nodes are recomputed.
+    // Only the stars of moved nodes are recomputed. The same holds for an
+    // element's stable step (its rest shape, its frozen mass and its
+    // corners' world positions, which a copy shares with its original), so
+    // the stable-step tree is updated from those stars too.
     moved_nodes_.clear();
     for (const cutting::Move& move : event.moves) moved_nodes_.push_back(move.node);
     model_.IncidentTets(moved_nodes_, moved_tets_);
     model_.RecomputeElements(moved_tets_);
     model_.RecomputeNodeMasses(event.touched_nodes);
     model_.CommitTopology();
-    fem::UpdateStableStep(model_, state_, event.touched_tets,
-                          step_options_.viscous == fem::ViscousTreatment::kExplicit);
+    fem::UpdateStableStep(model_, state_, moved_tets_, step_options_.viscous == fem::ViscousTreatment::kExplicit);
     timing_.fem = watch.ElapsedSeconds();
     if (has_tool_) {
       Stopwatch surface_watch;

@@ -1,4 +1,5 @@
 // Model construction, input errors, cutting mutations and mass conservation.
+#include <cmath>
 #include <numeric>
 
 #include <gtest/gtest.h>
@@ -62,15 +63,19 @@ TEST(FemModel, PerRegionMaterials) {
 // The sim recomputes only the elements of moved nodes after a cut
 // (simulation.cc, ApplyEvent): a tet re-pointed to a fresh split copy must
 // keep its element data bit for bit, since the copy starts at its
-// original's rest position and the corner order is kept.
+// original's rest position and the corner order is kept. So must its stable
+// step (the sim updates the stable-step tree from the same stars): the copy
+// also shares its original's world position, and element masses are frozen.
 TEST(FemModel, RetargetingToAFreshCopyLeavesTheElementUnchanged) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.03, 0.03, 0.03);
   Model<double> model(mesh, std::span(&kTissue, 1), {.node_capacity = mesh.num_nodes() + 8});
   State<double> state(model);
+  // A deformed state, so the stable step reads a non-trivial F.
+  for (size_t i = 0; i < state.x.size(); ++i) state.x[i] += 1e-3 * std::sin(1.7 * static_cast<double>(i));
   const int node = (1 * 4 + 1) * 4 + 1 + 1;
   std::vector<int32_t> retargeted;
   std::vector<Mat3<double>> dm_inv;
-  std::vector<double> volume, grad;
+  std::vector<double> volume, grad, stable;
   const int copy = model.AddNodeCopy(node, state);
   for (int t = 0; t < model.num_tets(); ++t) {
     for (int c = 0; c < 4; ++c) {
@@ -79,6 +84,7 @@ TEST(FemModel, RetargetingToAFreshCopyLeavesTheElementUnchanged) {
       dm_inv.push_back(model.DmInv(t));
       volume.push_back(model.rest_volume(t));
       grad.push_back(model.grad_sq_max(t));
+      stable.push_back(ElementStableStep(model, state.x.data(), t, true));
       model.RetargetTet(t, c, copy);
     }
   }
@@ -88,11 +94,15 @@ TEST(FemModel, RetargetingToAFreshCopyLeavesTheElementUnchanged) {
   model.IncidentTets(copies, incident);
   EXPECT_EQ(incident, retargeted);
   ASSERT_EQ(model.RecomputeElements(retargeted), 0);
+  const std::vector<int32_t> split_nodes = {node, copy};  // as the sim does after a split
+  model.RecomputeNodeMasses(split_nodes);
+  model.CommitTopology();
   for (size_t i = 0; i < retargeted.size(); ++i) {
     const int32_t t = retargeted[i];
     EXPECT_TRUE(model.DmInv(t) == dm_inv[i]) << "tet " << t;
     EXPECT_EQ(model.rest_volume(t), volume[i]) << "tet " << t;
     EXPECT_EQ(model.grad_sq_max(t), grad[i]) << "tet " << t;
+    EXPECT_EQ(ElementStableStep(model, state.x.data(), t, true), stable[i]) << "tet " << t;
   }
 }
 
