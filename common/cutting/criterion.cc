@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <vector>
 
 #include <Eigen/Eigenvalues>
 
@@ -35,6 +37,20 @@ double CuttingStress(const Eigen::Matrix3d& cauchy, double kappa, double zeta) {
   return CuttingStressDetail(cauchy, kappa, zeta).sigma_c;
 }
 
+double CuttingStressBound(const Eigen::Matrix3d& cauchy, double kappa, double zeta) {
+  const Eigen::Matrix3d sym = 0.5 * (cauchy + cauchy.transpose());
+  const double mean = sym.trace() / 3.0;
+  const double dev = (sym - mean * Eigen::Matrix3d::Identity()).norm();
+  // With deviations δi = λi − λ̄ (Σδi = 0, Σδi² = ‖dev‖²): (λ3 − λ1)² ≤ 2Σδi²
+  // (the two extremes are on either side of λ̄), and δ3² ≤ (2/3)Σδi² (the
+  // other two sum to −δ3). σ_c is at most the smaller of the two bounds.
+  const double tau = dev * std::sqrt(0.5);
+  const double sigma = mean + dev * std::sqrt(2.0 / 3.0);
+  const double bound = (std::max(0.0, std::min(tau, sigma)) + 1e-12 * sym.norm()) / (kappa * zeta);
+  if (!std::isfinite(bound) || !(kappa > 0.0) || !(zeta > 0.0)) return std::numeric_limits<double>::infinity();
+  return bound;
+}
+
 bool ExceedsCriticalStress(double sigma_c, double critical_stress) {
   return sigma_c > 0.0 && sigma_c >= critical_stress;  // eq. (11)
 }
@@ -42,11 +58,29 @@ bool ExceedsCriticalStress(double sigma_c, double critical_stress) {
 CriterionResult EvaluateCriterion(std::span<const int32_t> candidates, const CauchyFn& cauchy,
                                   const CutParams& params) {
   CriterionResult result;
-  for (const int32_t t : candidates) {
-    const double sc = CuttingStress(cauchy(t), params.kappa, params.zeta);
-    if (result.tet < 0 || sc > result.sigma_c) {
+  // Stress and bound of every candidate (the stress is cheap next to its
+  // eigen-solve), then solves from the highest bound down: a candidate
+  // whose bound is below the best σ_c cannot be the maximum, nor can any
+  // after it.
+  const size_t n = candidates.size();
+  std::vector<Eigen::Matrix3d> stress(n);
+  std::vector<double> bound(n);
+  std::vector<uint32_t> order(n);  // candidate indices, highest bound first; ties keep the first
+  for (size_t i = 0; i < n; ++i) {
+    stress[i] = cauchy(candidates[i]);
+    bound[i] = CuttingStressBound(stress[i], params.kappa, params.zeta);
+    order[i] = static_cast<uint32_t>(i);
+  }
+  std::sort(order.begin(), order.end(),
+            [&](uint32_t a, uint32_t b) { return bound[a] != bound[b] ? bound[a] > bound[b] : a < b; });
+  uint32_t best = 0;
+  for (const uint32_t i : order) {
+    if (result.tet >= 0 && bound[i] < result.sigma_c) break;
+    const double sc = CuttingStress(stress[i], params.kappa, params.zeta);
+    if (result.tet < 0 || sc > result.sigma_c || (sc == result.sigma_c && i < best)) {
       result.sigma_c = sc;
-      result.tet = t;
+      result.tet = candidates[i];
+      best = i;
     }
   }
   result.cut = result.tet >= 0 && ExceedsCriticalStress(result.sigma_c, params.critical_stress);

@@ -33,6 +33,13 @@ CuttingStressParts CuttingStressDetail(const Eigen::Matrix3d& cauchy, double kap
 /// σ_c of eq. (10), Pa.
 double CuttingStress(const Eigen::Matrix3d& cauchy, double kappa, double zeta);
 
+/// An upper bound on CuttingStress(cauchy, κ, ζ) without an eigen-solve:
+/// σ_c ≤ min(σ_max, τ_max)/ζ with (λ3 − λ1)/2 ≤ ‖dev σ‖_F/√2 and
+/// λ3 ≤ tr σ/3 + √(2/3)·‖dev σ‖_F (σ symmetrized), plus 1e-12·‖σ‖_F/(κζ),
+/// far above the eigen-solver's round-off. +∞ for non-finite input or
+/// κ, ζ ≤ 0 (then nothing is bounded).
+double CuttingStressBound(const Eigen::Matrix3d& cauchy, double kappa, double zeta);
+
 /// Eq. (11): σ_c > 0 and σ_c ≥ K_I.
 bool ExceedsCriticalStress(double sigma_c, double critical_stress);
 
@@ -48,6 +55,9 @@ struct CriterionResult {
 /// Evaluates the criterion over the contact elements only (the tets
 /// incident to the contact facet / v_c; see CutMesh::ContactElements): the
 /// maximum σ_c decides. Ties keep the first candidate (deterministic).
+/// Eigen-solves run in decreasing order of CuttingStressBound and stop
+/// once no bound left can beat the best σ_c: the same result as solving
+/// every candidate, with one or two solves instead of ~20.
 CriterionResult EvaluateCriterion(std::span<const int32_t> candidates, const CauchyFn& cauchy,
                                   const CutParams& params);
 

@@ -1,5 +1,7 @@
 // Physical criterion (seed eqs. 6–11): properties first, then values.
+#include <cmath>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -88,6 +90,83 @@ TEST(Criterion, CutsAboveCriticalStressOnlyAndTakesTheMaxOverCandidates) {
   params.zeta = 1.0;
   params.kappa = 2.0;
   EXPECT_FALSE(EvaluateCriterion(exact, cauchy, params).cut);
+}
+
+// The bound that lets EvaluateCriterion skip eigen-solves must hold for
+// every stress, near-hydrostatic ones (where the eigen-solver's round-off
+// is all of τ_max) included.
+TEST(CuttingStress, BoundHoldsForRandomAndNearHydrostaticStresses) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  auto random = [&](double scale) {
+    Matrix3d a;
+    for (int i = 0; i < 9; ++i) a(i / 3, i % 3) = scale * u(rng);
+    return a;
+  };
+  int checked = 0;
+  for (int k = 0; k < 20000; ++k) {
+    const double scale = std::pow(10.0, 6.0 * u(rng));
+    Matrix3d s = random(scale);
+    switch (k % 5) {
+      case 1: s = scale * u(rng) * Matrix3d::Identity() + 1e-13 * random(scale); break;  // near-hydrostatic
+      case 2: s = Eigen::Vector3d(scale * u(rng), 0.0, -scale).asDiagonal(); s = Rotated(s); break;
+      case 3: s = 0.5 * (s + s.transpose()); break;
+      // Tension against a larger equal-biaxial compression: σ_max < τ_max
+      // and the σ_max bound is exact (equal lower pair).
+      case 4: s = Eigen::Vector3d(0.5 * scale * std::abs(u(rng)), -scale, -scale).asDiagonal(); break;
+      default: break;  // not symmetric: the criterion uses the symmetric part
+    }
+    for (const double kappa : {0.5, 1.0, 3.0}) {
+      const double zeta = 0.25 + 0.75 * (0.5 + 0.5 * u(rng));
+      ASSERT_GE(CuttingStressBound(s, kappa, zeta), CuttingStress(s, kappa, zeta)) << s << "\nk " << k;
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 60000);
+  Matrix3d bad = Matrix3d::Identity();
+  bad(0, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(CuttingStressBound(bad, 1.0, 1.0), std::numeric_limits<double>::infinity());
+}
+
+// Skipping solves by the bound must give exactly the first maximum of a
+// plain scan, ties (repeated and rotated stresses) and compression included.
+TEST(Criterion, BoundedSearchEqualsAFullScan) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  CutParams params;
+  params.kappa = 1.5;
+  params.zeta = 0.8;
+  params.critical_stress = 0.3;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const int n = 1 + trial % 30;
+    std::vector<Matrix3d> stress(static_cast<size_t>(n));
+    for (auto& s : stress) {
+      for (int i = 0; i < 9; ++i) s(i / 3, i % 3) = u(rng);
+      if (u(rng) > 0.5) s = -s.transpose() * s;  // compression only: σ_c = 0
+    }
+    // Ties: exact repeats and rotated copies (equal up to round-off).
+    for (int r = 0; r < n / 3; ++r) {
+      const auto a = static_cast<size_t>(std::uniform_int_distribution<int>(0, n - 1)(rng));
+      const auto b = static_cast<size_t>(std::uniform_int_distribution<int>(0, n - 1)(rng));
+      stress[b] = r % 2 == 0 ? stress[a] : Rotated(stress[a]);
+    }
+    std::vector<int32_t> candidates(static_cast<size_t>(n));
+    for (int i = 0; i < n; ++i) candidates[static_cast<size_t>(i)] = 100 + 7 * ((i * 13) % n);  // not sorted
+    const CauchyFn cauchy = [&](int32_t t) { return stress[static_cast<size_t>(((t - 100) / 7))]; };
+    CriterionResult scan;
+    for (const int32_t t : candidates) {
+      const double sc = CuttingStress(cauchy(t), params.kappa, params.zeta);
+      if (scan.tet < 0 || sc > scan.sigma_c) {
+        scan.sigma_c = sc;
+        scan.tet = t;
+      }
+    }
+    scan.cut = ExceedsCriticalStress(scan.sigma_c, params.critical_stress);
+    const CriterionResult r = EvaluateCriterion(candidates, cauchy, params);
+    ASSERT_EQ(r.tet, scan.tet) << "trial " << trial;
+    ASSERT_EQ(r.sigma_c, scan.sigma_c) << "trial " << trial;
+    ASSERT_EQ(r.cut, scan.cut) << "trial " << trial;
+  }
 }
 
 TEST(CutParams, ValidationNamesTheField) {
