@@ -57,6 +57,7 @@ class DebrisTracker {
   std::vector<double> element_mass_;  // #T, kg
   double limit_;                      // kg: mass_fraction × total mass
   int32_t max_tets_;
+  bool count_decides_ = false;        // max_tets_ of the heaviest tets weigh < limit_: floods skip masses
   std::vector<uint8_t> debris_;       // #T
   int32_t num_debris_ = 0;
   StampRows<Row, kNumMarks> marks_;   // #T rows
