@@ -2,6 +2,8 @@
 // singularity removal, event replay.
 #include <algorithm>
 #include <array>
+#include <cmath>
+#include <random>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -45,6 +47,79 @@ TEST(CutMesh, ContactElementsAreTheStarOfTheClosestVertexPlusTheFacetTet) {
   const int32_t other = cm.num_tets() - 1;
   expect.push_back(other);
   EXPECT_EQ(cm.ContactElements(v, other), expect);
+}
+
+// Eq. (12): the cutting line's end v2 is the surface neighbour of v1 whose
+// direction from C_p(t), in the facet plane, is nearest to s1's. On the
+// top of the box, a line along a row of nodes continues along the row.
+TEST(CutMesh, SelectV2ContinuesAStraightCuttingLine) {
+  const mesh::TetMesh m = Box();
+  const CutMesh cm(m);
+  const VectorWorld w = WorldFromRest(m);
+  auto id = [](int i, int j, int k) { return i + 5 * (j + 4 * k); };
+  const Vector3d up = Vector3d::UnitZ();
+  const Vector3d cp = w.Get(id(2, 1, 2)) + Vector3d(0.1 * kH, 0.05 * kH, 0.0);
+  EXPECT_EQ(cm.SelectV2(id(1, 1, 2), id(2, 1, 2), cp, up, w), id(3, 1, 2));
+  EXPECT_EQ(cm.SelectV2(id(3, 1, 2), id(2, 1, 2), cp, up, w), id(1, 1, 2));
+  EXPECT_EQ(cm.SelectV2(id(2, 0, 2), id(2, 1, 2), cp, up, w), id(2, 2, 2));
+  // s1 ∥ n: no direction on the facet plane, no v2.
+  VectorWorld stacked = w;
+  stacked.Set(id(1, 1, 2), w.Get(id(2, 1, 2)) - kH * up);
+  EXPECT_EQ(cm.SelectV2(id(1, 1, 2), id(2, 1, 2), cp, up, stacked), -1);
+}
+
+// The same rule against a brute force over the extracted surface
+// triangles, after cuts (so v1 may have twins, which are never v2), for
+// random adjacent pairs on the top face and contact points near v1.
+TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
+  const mesh::TetMesh m = KuhnBox(Vector3d::Zero(), Vector3d(6 * kH, 4 * kH, 2 * kH), 6, 4, 2, 0.2, 3);
+  CutMesh cm(m);
+  VectorWorld w = WorldFromRest(m);
+  CutParams params;
+  const double top = 2 * kH;
+  (void)testing::DrivePath(cm, w, testing::Segment(Vector3d(0.2 * kH, 2.05 * kH, top), Vector3d(3.5 * kH, 1.6 * kH, top), 12),
+                           0.6 * kH, params, nullptr, [](int) {});
+  ASSERT_GT(cm.version(), 0u) << "no cut: the check below would not meet twins";
+  const Vector3d n = Vector3d::UnitZ();
+  auto tangential = [&](const Vector3d& a) { return Vector3d(a - n.dot(a) * n); };
+  const mesh::Triangles tris = cm.SurfaceTriangles();
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  int checked = 0, with_twins = 0;
+  for (int r = 0; r < tris.rows(); ++r) {
+    const std::array<int32_t, 3> tri = {tris(r, 0), tris(r, 1), tris(r, 2)};
+    bool on_top = true;
+    for (const int32_t v : tri) on_top = on_top && std::abs(w.Get(v).z() - top) < 1e-9;
+    if (!on_top) continue;
+    for (int e = 0; e < 3; ++e) {
+      const int32_t v0 = tri[static_cast<size_t>(e)], v1 = tri[static_cast<size_t>((e + 1) % 3)];
+      const Vector3d cp = w.Get(v1) + kH * Vector3d(u(rng), u(rng), 0.0);
+      const Vector3d s1 = tangential(w.Get(v1) - w.Get(v0));
+      int32_t best = -1;
+      double best_cos = -2.0;
+      for (int q = 0; q < tris.rows(); ++q) {
+        for (int c = 0; c < 3; ++c) {
+          if (tris(q, c) != v1) continue;
+          for (int k = 1; k < 3; ++k) {
+            const int32_t vi = tris(q, (c + k) % 3);
+            if (cm.origin(vi) == cm.origin(v0) || cm.origin(vi) == cm.origin(v1)) continue;
+            const Vector3d si = tangential(w.Get(vi) - cp);
+            if (!(si.norm() > 0.0)) continue;
+            const double cosine = s1.dot(si) / (s1.norm() * si.norm());
+            if (cosine > best_cos || (cosine == best_cos && vi < best)) {
+              best_cos = cosine;
+              best = vi;
+            }
+          }
+        }
+      }
+      ASSERT_EQ(cm.SelectV2(v0, v1, cp, n, w), best) << "v0 " << v0 << " v1 " << v1;
+      ++checked;
+      if (cm.Twins(v1, w).size() > 1) ++with_twins;
+    }
+  }
+  EXPECT_GT(checked, 100);
+  EXPECT_GT(with_twins, 0) << "no v1 on the cut: the twin rule was not exercised";
 }
 
 TEST(CutMesh, InvalidStepChangesNothing) {
