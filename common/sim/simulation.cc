@@ -33,6 +33,7 @@
 #include "common/fem/state.h"
 #include "common/mesh/mesh_io.h"
 #include "common/sim/debris.h"
+#include "common/sim/fem_event.h"
 #include "common/mesh/quality.h"
 #include "common/sim/scene_mesh.h"
 #include "common/sim/checkpoint.h"  // checkpoints (ops)
@@ -1070,34 +1071,7 @@ class Engine final : public Simulation {
   /// The event is kept (moved, not copied) for checkpoints.
   void ApplyEvent(cutting::TopologyEvent&& event) {
     Stopwatch watch;
-    for (const cutting::Split& split : event.splits) {
-      const int32_t copy = model_.AddNodeCopy(split.node, state_);
-      CUTSIM_CHECK(copy == split.new_node, "FEM and cut complex disagree on new node ids");
-      for (const int32_t t : split.tets) {
-        int corner = 0;
-        while (corner < 4 && model_.tet_node(t, corner) != split.node) ++corner;
-        CUTSIM_CHECK(corner < 4, "retargeted tet does not use the split node");
-        model_.RetargetTet(t, corner, copy);
-      }
-    }
-    for (const cutting::Move& move : event.moves) {
-      model_.SetRestPosition(move.node, move.rest.template cast<T>());
-      world_access_.Set(move.node, move.world);
-    }
-    // An element depends on its corners' rest positions only
-    // (fem::Model::ComputeElement), and a split copy starts at its
-    // original's: a tet only re-pointed to a copy is unchanged, bit for bit.
-    // Only the stars of moved nodes are recomputed. The same holds for an
-    // element's stable step (its rest shape, its frozen mass and its
-    // corners' world positions, which a copy shares with its original), so
-    // the stable-step tree is updated from those stars too.
-    moved_nodes_.clear();
-    for (const cutting::Move& move : event.moves) moved_nodes_.push_back(move.node);
-    model_.IncidentTets(moved_nodes_, moved_tets_);
-    model_.RecomputeElements(moved_tets_);
-    model_.RecomputeNodeMasses(event.touched_nodes);
-    model_.CommitTopology();
-    fem::UpdateStableStep(model_, state_, moved_tets_, step_options_.viscous == fem::ViscousTreatment::kExplicit);
+    ApplyEventToFem(event, model_, state_, step_options_.viscous == fem::ViscousTreatment::kExplicit, fem_event_);
     timing_.fem = watch.ElapsedSeconds();
     if (has_tool_) {
       Stopwatch surface_watch;
@@ -1146,7 +1120,8 @@ class Engine final : public Simulation {
   std::vector<int32_t> surface_tet_;  // #S owning tet (−1: dead)
   std::vector<uint8_t> debris_facet_; // #S (or empty): facet of a debris piece
   std::optional<DebrisTracker> debris_;  // with cutting only
-  std::vector<int32_t> changed_slots_, flagged_, moved_nodes_, moved_tets_;  // scratch
+  std::vector<int32_t> changed_slots_, flagged_;  // scratch
+  FemEventScratch fem_event_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
   std::vector<CutStepTiming> cut_timings_;
   // Debris: a piece cut loose that the blade passes through rather than
