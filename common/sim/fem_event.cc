@@ -20,7 +20,8 @@ void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, 
   }
   for (const cutting::Move& move : event.moves) {
     model.SetRestPosition(move.node, move.rest.template cast<T>());
-    for (int k = 0; k < 3; ++k) state.x[3 * static_cast<size_t>(move.node) + static_cast<size_t>(k)] = static_cast<T>(move.world[k]);
+    const auto i = 3 * static_cast<size_t>(move.node);
+    for (size_t k = 0; k < 3; ++k) state.x[i + k] = static_cast<T>(move.world[static_cast<Eigen::Index>(k)]);
   }
   // An element depends on its corners' rest positions only
   // (fem::Model::ComputeElement), and a split copy starts at its

@@ -77,8 +77,9 @@ TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
   VectorWorld w = WorldFromRest(m);
   CutParams params;
   const double top = 2 * kH;
-  (void)testing::DrivePath(cm, w, testing::Segment(Vector3d(0.2 * kH, 2.05 * kH, top), Vector3d(3.5 * kH, 1.6 * kH, top), 12),
-                           0.6 * kH, params, nullptr, [](int) {});
+  const std::vector<Vector3d> path =
+      testing::Segment(Vector3d(0.2 * kH, 2.05 * kH, top), Vector3d(3.5 * kH, 1.6 * kH, top), 12);
+  (void)testing::DrivePath(cm, w, path, 0.6 * kH, params, nullptr, [](int) {});
   ASSERT_GT(cm.version(), 0u) << "no cut: the check below would not meet twins";
   const Vector3d n = Vector3d::UnitZ();
   auto tangential = [&](const Vector3d& a) { return Vector3d(a - n.dot(a) * n); };

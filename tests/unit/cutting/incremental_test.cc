@@ -146,7 +146,8 @@ TEST(IncrementalFem, EventsMatchAWholeMeshRecomputeAndKeepMassAndMomentum) {
     EXPECT_LT((momentum() - p0).norm(), 1e-13 * speed_scale) << "event " << applied;
     // Whole-mesh recomputation on copies.
     fem::Model<double> full = model;
-    std::vector<int32_t> all_tets(static_cast<size_t>(model.num_tets())), all_nodes(static_cast<size_t>(model.num_nodes()));
+    std::vector<int32_t> all_tets(static_cast<size_t>(model.num_tets()));
+    std::vector<int32_t> all_nodes(static_cast<size_t>(model.num_nodes()));
     std::iota(all_tets.begin(), all_tets.end(), 0);
     std::iota(all_nodes.begin(), all_nodes.end(), 0);
     ASSERT_EQ(full.RecomputeElements(all_tets), 0);
@@ -239,8 +240,9 @@ TEST(IncrementalDebris, LocalFloodsMatchTheWholeMeshRuleAfterEveryCut) {
   int cuts = 0;
   for (uint32_t seed = 1; seed <= 12; ++seed) {
     SCOPED_TRACE("seed " + std::to_string(seed));
-    const sim::DebrisTracker::Limits limits = seed <= 6 ? sim::DebrisTracker::Limits{.mass_fraction = 0.05, .max_tets = 64}
-                                                        : sim::DebrisTracker::Limits{.mass_fraction = 0.9, .max_tets = 32};
+    using Limits = sim::DebrisTracker::Limits;
+    const Limits limits = seed <= 6 ? Limits{.mass_fraction = 0.05, .max_tets = 64}
+                                    : Limits{.mass_fraction = 0.9, .max_tets = 32};
     const mesh::TetMesh m = cutting::testing::KuhnBox(Vector3d::Zero(), Vector3d(0.06, 0.04, 0.02), 6, 4, 2, 0.2, seed);
     cutting::CutMesh cm(m);
     cutting::VectorWorld world = cutting::testing::WorldFromRest(m);
