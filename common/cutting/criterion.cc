@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <vector>
 
 #include <Eigen/Eigenvalues>
 
@@ -58,29 +57,17 @@ bool ExceedsCriticalStress(double sigma_c, double critical_stress) {
 CriterionResult EvaluateCriterion(std::span<const int32_t> candidates, const CauchyFn& cauchy,
                                   const CutParams& params) {
   CriterionResult result;
-  // Stress and bound of every candidate (the stress is cheap next to its
-  // eigen-solve), then solves from the highest bound down: a candidate
-  // whose bound is below the best σ_c cannot be the maximum, nor can any
-  // after it.
-  const size_t n = candidates.size();
-  std::vector<Eigen::Matrix3d> stress(n);
-  std::vector<double> bound(n);
-  std::vector<uint32_t> order(n);  // candidate indices, highest bound first; ties keep the first
-  for (size_t i = 0; i < n; ++i) {
-    stress[i] = cauchy(candidates[i]);
-    bound[i] = CuttingStressBound(stress[i], params.kappa, params.zeta);
-    order[i] = static_cast<uint32_t>(i);
-  }
-  std::sort(order.begin(), order.end(),
-            [&](uint32_t a, uint32_t b) { return bound[a] != bound[b] ? bound[a] > bound[b] : a < b; });
-  uint32_t best = 0;
-  for (const uint32_t i : order) {
-    if (result.tet >= 0 && bound[i] < result.sigma_c) break;
-    const double sc = CuttingStress(stress[i], params.kappa, params.zeta);
-    if (result.tet < 0 || sc > result.sigma_c || (sc == result.sigma_c && i < best)) {
+  // In candidate order, as a plain scan would go, but an eigen-solve only
+  // for a candidate whose bound reaches the best σ_c so far: one below it
+  // can neither be the maximum nor tie the earlier maximum. No sorting and
+  // no scratch: this runs in the frame that found the contact.
+  for (const int32_t t : candidates) {
+    const Eigen::Matrix3d stress = cauchy(t);
+    if (result.tet >= 0 && CuttingStressBound(stress, params.kappa, params.zeta) < result.sigma_c) continue;
+    const double sc = CuttingStress(stress, params.kappa, params.zeta);
+    if (result.tet < 0 || sc > result.sigma_c) {
       result.sigma_c = sc;
-      result.tet = candidates[i];
-      best = i;
+      result.tet = t;
     }
   }
   result.cut = result.tet >= 0 && ExceedsCriticalStress(result.sigma_c, params.critical_stress);

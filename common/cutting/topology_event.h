@@ -29,14 +29,14 @@ struct Move {
   Eigen::Vector3d world = Eigen::Vector3d::Zero();  ///< New world position, m.
 };
 
-/// One cut step. The sim applies, in order: for each split AddNodeCopy(node)
-/// (which must return new_node) then RetargetTet for each listed tet (the
-/// corner whose index equals `node`); for each move SetRestPosition + world
-/// position; then RecomputeElements of the moved nodes' tets (a tet only
-/// re-pointed to a copy keeps its rest shape: the copy starts at its
-/// original's rest position) and RecomputeNodeMasses(touched_nodes).
-/// `touched_tets` also lists the re-pointed ones (their world shape, e.g.
-/// for the stable step, and observers).
+/// One cut step. The sim applies it with sim::ApplyEventToFem, in order: for
+/// each split AddNodeCopy(node) (which must return new_node) then
+/// RetargetTet for each listed tet (the corner whose index equals `node`);
+/// for each move SetRestPosition + world position; then the elements and
+/// stable-step leaves of the moved nodes' tets (a tet only re-pointed to a
+/// copy keeps both: the copy starts at its original's rest and world
+/// position) and RecomputeNodeMasses(touched_nodes). `touched_tets` also
+/// lists the re-pointed ones, for observers.
 struct TopologyEvent {
   uint64_t version = 0;               ///< Topology version after this event (1, 2, …).
   std::vector<Split> splits;

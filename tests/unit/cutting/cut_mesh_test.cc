@@ -120,7 +120,7 @@ TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
     }
   }
   EXPECT_GT(checked, 100);
-  EXPECT_GT(with_twins, 0) << "no v1 on the cut: the twin rule was not exercised";
+  EXPECT_GT(with_twins, 0) << "no v1 on the cut: nothing was checked beside a slit";
 }
 
 TEST(CutMesh, InvalidStepChangesNothing) {
