@@ -29,6 +29,7 @@
 #include <vector>
 
 #include <CLI/CLI.hpp>
+#include <omp.h>
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
@@ -61,18 +62,18 @@ std::string Stats(const std::vector<double>& seconds) {
 }
 
 // A box of nx × ny × nz 2 mm cells on a fixed base with a tool and cutting.
-std::string BoxScene(int nx, int ny, int nz) {
+std::string BoxScene(int nx, int ny, int nz, int threads) {
   const double h = 0.002;
   return fmt::format(R"pb(
 name: "cut-bench-box"
 mesh {{ box {{ min {{ x: 0 y: 0 z: 0 }} max {{ x: {} y: {} z: {} }} nx: {} ny: {} nz: {} }} }}
 materials {{ name: "tissue" young_poisson {{ youngs_modulus: 50000 poisson_ratio: 0.4 }} density: 1000 damping_psi: 0.05 }}
 boundary {{ plane {{ point {{ x: 0 y: 0 z: 0 }} normal {{ x: 0 y: 0 z: 1 }} }} kind: KIND_FIXED }}
-time_step {{ frame_dt: 0.0002 threads: 1 }}
+time_step {{ frame_dt: 0.0002 threads: {} }}
 tool {{ blade_length: 0.025 keyframes {{ t: 0 tip {{ x: -0.003 y: 0 z: 0.1 }} blade_dir {{ z: 1 }} }} }}
 cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
 )pb",
-                     nx * h, ny * h, nz * h, nx, ny, nz);
+                     nx * h, ny * h, nz * h, nx, ny, nz, threads);
 }
 
 // Hash of the world mesh (tets and positions), printed to stderr so a
@@ -89,8 +90,9 @@ struct StepResult {
   int64_t attempts = 0, rejected = 0;
 };
 
-StepResult RunStepBench(int nx, int ny, int nz) {
-  const cutsim::sim::LoadedScene scene = cutsim::sim::ParseScene(BoxScene(nx, ny, nz), "cut_bench box", ".");
+StepResult RunStepBench(int nx, int ny, int nz, int threads) {
+  const cutsim::sim::LoadedScene scene =
+      cutsim::sim::ParseScene(BoxScene(nx, ny, nz, threads), "cut_bench box", ".");
   auto sim = Simulation::Create(scene);
   const double h = 0.002;
   const double y = (ny / 2) * h + 0.0001;  // 0.1 mm beside a row of nodes
@@ -107,8 +109,8 @@ StepResult RunStepBench(int nx, int ny, int nz) {
   }
   StepResult r;
   const auto s = sim->QuickSummary();
-  std::fprintf(stderr, "step bench: %d tets, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s, mesh hash %016llx\n",
-               s.num_tets, static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time,
+  std::fprintf(stderr, "step bench: %d tets, %d threads, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s, mesh hash %016llx\n",
+               s.num_tets, threads, static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time,
                s.stable_dt, static_cast<unsigned long long>(MeshHash(*sim)));
   r.tets = s.num_tets;
   r.timings = sim->CutTimings();
@@ -152,27 +154,35 @@ int main(int argc, char** argv) {
   cutsim::InitLogging("cut_bench", "warn");
 
   std::string json = "{\n  \"step\": [";
-  // (a) ~1k, 10k, 100k tets, 2 mm cells.
-  const int sizes[][3] = {{8, 5, 4}, {17, 10, 10}, {37, 22, 20}};
+  // (a) ~1k, 10k, 100k tets, 2 mm cells, one thread; then 100k again with
+  // two where the machine has them (the server's default from 20 000 tets:
+  // the cut's FEM and surface halves then run side by side).
+  struct Config {
+    int nx, ny, nz, threads;
+  };
+  std::vector<Config> configs = {{8, 5, 4, 1}, {17, 10, 10, 1}, {37, 22, 20, 1}};
+  if (omp_get_num_procs() >= 2) configs.push_back({37, 22, 20, 2});
   bool first = true;
-  for (const auto& n : sizes) {
-    if (6 * n[0] * n[1] * n[2] > max_tets || 6 * n[0] * n[1] * n[2] < min_tets) continue;
-    const StepResult r = RunStepBench(n[0], n[1], n[2]);
-    std::vector<double> total, criterion, topology, fem, surface, splits;
+  for (const Config& c : configs) {
+    const int tets = 6 * c.nx * c.ny * c.nz;
+    if (tets > max_tets || tets < min_tets) continue;
+    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads);
+    std::vector<double> total, criterion, topology, fem, surface, apply, splits;
     for (const CutStepTiming& t : r.timings) {
-      total.push_back(t.criterion + t.topology + t.fem + t.surface);
+      total.push_back(t.criterion + t.topology + t.apply);
       criterion.push_back(t.criterion);
       topology.push_back(t.topology);
       fem.push_back(t.fem);
       surface.push_back(t.surface);
+      apply.push_back(t.apply);
       splits.push_back(t.splits);
     }
     json += fmt::format(
-        "{}\n    {{\"tets\": {}, \"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, \"median_splits\": {:.1f},\n"
-        "     \"total\": {},\n     \"criterion\": {},\n     \"topology\": {},\n     \"fem_update\": {},\n"
-        "     \"surface_bvh\": {}}}",
-        first ? "" : ",", r.tets, r.timings.size(), r.attempts, r.rejected, Quantile(splits, 0.5), Stats(total),
-        Stats(criterion), Stats(topology), Stats(fem), Stats(surface));
+        "{}\n    {{\"tets\": {}, \"threads\": {}, \"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, "
+        "\"median_splits\": {:.1f},\n     \"total\": {},\n     \"criterion\": {},\n     \"topology\": {},\n"
+        "     \"fem_update\": {},\n     \"surface_bvh\": {},\n     \"fem_and_surface_wall\": {}}}",
+        first ? "" : ",", r.tets, c.threads, r.timings.size(), r.attempts, r.rejected, Quantile(splits, 0.5),
+        Stats(total), Stats(criterion), Stats(topology), Stats(fem), Stats(surface), Stats(apply));
     first = false;
     std::fflush(stdout);
   }

@@ -302,19 +302,26 @@ def plot_cut(folder):
     steps = data.get("step", [])
     if not steps:
         return
-    phases = [("criterion", "criterion"), ("topology", "topology (CutMesh)"),
-              ("fem_update", "FEM update"), ("surface_bvh", "surface + BVH + debris")]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    # With two threads the FEM and surface halves overlap: their wall time
+    # (fem_and_surface_wall) is drawn instead of the two stacked halves.
+    phases = [("criterion", "criterion", lambda s: True), ("topology", "topology (CutMesh)", lambda s: True),
+              ("fem_update", "FEM update", lambda s: s.get("threads", 1) == 1),
+              ("surface_bvh", "surface + BVH + debris", lambda s: s.get("threads", 1) == 1),
+              ("fem_and_surface_wall", "FEM ∥ surface (2 threads, wall)", lambda s: s.get("threads", 1) > 1)]
+    fig, ax = plt.subplots(figsize=(7, 4))
     x = list(range(len(steps)))
     bottom = [0.0] * len(steps)
-    for key, label in phases:
-        values = [s[key]["median_us"] for s in steps]
+    for key, label, shown in phases:
+        values = [s[key]["median_us"] if shown(s) and key in s else 0.0 for s in steps]
+        if not any(values):
+            continue
         ax.bar(x, values, bottom=bottom, label=label)
         bottom = [b + v for b, v in zip(bottom, values)]
     ax.plot(x, [s["total"]["p90_us"] for s in steps], "k^", label="total p90")
     ax.axhline(50.0, color="r", ls="--", label="target 50 µs")
     ax.set_xticks(x)
-    ax.set_xticklabels([f"{s['tets']} tets" for s in steps])
+    ax.set_xticklabels([f"{s['tets']} tets\n{s.get('threads', 1)} thread" + ("s" if s.get("threads", 1) > 1 else "")
+                        for s in steps], fontsize=8)
     ax.set_ylabel("wall time per cut step, µs (median by phase)")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=7)

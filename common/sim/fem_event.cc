@@ -6,8 +6,7 @@
 namespace cutsim::sim {
 
 template <typename T>
-void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state,
-                     bool explicit_viscous, FemEventScratch& scratch) {
+void ApplyEventNodesToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state) {
   for (const cutting::Split& split : event.splits) {
     const int32_t copy = model.AddNodeCopy(split.node, state);
     CUTSIM_CHECK(copy == split.new_node, "FEM and cut complex disagree on new node ids");
@@ -23,6 +22,11 @@ void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, 
     const auto i = 3 * static_cast<size_t>(move.node);
     for (size_t k = 0; k < 3; ++k) state.x[i + k] = static_cast<T>(move.world[static_cast<Eigen::Index>(k)]);
   }
+}
+
+template <typename T>
+void RecomputeAfterEvent(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state,
+                         bool explicit_viscous, FemEventScratch& scratch) {
   // An element depends on its corners' rest positions only
   // (fem::Model::ComputeElement), and a split copy starts at its
   // original's: a tet only re-pointed to a copy is unchanged, bit for bit.
@@ -38,6 +42,19 @@ void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, 
   fem::UpdateStableStep(model, state, scratch.moved_tets, explicit_viscous);
 }
 
+template <typename T>
+void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state,
+                     bool explicit_viscous, FemEventScratch& scratch) {
+  ApplyEventNodesToFem(event, model, state);
+  RecomputeAfterEvent(event, model, state, explicit_viscous, scratch);
+}
+
+template void ApplyEventNodesToFem<float>(const cutting::TopologyEvent&, fem::Model<float>&, fem::State<float>&);
+template void ApplyEventNodesToFem<double>(const cutting::TopologyEvent&, fem::Model<double>&, fem::State<double>&);
+template void RecomputeAfterEvent<float>(const cutting::TopologyEvent&, fem::Model<float>&, fem::State<float>&, bool,
+                                         FemEventScratch&);
+template void RecomputeAfterEvent<double>(const cutting::TopologyEvent&, fem::Model<double>&, fem::State<double>&,
+                                          bool, FemEventScratch&);
 template void ApplyEventToFem<float>(const cutting::TopologyEvent&, fem::Model<float>&, fem::State<float>&, bool,
                                      FemEventScratch&);
 template void ApplyEventToFem<double>(const cutting::TopologyEvent&, fem::Model<double>&, fem::State<double>&, bool,

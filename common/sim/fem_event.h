@@ -33,4 +33,17 @@ template <typename T>
 void ApplyEventToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state,
                      bool explicit_viscous, FemEventScratch& scratch);
 
+/// ApplyEventToFem in two halves, for a caller that overlaps the second
+/// with other work. The first makes the node copies, re-points the tets and
+/// applies the moves: after it, every node's rest and world position (state.x)
+/// and the tets' nodes are final. The second recomputes what depends on
+/// them (elements, node masses, stable-step leaves) and commits the
+/// topology; it writes neither state.x nor the tets' nodes, so work that
+/// only reads those may run beside it.
+template <typename T>
+void ApplyEventNodesToFem(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state);
+template <typename T>
+void RecomputeAfterEvent(const cutting::TopologyEvent& event, fem::Model<T>& model, fem::State<T>& state,
+                         bool explicit_viscous, FemEventScratch& scratch);
+
 }  // namespace cutsim::sim

@@ -91,12 +91,15 @@ struct ToolReport {
 };
 
 /// Wall time of one executed cut step by phase, s (the cut benchmark's
-/// split). The step's total is their sum.
+/// split). The step's total is criterion + topology + apply; apply is
+/// fem + surface on one thread, and about the larger of the two where a
+/// second thread runs them side by side.
 struct CutStepTiming {
   double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
   double topology = 0;   ///< CutMesh::ExecuteCut: plane, splits, singularities, remeshing
   double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
   double surface = 0;    ///< surface slots + BVH update + debris flags
+  double apply = 0;      ///< wall time of fem + surface (less, where a second thread overlaps them)
   int32_t splits = 0;        ///< vertex splits in the event
   int32_t touched_tets = 0;  ///< tets whose geometry or nodes changed
 };
