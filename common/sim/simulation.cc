@@ -653,7 +653,8 @@ class Engine final : public Simulation {
   }
 
   /// Surface update after a cut: only the slots the cut created or freed
-  /// (the CutMesh's change log), each removed from or inserted into the BVH.
+  /// (the CutMesh's change log, kept in changed_slots_), each removed from
+  /// or inserted into the BVH. Their debris flags: FlagDebrisFacets.
   void UpdateSurface() {
     cut_->TakeChangedSlots(changed_slots_);
     std::sort(changed_slots_.begin(), changed_slots_.end());
@@ -677,9 +678,7 @@ class Engine final : public Simulation {
         opened_[i] = 0;
         surface_tet_[i] = -1;
         if (!debris_facet_.empty()) debris_facet_[i] = 0;
-        Stopwatch bw;
         bvh_.Remove(f);
-        hack_bvh_ += bw.ElapsedSeconds();
         continue;
       }
       const std::array<int32_t, 3> tri = cut_->SurfaceTriangle(f);
@@ -687,19 +686,16 @@ class Engine final : public Simulation {
       opened_[i] = face.opened ? 1 : 0;
       surface_tet_[i] = face.tet;
       if (face.opened) FlagWallNodes(tri);
-      if (debris_) debris_facet_[i] = debris_->is_debris(face.tet) ? 1 : 0;
       // World rows of the triangle's nodes (new copies included), then a
       // local insert: amortised O(log F), the tree is rebuilt only after
       // as many inserts as half its faces (see bvh.h).
       for (const int32_t v : tri) CopyWorldRow(v);
-      Stopwatch bw;
       bvh_.Insert(f, tri, world_);
-      hack_bvh_ += bw.ElapsedSeconds();
     }
   }
 
   /// Facets the blade does not touch: those of debris (debris.h), whole-mesh
-  /// here (set-up, restore); FlagDebrisNear updates them after each cut.
+  /// here (set-up, restore); UpdateDebris and FlagDebrisFacets update them after each cut.
   void FlagDebris() {
     debris_facet_.clear();
     debris_.reset();
@@ -718,11 +714,22 @@ class Engine final : public Simulation {
   }
 
   /// After a cut: the debris pieces it cut loose (DebrisTracker::Update,
-  /// local), and their facets.
-  void FlagDebrisNear(const cutting::TopologyEvent& event) {
-    if (!debris_) return;
+  /// local; reads only the cut complex and the event).
+  void UpdateDebris(const cutting::TopologyEvent& event) {
     flagged_.clear();
-    debris_->Update(*cut_, event, &flagged_);
+    if (debris_) debris_->Update(*cut_, event, &flagged_);
+  }
+
+  /// After UpdateSurface and UpdateDebris: the flags of the slots the cut
+  /// changed, and of every facet of the tets it made debris (a tet stays
+  /// debris once it is, so this equals a rescan of those slots).
+  void FlagDebrisFacets() {
+    if (!debris_) return;
+    const auto& slots = cut_->surface_slots();
+    for (const int32_t f : changed_slots_) {
+      const cutting::SurfaceFace& face = slots[static_cast<size_t>(f)];
+      debris_facet_[static_cast<size_t>(f)] = face.alive && debris_->is_debris(face.tet) ? 1 : 0;
+    }
     for (const int32_t t : flagged_) {
       for (int f = 0; f < 4; ++f) {
         const int32_t slot = cut_->SurfaceSlot(t, f);
@@ -1086,13 +1093,15 @@ class Engine final : public Simulation {
       events_.push_back(std::move(event));
       return;
     }
-    // Every node is final now (copies, moves). The FEM half writes the
-    // elements, node masses and stable-step leaves; the surface half reads
-    // only the tets' nodes (in the cut complex) and the world positions,
-    // and writes the slots, the BVH and the debris flags: with a second
-    // thread they run side by side (the server's default at 20 000 tets).
-    // Same results either way: neither reads what the other writes.
-    double fem_time = 0, surface_time = 0;
+    // Every node is final now (copies, moves). One half recomputes the
+    // FEM's elements, node masses and stable-step leaves, then floods for
+    // debris (which reads only the cut complex and the event); the other
+    // edits the surface slots and the BVH, reading only the tets' nodes (in
+    // the cut complex) and the world positions. With a second thread they
+    // run side by side (the server's default from 20 000 tets): neither
+    // reads what the other writes, so the results are the same either way.
+    // The debris flags of the facets need both, and are set after.
+    double fem_time = 0, surface_time = 0, debris_time = 0;
     std::array<std::exception_ptr, 2> error;
 #pragma omp parallel sections num_threads(2) if (threads_ >= 2)
     {
@@ -1102,6 +1111,8 @@ class Engine final : public Simulation {
           Stopwatch w;
           RecomputeAfterEvent(event, model_, state_, explicit_viscous, fem_event_);
           fem_time = w.ElapsedSeconds();
+          UpdateDebris(event);
+          debris_time = w.ElapsedSeconds() - fem_time;
         } catch (...) {
           error[0] = std::current_exception();
         }
@@ -1111,7 +1122,6 @@ class Engine final : public Simulation {
         try {
           Stopwatch w;
           UpdateSurface();
-          FlagDebrisNear(event);
           surface_time = w.ElapsedSeconds();
         } catch (...) {
           error[1] = std::current_exception();
@@ -1120,6 +1130,9 @@ class Engine final : public Simulation {
     }
     for (const std::exception_ptr& e : error)
       if (e) std::rethrow_exception(e);
+    Stopwatch flags_watch;
+    FlagDebrisFacets();
+    surface_time += debris_time + flags_watch.ElapsedSeconds();
     timing_.fem = nodes_time + fem_time;
     timing_.surface = surface_time;
     timing_.apply = watch.ElapsedSeconds();
@@ -1167,13 +1180,12 @@ class Engine final : public Simulation {
   std::vector<int32_t> changed_slots_, flagged_;  // scratch
   FemEventScratch fem_event_;  // scratch
   CutStepTiming timing_;              // the cut step in progress
-  double hack_bvh_ = 0;
   std::vector<CutStepTiming> cut_timings_;
   // Debris: a piece cut loose that the blade passes through rather than
   // flings with a force sized for the body. Small in mass and in elements:
   // what makes a crumb fly is a few elements (each node's mass is set by
   // its elements, not by the piece), and the element bound keeps the flood
-  // that finds one local (see FlagDebrisNear).
+  // that finds one local (see UpdateDebris).
   static constexpr double kDebrisMassFraction = 0.01;
   static constexpr int32_t kDebrisMaxTets = 64;
   mesh::TriangleBvh bvh_;
