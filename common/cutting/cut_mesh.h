@@ -76,6 +76,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -135,6 +136,23 @@ enum class CutStatus {
   kExecuted,      ///< Event applied (it may hold no split if P separated nothing).
   kRejected,      ///< A singularity could not be removed; rolled back, nothing changed.
   kInvalidInput,  ///< Bad node ids, v0 = v1, non-finite input, or s1 ∥ n.
+};
+
+/// Steps 1–2 of a cut step (plane P and the split set), made ahead by
+/// CutMesh::PrepareCut, e.g. on a second thread while the stress criterion
+/// decides whether to cut. Only the CutMesh reads it; ExecuteCut uses it if
+/// it was made for that step on the mesh as it is, and ignores it otherwise.
+struct PreparedCut {
+  bool valid = false;
+  uint64_t version = 0;     ///< CutMesh::version() it was made on
+  uint32_t generation = 0;  ///< world-position generation it read
+  int32_t v0 = -1, v1 = -1;
+  bool blade_plane = true;
+  int32_t v2 = -1;
+  double h = 0.0;     ///< mean world edge length around v1, m
+  double band = 0.0;  ///< m
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();  ///< of P
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();  ///< a point of P, m
 };
 
 struct CutOutcome {
@@ -219,7 +237,17 @@ class CutMesh {
   /// here already and its version is version(); the caller applies it to the
   /// FEM. `world` is only read: new nodes and moves reach the FEM through
   /// the event.
-  CutOutcome ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params);
+  /// `prepared`: from PrepareCut for the same step, with no cut or
+  /// position read in between (else it is ignored and steps 1–2 run here).
+  CutOutcome ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                        const PreparedCut* prepared = nullptr);
+
+  /// Steps 1–2 of ExecuteCut on the blade's plane, without changing the
+  /// mesh (only the step's scratch, so nothing else may use this CutMesh
+  /// meanwhile; `world` is only read). Returns early, not valid, once
+  /// `cancel` is set.
+  PreparedCut PrepareCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                         const std::atomic<bool>* cancel = nullptr);
 
   /// Replays a recorded event (splits, then rest moves). Throws InputError
   /// (field "event…") and changes nothing if it does not fit this mesh.
@@ -289,7 +317,10 @@ class CutMesh {
   /// ExecuteCut on the blade's plane (`blade_plane`, if a blade is given)
   /// or on the seed's plane.
   CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                               bool blade_plane);
+                               bool blade_plane, const PreparedCut* prepared);
+  /// Steps 1–2 of ExecuteCutOnPlane (S into slab_).
+  PreparedCut PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                             bool blade_plane, const std::atomic<bool>* cancel);
   /// Splits `node` so that `moved` (subset of its tets) use a new copy.
   int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);
   /// Face-connected groups of the star of `node` into group_tets_ (group g

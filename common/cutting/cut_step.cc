@@ -1,6 +1,7 @@
 // CutMesh::ExecuteCut: one cut step (seed §3.2–3.3). The rules are stated in
 // cut_mesh.h; comments here say why.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <utility>
@@ -118,18 +119,24 @@ int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vect
   return best;
 }
 
-CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params) {
-  CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true);
+PreparedCut CutMesh::PrepareCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                                const std::atomic<bool>* cancel) {
+  return PrepareOnPlane(step, world, params, /*blade_plane=*/true, cancel);
+}
+
+CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                               const PreparedCut* prepared) {
+  CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true, prepared);
   // A blade plane that leaves a singularity the rules cannot remove (rolled
   // back, nothing changed) gets one more try on the seed's plane through
   // v0 and v1, which runs through existing vertices.
-  if (out.status == CutStatus::kRejected && step.blade) out = ExecuteCutOnPlane(step, world, params, false);
+  if (out.status == CutStatus::kRejected && step.blade) out = ExecuteCutOnPlane(step, world, params, false, nullptr);
   return out;
 }
 
-CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                                      bool blade_plane) {
-  CutOutcome out;
+PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                                    bool blade_plane, const std::atomic<bool>* cancel) {
+  PreparedCut out;  // not valid until the end
   const int32_t n0 = num_nodes();
   const bool ids_ok = step.v0 >= 0 && step.v0 < n0 && step.v1 >= 0 && step.v1 < n0 && step.v0 != step.v1;
   const bool blade_ok = !step.blade || (step.blade->tip.allFinite() && step.blade->direction.allFinite() &&
@@ -205,7 +212,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     sweep_dir = s1 / sweep_len;
     sweep_from = x0;
   }
-  out.v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
+  const int32_t v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
   auto plane_dist = [&](const Vector3d& x) { return m.dot(x - origin); };
 
   // ---- 2. split set S -------------------------------------------------------
@@ -247,7 +254,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
     };
     // Every vertex the walk saw, with its slab level (see the snap below).
     std::vector<std::pair<int32_t, int>>& walked = slab_seen_;
-    auto collect = [&]() {
+    // False if cancelled (the caller no longer wants this step).
+    auto collect = [&]() -> bool {
       S.clear();
       add_ends();
       walked.clear();
@@ -264,6 +272,7 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       seen.Insert(step.v0);
       slab_queue_.assign({step.v1, step.v0});
       for (size_t head = 0; head < slab_queue_.size(); ++head) {
+        if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return false;
         const int32_t u = slab_queue_[head];
         // At 100k tets the step runs on caches the FEM steps in between have
         // evicted: ask for the star's tets (and the next vertex's star
@@ -289,8 +298,9 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
       }
       std::sort(S.begin(), S.end());
       S.erase(std::unique(S.begin(), S.end()), S.end());
+      return true;
     };
-    collect();
+    if (!collect()) return out;
     // (On the seed's plane, which holds v1, there is nothing to snap.)
     // Snap P, parallel to itself, onto the slab vertex nearest to it. A
     // plane midway between two layers of vertices puts both in the band,
@@ -325,12 +335,48 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
             if (k == 1) S.push_back(w);
           std::sort(S.begin(), S.end());
           S.erase(std::unique(S.begin(), S.end()), S.end());
-        } else {
-          collect();
+        } else if (!collect()) {
+          return out;
         }
       }
     }
   }
+
+  out.valid = true;
+  out.version = version_;
+  out.generation = pos_generation_;
+  out.v0 = step.v0;
+  out.v1 = step.v1;
+  out.blade_plane = blade_plane;
+  out.v2 = v2;
+  out.h = h;
+  out.band = band;
+  out.normal = m;
+  out.origin = origin;
+  return out;
+}
+
+CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+                                      bool blade_plane, const PreparedCut* prepared) {
+  CutOutcome out;
+  // Steps 1–2 (plane, split set S in slab_): from `prepared` if it was made
+  // for this step on this mesh (nothing changed since: same version, and no
+  // other step took a new position generation), else now.
+  const bool reuse = prepared != nullptr && prepared->valid && prepared->version == version_ &&
+                     prepared->generation == pos_generation_ && prepared->v0 == step.v0 &&
+                     prepared->v1 == step.v1 && prepared->blade_plane == blade_plane;
+  const PreparedCut prep = reuse ? *prepared : PrepareOnPlane(step, world, params, blade_plane, nullptr);
+  if (!prep.valid) return out;
+  out.v2 = prep.v2;
+  const int32_t n0 = num_nodes();
+  TopologyEvent ev;
+  StepWorld W(world, n0, ev, x_cache_, pos_generation_);
+  const double h = prep.h;
+  const double band = prep.band;
+  const Vector3d m = prep.normal;
+  const Vector3d origin = prep.origin;
+  auto plane_dist = [&](const Vector3d& x) { return m.dot(x - origin); };
+  std::vector<int32_t>& S = slab_;
 
   // ---- 3. sides: the farthest vertex from P decides --------------------------
   // `flipped` holds tets moved to the other side by the fragment guard (6).

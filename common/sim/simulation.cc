@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <exception>
 #include <limits>
@@ -1025,23 +1026,8 @@ class Engine final : public Simulation {
     if (tangential.norm() < 0.5 * d_v) return;
     ++cut_attempts_;
     timing_ = {};
-    Stopwatch phase;
-    const std::vector<int32_t> candidates = cut_->ContactElements(attempt.v1, attempt.facet_tet);
-    const cutting::CriterionResult crit = cutting::EvaluateCriterion(
-        candidates,
-        [this](int32_t t) {
-          return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
-        },
-        params_);
-    report_.sigma_c = crit.sigma_c;
-    timing_.criterion = phase.ElapsedSeconds();
-    if (!crit.cut) return;
+    Stopwatch step_watch;
     const int32_t room = model_.node_capacity() - model_.num_nodes();
-    if (room < 64) {
-      if (!warned_capacity_) Log().warn("node capacity exhausted: no more cuts");
-      warned_capacity_ = true;
-      return;
-    }
     params_.max_splits_per_step = std::min(4096, room);
     cutting::CutStep step;
     step.v0 = attempt.v0;
@@ -1051,9 +1037,59 @@ class Engine final : public Simulation {
     step.normal = attempt.normal;
     // The blade's swept plane (tip at t0 → tip now) is the cut plane.
     step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_, anchor_tip_};
+    const std::vector<int32_t> candidates = cut_->ContactElements(attempt.v1, attempt.facet_tet);
+    // With a second thread, the cut's plane and split set (steps 1–2, which
+    // only read the cut complex and the world positions) are found while the
+    // criterion reads the contact elements' stresses; a criterion that says
+    // no cancels them. Same cut either way (ExecuteCut makes them itself
+    // otherwise).
+    cutting::CriterionResult crit;
+    cutting::PreparedCut prepared;
+    std::atomic<bool> cancel{false};
+    double prepare_time = 0;
+    std::array<std::exception_ptr, 2> error;
+#pragma omp parallel sections num_threads(2) if (threads_ >= 2)
+    {
+#pragma omp section
+      {
+        try {
+          crit = cutting::EvaluateCriterion(
+              candidates,
+              [this](int32_t t) {
+                return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
+              },
+              params_);
+          timing_.criterion = step_watch.ElapsedSeconds();
+          if (!crit.cut) cancel.store(true, std::memory_order_relaxed);
+        } catch (...) {
+          error[0] = std::current_exception();
+        }
+      }
+#pragma omp section
+      {
+        try {
+          if (threads_ >= 2 && room >= 64) {
+            Stopwatch w;
+            prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
+            prepare_time = w.ElapsedSeconds();
+          }
+        } catch (...) {
+          error[1] = std::current_exception();
+        }
+      }
+    }
+    for (const std::exception_ptr& e : error)
+      if (e) std::rethrow_exception(e);
+    report_.sigma_c = crit.sigma_c;
+    if (!crit.cut) return;
+    if (room < 64) {
+      if (!warned_capacity_) Log().warn("node capacity exhausted: no more cuts");
+      warned_capacity_ = true;
+      return;
+    }
     Stopwatch topology_watch;
-    cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_);
-    timing_.topology = topology_watch.ElapsedSeconds();
+    cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_, &prepared);
+    timing_.topology = prepare_time + topology_watch.ElapsedSeconds();
     if (outcome.status != cutting::CutStatus::kExecuted) {
       ++cuts_rejected_;
       return;
@@ -1068,6 +1104,7 @@ class Engine final : public Simulation {
     timing_.splits = static_cast<int32_t>(outcome.event.splits.size());
     timing_.touched_tets = static_cast<int32_t>(outcome.event.touched_tets.size());
     if (!outcome.event.empty()) ApplyEvent(std::move(outcome.event));
+    timing_.wall = step_watch.ElapsedSeconds();
     cut_timings_.push_back(timing_);
     ++cuts_;
     report_.cuts = cuts_;

@@ -90,13 +90,14 @@ struct ToolReport {
   double sigma_c = 0.0;          ///< last evaluated cutting stress (eq. 10), Pa
 };
 
-/// Wall time of one executed cut step by phase, s (the cut benchmark's
-/// split). The step's total is criterion + topology + apply; apply is
-/// fem + surface on one thread, and about the larger of the two where a
-/// second thread runs them side by side.
+/// Time of one executed cut step by phase, s (the cut benchmark's split),
+/// each on the thread that ran it. On one thread the phases follow each
+/// other and `wall` is their sum; with two, the criterion runs beside the
+/// topology's plane and split set, and the FEM half beside the surface.
 struct CutStepTiming {
+  double wall = 0;       ///< the whole step, wall time
   double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
-  double topology = 0;   ///< CutMesh::ExecuteCut: plane, splits, singularities, remeshing
+  double topology = 0;   ///< CutMesh::PrepareCut + ExecuteCut: plane, splits, singularities, remeshing
   double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
   double surface = 0;    ///< surface slots + BVH update + debris flags
   double apply = 0;      ///< wall time of fem + surface (less, where a second thread overlaps them)

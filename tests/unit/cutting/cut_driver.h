@@ -48,10 +48,12 @@ struct DriveStats {
 
 /// Drives the tool along `points` (world, on the top face) with a blade
 /// `depth` m deep below the contact point; applies every executed event to
-/// `world` and `events`, and runs `check` after each.
+/// `world` and `events`, and runs `check` after each. `prepare`: each step
+/// through CutMesh::PrepareCut first, as the simulation does with two threads.
 template <typename Check>
 DriveStats DrivePath(CutMesh& cm, VectorWorld& world, const std::vector<Eigen::Vector3d>& points, double depth,
-                     const CutParams& params, std::vector<TopologyEvent>* events, Check&& check) {
+                     const CutParams& params, std::vector<TopologyEvent>* events, Check&& check,
+                     bool prepare = false) {
   DriveStats stats;
   CutAttemptTracker tracker(params);
   for (const Eigen::Vector3d& p : points) {
@@ -71,7 +73,9 @@ DriveStats DrivePath(CutMesh& cm, VectorWorld& world, const std::vector<Eigen::V
     step.normal = a.normal;
     step.blade.emplace(Blade{p - depth * Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ(), depth + 0.01});
     const auto t_start = std::chrono::steady_clock::now();
-    const CutOutcome out = cm.ExecuteCut(step, world, params);
+    PreparedCut prepared;
+    if (prepare) prepared = cm.PrepareCut(step, world, params);
+    const CutOutcome out = cm.ExecuteCut(step, world, params, prepare ? &prepared : nullptr);
     stats.cut_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
     if (out.status == CutStatus::kRejected) {
       ++stats.rejected;

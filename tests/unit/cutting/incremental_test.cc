@@ -6,6 +6,7 @@
 // connected components of the whole mesh.
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <numeric>
 #include <random>
 #include <string>
@@ -177,6 +178,91 @@ TEST(IncrementalFem, EventsMatchAWholeMeshRecomputeAndKeepMassAndMomentum) {
                                     0.03, params, &events, check);
   EXPECT_GE(applied, 8);
   EXPECT_GT(with_moves, 0) << "no event moved a node: the recompute was not exercised";
+}
+
+// CutMesh::PrepareCut (steps 1–2 ahead, as the simulation runs them beside
+// the criterion with two threads) then ExecuteCut must cut exactly as
+// ExecuteCut alone: strokes along, across and diagonally through a jittered
+// block (twins, snaps, singularities), every event equal. A prepared cut
+// made before another cut changed the mesh must be ignored, and a cancelled
+// one is not valid.
+TEST(PreparedCut, CutsAsExecuteCutAlone) {
+  using Eigen::Vector3d;
+  using cutting::testing::Segment;
+  const mesh::TetMesh m = cutting::testing::KuhnBox(Vector3d::Zero(), Vector3d(0.06, 0.04, 0.02), 6, 4, 2, 0.2, 7);
+  cutting::CutMesh plain(m), prepared(m);
+  cutting::VectorWorld world_plain = cutting::testing::WorldFromRest(m);
+  cutting::VectorWorld world_prepared = world_plain;
+  std::vector<cutting::TopologyEvent> ev_plain, ev_prepared;
+  const cutting::CutParams params;
+  const std::vector<std::vector<Vector3d>> strokes = {
+      Segment(Vector3d(0.001, 0.021, 0.02), Vector3d(0.059, 0.017, 0.02), 40),
+      Segment(Vector3d(0.031, 0.001, 0.02), Vector3d(0.027, 0.039, 0.02), 30),
+      Segment(Vector3d(0.005, 0.035, 0.02), Vector3d(0.052, 0.004, 0.02), 40)};
+  for (const auto& stroke : strokes) {
+    (void)cutting::testing::DrivePath(plain, world_plain, stroke, 0.012, params, &ev_plain, [](int) {});
+    (void)cutting::testing::DrivePath(prepared, world_prepared, stroke, 0.012, params, &ev_prepared, [](int) {},
+                                      /*prepare=*/true);
+  }
+  ASSERT_GE(ev_plain.size(), 10u);
+  ASSERT_EQ(ev_prepared.size(), ev_plain.size());
+  for (size_t i = 0; i < ev_plain.size(); ++i) {
+    SCOPED_TRACE("event " + std::to_string(i));
+    const cutting::TopologyEvent &a = ev_plain[i], &b = ev_prepared[i];
+    EXPECT_EQ(a.version, b.version);
+    ASSERT_EQ(a.splits.size(), b.splits.size());
+    for (size_t k = 0; k < a.splits.size(); ++k) {
+      EXPECT_EQ(a.splits[k].node, b.splits[k].node);
+      EXPECT_EQ(a.splits[k].new_node, b.splits[k].new_node);
+      EXPECT_EQ(a.splits[k].tets, b.splits[k].tets);
+    }
+    ASSERT_EQ(a.moves.size(), b.moves.size());
+    for (size_t k = 0; k < a.moves.size(); ++k) {
+      EXPECT_EQ(a.moves[k].node, b.moves[k].node);
+      EXPECT_EQ(a.moves[k].rest, b.moves[k].rest);
+      EXPECT_EQ(a.moves[k].world, b.moves[k].world);
+    }
+    EXPECT_EQ(a.touched_tets, b.touched_tets);
+  }
+  EXPECT_EQ(plain.TetsMatrix(), prepared.TetsMatrix());
+
+  // Stale: prepared for one step, then another cut executed first.
+  cutting::CutMesh fresh(m), stale(m);
+  cutting::VectorWorld world_fresh = cutting::testing::WorldFromRest(m);
+  cutting::VectorWorld world_stale = world_fresh;
+  const auto first = Segment(Vector3d(0.001, 0.021, 0.02), Vector3d(0.03, 0.019, 0.02), 20);
+  (void)cutting::testing::DrivePath(fresh, world_fresh, first, 0.012, params, nullptr, [](int) {});
+  (void)cutting::testing::DrivePath(stale, world_stale, first, 0.012, params, nullptr, [](int) {});
+  cutting::CutStep next;
+  next.v1 = cutting::testing::ClosestTopVertex(fresh, world_fresh, Vector3d(0.036, 0.019, 0.02));
+  next.v0 = cutting::testing::ClosestTopVertex(fresh, world_fresh, Vector3d(0.03, 0.019, 0.02));
+  next.cp0 = Vector3d(0.03, 0.019, 0.02);
+  next.cp = Vector3d(0.036, 0.019, 0.02);
+  next.normal = Vector3d::UnitZ();
+  next.blade.emplace(cutting::Blade{next.cp - 0.012 * Vector3d::UnitZ(), Vector3d::UnitZ(), 0.022});
+  cutting::CutStep other = next;
+  other.cp0 = Vector3d(0.015, 0.03, 0.02);
+  other.cp = Vector3d(0.015, 0.036, 0.02);
+  other.v0 = cutting::testing::ClosestTopVertex(fresh, world_fresh, other.cp0);
+  other.v1 = cutting::testing::ClosestTopVertex(fresh, world_fresh, other.cp);
+  other.blade.emplace(cutting::Blade{other.cp - 0.012 * Vector3d::UnitZ(), Vector3d::UnitZ(), 0.022});
+  const cutting::PreparedCut old = stale.PrepareCut(next, world_stale, params);
+  ASSERT_TRUE(old.valid);
+  for (auto* pair : {&fresh, &stale}) {
+    cutting::VectorWorld& w = pair == &fresh ? world_fresh : world_stale;
+    const cutting::CutOutcome o = pair->ExecuteCut(other, w, params);
+    ASSERT_EQ(o.status, cutting::CutStatus::kExecuted);
+    w.ApplyEvent(o.event);
+  }
+  const cutting::CutOutcome a = fresh.ExecuteCut(next, world_fresh, params);
+  const cutting::CutOutcome b = stale.ExecuteCut(next, world_stale, params, &old);
+  ASSERT_EQ(a.status, b.status);
+  ASSERT_EQ(a.event.splits.size(), b.event.splits.size());
+  for (size_t k = 0; k < a.event.splits.size(); ++k) EXPECT_EQ(a.event.splits[k].tets, b.event.splits[k].tets);
+  EXPECT_EQ(fresh.TetsMatrix(), stale.TetsMatrix());
+
+  const std::atomic<bool> cancel{true};
+  EXPECT_FALSE(fresh.PrepareCut(next, world_fresh, params, &cancel).valid);
 }
 
 // A block cut by a scripted blade: after every frame the simulation's
