@@ -1048,10 +1048,13 @@ class Engine final : public Simulation {
     std::atomic<bool> cancel{false};
     double prepare_time = 0;
     std::array<std::exception_ptr, 2> error;
-#pragma omp parallel sections num_threads(2) if (threads_ >= 2)
+    // The walk runs on the calling thread (its lines are then in this
+    // core's cache for the rest of the step), the criterion on the other.
+#pragma omp parallel num_threads(threads_ >= 2 && room >= 64 ? 2 : 1)
     {
-#pragma omp section
-      {
+      const int id = omp_get_thread_num();
+      const int team = omp_get_num_threads();
+      if (id == team - 1) {
         try {
           crit = cutting::EvaluateCriterion(
               candidates,
@@ -1064,15 +1067,11 @@ class Engine final : public Simulation {
         } catch (...) {
           error[0] = std::current_exception();
         }
-      }
-#pragma omp section
-      {
+      } else if (id == 0) {
         try {
-          if (threads_ >= 2 && room >= 64) {
-            Stopwatch w;
-            prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
-            prepare_time = w.ElapsedSeconds();
-          }
+          Stopwatch w;
+          prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
+          prepare_time = w.ElapsedSeconds();
         } catch (...) {
           error[1] = std::current_exception();
         }
