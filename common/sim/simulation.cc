@@ -1001,6 +1001,39 @@ class Engine final : public Simulation {
     return k;
   }
 
+  /// Runs `here` on the calling thread and `there` on a second OpenMP
+  /// thread, side by side, if `parallel`; else (or if the runtime gives one
+  /// thread) `there` then `here` on this one. Exceptions reach the caller.
+  template <typename Here, typename There>
+  static void SideBySide(bool parallel, Here&& here, There&& there) {
+    if (!parallel) {
+      there();
+      here();
+      return;
+    }
+    std::array<std::exception_ptr, 2> error;
+#pragma omp parallel num_threads(2)
+    {
+      const int id = omp_get_thread_num();
+      if (id == omp_get_num_threads() - 1) {
+        try {
+          there();
+        } catch (...) {
+          error[1] = std::current_exception();
+        }
+      }
+      if (id == 0) {
+        try {
+          here();
+        } catch (...) {
+          error[0] = std::current_exception();
+        }
+      }
+    }
+    for (const std::exception_ptr& e : error)
+      if (e) std::rethrow_exception(e);
+  }
+
   /// Seed §3: cut attempt (geometric), criterion (stress), then separation
   /// and remeshing, applied to the FEM as a topology event.
   void TryCut() {
@@ -1047,15 +1080,18 @@ class Engine final : public Simulation {
     cutting::PreparedCut prepared;
     std::atomic<bool> cancel{false};
     double prepare_time = 0;
-    std::array<std::exception_ptr, 2> error;
-    // The walk runs on the calling thread (its lines are then in this
-    // core's cache for the rest of the step), the criterion on the other.
-#pragma omp parallel num_threads(threads_ >= 2 && room >= 64 ? 2 : 1)
-    {
-      const int id = omp_get_thread_num();
-      const int team = omp_get_num_threads();
-      if (id == team - 1) {
-        try {
+    const bool side_by_side = threads_ >= 2 && room >= 64;
+    // The walk on the calling thread (its lines are then in this core's
+    // cache for the rest of the step), the criterion on the other.
+    SideBySide(
+        side_by_side,
+        [&] {
+          if (!side_by_side) return;
+          Stopwatch w;
+          prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
+          prepare_time = w.ElapsedSeconds();
+        },
+        [&] {
           crit = cutting::EvaluateCriterion(
               candidates,
               [this](int32_t t) {
@@ -1064,21 +1100,7 @@ class Engine final : public Simulation {
               params_);
           timing_.criterion = step_watch.ElapsedSeconds();
           if (!crit.cut) cancel.store(true, std::memory_order_relaxed);
-        } catch (...) {
-          error[0] = std::current_exception();
-        }
-      } else if (id == 0) {
-        try {
-          Stopwatch w;
-          prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
-          prepare_time = w.ElapsedSeconds();
-        } catch (...) {
-          error[1] = std::current_exception();
-        }
-      }
-    }
-    for (const std::exception_ptr& e : error)
-      if (e) std::rethrow_exception(e);
+        });
     report_.sigma_c = crit.sigma_c;
     if (!crit.cut) return;
     if (room < 64) {
@@ -1138,34 +1160,20 @@ class Engine final : public Simulation {
     // reads what the other writes, so the results are the same either way.
     // The debris flags of the facets need both, and are set after.
     double fem_time = 0, surface_time = 0, debris_time = 0;
-    std::array<std::exception_ptr, 2> error;
-#pragma omp parallel sections num_threads(2) if (threads_ >= 2)
-    {
-#pragma omp section
-      {
-        try {
+    SideBySide(
+        threads_ >= 2,
+        [&] {
+          Stopwatch w;
+          UpdateSurface();
+          surface_time = w.ElapsedSeconds();
+        },
+        [&] {
           Stopwatch w;
           RecomputeAfterEvent(event, model_, state_, explicit_viscous, fem_event_);
           fem_time = w.ElapsedSeconds();
           UpdateDebris(event);
           debris_time = w.ElapsedSeconds() - fem_time;
-        } catch (...) {
-          error[0] = std::current_exception();
-        }
-      }
-#pragma omp section
-      {
-        try {
-          Stopwatch w;
-          UpdateSurface();
-          surface_time = w.ElapsedSeconds();
-        } catch (...) {
-          error[1] = std::current_exception();
-        }
-      }
-    }
-    for (const std::exception_ptr& e : error)
-      if (e) std::rethrow_exception(e);
+        });
     Stopwatch flags_watch;
     FlagDebrisFacets();
     surface_time += debris_time + flags_watch.ElapsedSeconds();
