@@ -109,9 +109,11 @@ StepResult RunStepBench(int nx, int ny, int nz, int threads) {
   }
   StepResult r;
   const auto s = sim->QuickSummary();
-  std::fprintf(stderr, "step bench: %d tets, %d threads, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s, mesh hash %016llx\n",
-               s.num_tets, threads, static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps), s.wall_time,
-               s.stable_dt, static_cast<unsigned long long>(MeshHash(*sim)));
+  std::fprintf(stderr,
+               "step bench: %d tets, %d threads, %llu cuts, %lld steps, %.1f s wall, stable dt %.3g s, "
+               "mesh hash %016llx\n",
+               s.num_tets, threads, static_cast<unsigned long long>(s.cuts), static_cast<long long>(s.steps),
+               s.wall_time, s.stable_dt, static_cast<unsigned long long>(MeshHash(*sim)));
   r.tets = s.num_tets;
   r.timings = sim->CutTimings();
   r.attempts = static_cast<int64_t>(s.cut_attempts);
