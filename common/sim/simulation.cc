@@ -333,10 +333,12 @@ class Engine final : public Simulation {
     for (int32_t f = 0; f < num_slots_; ++f) live += surface_(f, 0) >= 0 ? 1 : 0;
     view.surface.resize(live, 3);
     view.opened.resize(static_cast<size_t>(live));
+    view.debris.resize(debris_facet_.empty() ? 0 : static_cast<size_t>(live));
     int32_t row = 0;
     for (int32_t f = 0; f < num_slots_; ++f) {
       if (surface_(f, 0) < 0) continue;
       view.surface.row(row) = surface_.row(f);
+      if (!view.debris.empty()) view.debris[static_cast<size_t>(row)] = debris_facet_[static_cast<size_t>(f)];
       view.opened[static_cast<size_t>(row++)] = opened_[static_cast<size_t>(f)];
     }
   }

@@ -113,6 +113,7 @@ struct MeshView {
   mesh::Tets tets;            // #T×4
   mesh::Triangles surface;    // #F×3
   std::vector<uint8_t> opened;  // #F
+  std::vector<uint8_t> debris;  // #F with cutting (else empty): 1 on a facet of a debris piece (debris.h)
 };
 
 class Simulation {

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <map>
 #include <numeric>
 #include <random>
 #include <string>
@@ -354,6 +355,78 @@ TEST(IncrementalSurface, TwoThreadsCutAsOneDoes) {
   for (const sim::CutStepTiming& t : two->CutTimings()) EXPECT_GT(t.apply, 0.0);
 }
 
+
+// The simulation's per-facet debris flags (the blade passes through those
+// facets) after every cut step, against the whole-mesh rule on its own
+// mesh view: a face-connected piece with < 1 % of the mass and < 64 tets
+// (DebrisTracker::Limits' defaults, the simulation's) is debris. A blade
+// drawn through the end of a 120-cell bar cuts off one cell column (12 of
+// 1 440 tets, 0.8 % of the mass). With one thread and with two (the flood
+// then runs beside the surface update, and the flags are set after both).
+TEST(IncrementalDebris, SimulationFlagsTheFacetsOfACutOffPiece) {
+  const std::string scene_text = R"pb(
+name: "bar-end"
+mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.24 y: 0.004 z: 0.002 } nx: 120 ny: 2 nz: 1 } }
+materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
+boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
+tool {
+  blade_length: 0.025
+  keyframes { t: 0 tip { x: 0.0021 y: -0.002 z: -0.001 } blade_dir { z: 1 } }
+  keyframes { t: 0.06 tip { x: 0.0021 y: 0.006 z: -0.001 } blade_dir { z: 1 } }
+}
+cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }
+)pb";
+  for (const int threads : {1, 2}) {
+    SCOPED_TRACE(std::to_string(threads) + " threads");
+    const std::string text = scene_text + "time_step { frame_dt: 0.002 threads: " + std::to_string(threads) + " }\n";
+    auto engine = sim::Simulation::Create(sim::ParseScene(text, "bar-end.pbtxt", "."));
+    sim::MeshView view;
+    int32_t flagged = 0;
+    for (int frame = 0; frame < 40; ++frame) {
+      SCOPED_TRACE("frame " + std::to_string(frame));
+      ASSERT_EQ(engine->AdvanceFrame(), sim::SimStatus::kOk);
+      if (!engine->Tool().cut_this_frame) continue;
+      engine->FillMeshView(view);
+      ASSERT_EQ(view.debris.size(), static_cast<size_t>(view.surface.rows()));
+      // The whole-mesh rule on the view: pieces, their masses and sizes.
+      int32_t pieces = 0;
+      const std::vector<int32_t> label = cutting::ConnectedComponents(view.tets, &pieces);
+      const mesh::TetMesh rest{view.rest, view.tets};
+      std::vector<double> mass(static_cast<size_t>(pieces), 0.0);
+      std::vector<int32_t> count(static_cast<size_t>(pieces), 0);
+      double total = 0.0;
+      for (int32_t t = 0; t < rest.num_tets(); ++t) {
+        const double m = 1000.0 * mesh::SignedVolume(rest, t);
+        mass[static_cast<size_t>(label[static_cast<size_t>(t)])] += m;
+        ++count[static_cast<size_t>(label[static_cast<size_t>(t)])];
+        total += m;
+      }
+      // Each surface facet's tet, by its sorted node triple.
+      std::map<std::array<int32_t, 3>, int32_t> owner;
+      for (int32_t t = 0; t < rest.num_tets(); ++t) {
+        for (int f = 0; f < 4; ++f) {
+          std::array<int32_t, 3> key;
+          for (int k = 0, j = 0; k < 4; ++k)
+            if (k != f) key[static_cast<size_t>(j++)] = view.tets(t, k);
+          std::sort(key.begin(), key.end());
+          owner[key] = t;
+        }
+      }
+      for (Eigen::Index f = 0; f < view.surface.rows(); ++f) {
+        std::array<int32_t, 3> key = {view.surface(f, 0), view.surface(f, 1), view.surface(f, 2)};
+        std::sort(key.begin(), key.end());
+        const auto it = owner.find(key);
+        ASSERT_NE(it, owner.end()) << "facet " << f;
+        const auto piece = static_cast<size_t>(label[static_cast<size_t>(it->second)]);
+        const uint8_t expected = mass[piece] < 0.01 * total && count[piece] < 64 ? 1 : 0;
+        ASSERT_EQ(view.debris[static_cast<size_t>(f)], expected) << "facet " << f << " of tet " << it->second;
+      }
+      flagged = static_cast<int32_t>(std::count(view.debris.begin(), view.debris.end(), uint8_t{1}));
+    }
+    EXPECT_EQ(engine->Summary().components, 2);
+    EXPECT_GT(flagged, 0) << "the cut-off column is debris";
+  }
+}
 
 // Random strokes through the whole depth of a thin jittered block cut
 // corners and strips loose. After every cut the tracker's local update must
