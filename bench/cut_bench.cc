@@ -158,7 +158,8 @@ int main(int argc, char** argv) {
   std::string json = "{\n  \"step\": [";
   // (a) ~1k, 10k, 100k tets, 2 mm cells, one thread; then 100k again with
   // two where the machine has them (the server's default from 20 000 tets:
-  // the cut's FEM and surface halves then run side by side).
+  // the criterion then runs beside the slab walk, and the FEM half beside
+  // the surface half). "total" is the step's wall time.
   struct Config {
     int nx, ny, nz, threads;
   };

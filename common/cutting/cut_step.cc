@@ -136,7 +136,7 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
 
 PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                     bool blade_plane, const std::atomic<bool>* cancel) {
-  PreparedCut out;  // not valid until the end
+  PreparedCut out;  // not valid: the early returns
   const int32_t n0 = num_nodes();
   const bool ids_ok = step.v0 >= 0 && step.v0 < n0 && step.v1 >= 0 && step.v1 < n0 && step.v0 != step.v1;
   const bool blade_ok = !step.blade || (step.blade->tip.allFinite() && step.blade->direction.allFinite() &&
@@ -342,18 +342,17 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
     }
   }
 
-  out.valid = true;
-  out.version = version_;
-  out.generation = pos_generation_;
-  out.v0 = step.v0;
-  out.v1 = step.v1;
-  out.blade_plane = blade_plane;
-  out.v2 = v2;
-  out.h = h;
-  out.band = band;
-  out.normal = m;
-  out.origin = origin;
-  return out;
+  return PreparedCut{.valid = true,
+                     .version = version_,
+                     .generation = pos_generation_,
+                     .v0 = step.v0,
+                     .v1 = step.v1,
+                     .blade_plane = blade_plane,
+                     .v2 = v2,
+                     .h = h,
+                     .band = band,
+                     .normal = m,
+                     .origin = origin};
 }
 
 CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,

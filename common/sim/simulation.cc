@@ -1082,27 +1082,30 @@ class Engine final : public Simulation {
     cutting::PreparedCut prepared;
     std::atomic<bool> cancel{false};
     double prepare_time = 0;
-    const bool side_by_side = threads_ >= 2 && room >= 64;
-    // The walk on the calling thread (its lines are then in this core's
-    // cache for the rest of the step), the criterion on the other.
-    SideBySide(
-        side_by_side,
-        [&] {
-          if (!side_by_side) return;
-          Stopwatch w;
-          prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
-          prepare_time = w.ElapsedSeconds();
-        },
-        [&] {
-          crit = cutting::EvaluateCriterion(
-              candidates,
-              [this](int32_t t) {
-                return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
-              },
-              params_);
-          timing_.criterion = step_watch.ElapsedSeconds();
-          if (!crit.cut) cancel.store(true, std::memory_order_relaxed);
-        });
+    auto evaluate = [&] {
+      crit = cutting::EvaluateCriterion(
+          candidates,
+          [this](int32_t t) {
+            return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
+          },
+          params_);
+      timing_.criterion = step_watch.ElapsedSeconds();
+      if (!crit.cut) cancel.store(true, std::memory_order_relaxed);
+    };
+    if (threads_ >= 2 && room >= 64) {
+      // The walk on the calling thread (its lines are then in this core's
+      // cache for the rest of the step), the criterion on the other.
+      SideBySide(
+          true,
+          [&] {
+            Stopwatch w;
+            prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
+            prepare_time = w.ElapsedSeconds();
+          },
+          evaluate);
+    } else {
+      evaluate();
+    }
     report_.sigma_c = crit.sigma_c;
     if (!crit.cut) return;
     if (room < 64) {

@@ -92,8 +92,9 @@ struct ToolReport {
 
 /// Time of one executed cut step by phase, s (the cut benchmark's split),
 /// each on the thread that ran it. On one thread the phases follow each
-/// other and `wall` is their sum; with two, the criterion runs beside the
-/// topology's plane and split set, and the FEM half beside the surface.
+/// other and `wall` is their sum plus the bookkeeping between them; with
+/// two, the criterion runs beside the topology's plane and split set, and
+/// the FEM half beside the surface.
 struct CutStepTiming {
   double wall = 0;       ///< the whole step, wall time
   double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)

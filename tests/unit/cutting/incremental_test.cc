@@ -266,30 +266,36 @@ TEST(PreparedCut, CutsAsExecuteCutAlone) {
   EXPECT_FALSE(fresh.PrepareCut(next, world_fresh, params, &cancel).valid);
 }
 
-// A block cut by a scripted blade: after every frame the simulation's
-// surface (kept by slot, edited locally) must equal the surface extracted
-// from its tets, and the opened flags must mark only faces absent from the
-// uncut surface.
 namespace {
 
-// A 6×4×2-cell block slit along y by a blade deeper than it.
-std::string SlitScene(int threads) {
-  return R"pb(
-name: "incremental"
-mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.015 y: 0.01 z: 0.005 } nx: 6 ny: 4 nz: 2 } }
+// A block of `cells` (the mesh's box fields) on a fixed base, cut at
+// K_I = 1 Pa by a blade longer than the block is thick, its tip 1 mm below
+// the base and drawn from (x0, y0) to (x1, y1) in `seconds`.
+std::string BladeScene(const std::string& cells, double x0, double y0, double x1, double y1, double seconds,
+                       int threads) {
+  auto tip = [](double x, double y) {
+    return "tip { x: " + std::to_string(x) + " y: " + std::to_string(y) + " z: -0.001 } blade_dir { z: 1 }";
+  };
+  return "name: \"blade\"\nmesh { box { min { x: 0 y: 0 z: 0 } " + cells + " } }\n" + R"pb(
 materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
 boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
-tool {
-  blade_length: 0.025
-  keyframes { t: 0 tip { x: -0.002 y: 0.0051 z: -0.001 } blade_dir { z: 1 } }
-  keyframes { t: 0.12 tip { x: 0.017 y: 0.0051 z: -0.001 } blade_dir { z: 1 } }
-}
 cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }
-)pb" + std::string("time_step { frame_dt: 0.002 threads: ") + std::to_string(threads) + " }\n";
+)pb" + "tool { blade_length: 0.025 keyframes { t: 0 " + tip(x0, y0) + " } keyframes { t: " + std::to_string(seconds) +
+         " " + tip(x1, y1) + " } }\ntime_step { frame_dt: 0.002 threads: " + std::to_string(threads) + " }\n";
+}
+
+// A 6×4×2-cell block slit along x by a blade deeper than it.
+std::string SlitScene(int threads) {
+  return BladeScene("max { x: 0.015 y: 0.01 z: 0.005 } nx: 6 ny: 4 nz: 2", -0.002, 0.0051, 0.017, 0.0051, 0.12,
+                    threads);
 }
 
 }  // namespace
 
+// A block cut by a scripted blade: after every frame the simulation's
+// surface (kept by slot, edited locally) must equal the surface extracted
+// from its tets, and the opened flags must mark only faces absent from the
+// uncut surface.
 TEST(IncrementalSurface, MatchesExtractionAfterEveryCut) {
   const sim::LoadedScene scene = sim::ParseScene(SlitScene(1), "incremental.pbtxt", ".");
   auto sim = sim::Simulation::Create(scene);
@@ -321,13 +327,12 @@ TEST(IncrementalSurface, MatchesExtractionAfterEveryCut) {
   EXPECT_EQ(sim->CutTimings().size(), sim->Summary().cuts);
 }
 
-// With two threads the FEM and surface halves of a cut step run side by
-// side (Simulation's ApplyEvent). Neither may read what the other writes:
-// after every frame, two threads must give what one gives, bit for bit
-// (the FEM step's force sums are thread-count independent): world and
-// rest positions, tets, surface and opened flags, and the contact the BVH
-// finds next (a surface half that read positions before the event's nodes
-// were applied would put stale boxes in the BVH).
+// With two threads a cut step runs its criterion beside the slab walk and
+// its FEM half beside its surface half (Simulation's TryCut, ApplyEvent).
+// Neither side may read what the other writes: after every frame, two
+// threads must give what one gives, bit for bit (the FEM step's force sums
+// are thread-count independent): world and rest positions, tets, surface
+// and opened flags, and the contact found next.
 TEST(IncrementalSurface, TwoThreadsCutAsOneDoes) {
   auto one = sim::Simulation::Create(sim::ParseScene(SlitScene(1), "one.pbtxt", "."));
   auto two = sim::Simulation::Create(sim::ParseScene(SlitScene(2), "two.pbtxt", "."));
@@ -364,21 +369,10 @@ TEST(IncrementalSurface, TwoThreadsCutAsOneDoes) {
 // 1 440 tets, 0.8 % of the mass). With one thread and with two (the flood
 // then runs beside the surface update, and the flags are set after both).
 TEST(IncrementalDebris, SimulationFlagsTheFacetsOfACutOffPiece) {
-  const std::string scene_text = R"pb(
-name: "bar-end"
-mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.24 y: 0.004 z: 0.002 } nx: 120 ny: 2 nz: 1 } }
-materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
-boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
-tool {
-  blade_length: 0.025
-  keyframes { t: 0 tip { x: 0.0021 y: -0.002 z: -0.001 } blade_dir { z: 1 } }
-  keyframes { t: 0.06 tip { x: 0.0021 y: 0.006 z: -0.001 } blade_dir { z: 1 } }
-}
-cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }
-)pb";
   for (const int threads : {1, 2}) {
     SCOPED_TRACE(std::to_string(threads) + " threads");
-    const std::string text = scene_text + "time_step { frame_dt: 0.002 threads: " + std::to_string(threads) + " }\n";
+    const std::string text = BladeScene("max { x: 0.24 y: 0.004 z: 0.002 } nx: 120 ny: 2 nz: 1", 0.0021, -0.002,
+                                        0.0021, 0.006, 0.06, threads);
     auto engine = sim::Simulation::Create(sim::ParseScene(text, "bar-end.pbtxt", "."));
     sim::MeshView view;
     int32_t flagged = 0;
