@@ -134,6 +134,30 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
   return out;
 }
 
+void CutMesh::PrefetchLastWalk(const double* xyz) const {
+  // Asked for all at once, the misses overlap; the walk itself takes them
+  // nearly one by one (its next vertex comes out of the last one's tets).
+  // Ids only grow but for a rolled-back step's copies: checked.
+  for (const int32_t t : walked_tets_) {
+    if (t >= num_tets()) continue;
+    __builtin_prefetch(&recs_[Idx(t)]);
+    __builtin_prefetch(&tet_marks_.rows[Idx(t)]);
+    __builtin_prefetch(&slot_[Idx(t)]);
+  }
+  const int32_t n = num_nodes();
+  for (const auto& [a, level] : slab_seen_) {
+    if (a >= n) continue;
+    __builtin_prefetch(&star_block_[Idx(a)]);
+    __builtin_prefetch(&node_marks_.rows[Idx(a)]);
+    __builtin_prefetch(&rest_[Idx(a)]);
+    __builtin_prefetch(&origin_[Idx(a)]);
+    if (xyz != nullptr) __builtin_prefetch(xyz + 3 * Idx(a));
+  }
+  // The stars themselves: their block records are on the way by now.
+  for (const auto& [a, level] : slab_seen_)
+    if (a < n) __builtin_prefetch(star_pool_.data() + star_block_[Idx(a)].begin);
+}
+
 PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                     bool blade_plane, const std::atomic<bool>* cancel) {
   PreparedCut out;  // not valid: the early returns
@@ -154,6 +178,7 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
   // Node rows for every node before the step: the slab walk's stamp sets
   // are unchecked.
   if (node_marks_.rows.size() < Idx(n0)) node_marks_.rows.resize(Idx(n0));
+  if (blade_plane) PrefetchLastWalk(world.Xyz());
   StepWorld W(world, n0, ev, x_cache_, pos_generation_);
   const Vector3d x0 = W.Get(step.v0);
   const Vector3d x1 = W.Get(step.v1);
@@ -259,6 +284,7 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
       S.clear();
       add_ends();
       walked.clear();
+      walked_tets_.clear();
       // Every tet is looked at once (kSlab): the vertices seen, hence
       // S (sorted below), do not depend on the walk's order.
       // No copies exist yet (they are made in step 3), and the node rows
@@ -285,6 +311,7 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
         }
         for (const int32_t t : star) {
           if (!slab_tets.Insert(t)) continue;
+          walked_tets_.push_back(t);
           for (const int32_t w : recs_[Idx(t)].nodes) {
             if (!seen.Insert(w)) continue;
             const Vector3d xw = W.Get(w);
