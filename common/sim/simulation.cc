@@ -1157,13 +1157,17 @@ class Engine final : public Simulation {
       return;
     }
     // Every node is final now (copies, moves). One half recomputes the
-    // FEM's elements, node masses and stable-step leaves, then floods for
-    // debris (which reads only the cut complex and the event); the other
-    // edits the surface slots and the BVH, reading only the tets' nodes (in
-    // the cut complex) and the world positions. With a second thread they
+    // FEM's elements, node masses and stable-step leaves; the other edits
+    // the surface slots and the BVH, reading only the tets' nodes (in the
+    // cut complex) and the world positions, then floods for debris (which
+    // reads only the cut complex and the event). With a second thread they
     // run side by side (the server's default from 20 000 tets): neither
     // reads what the other writes, so the results are the same either way.
-    // The debris flags of the facets need both, and are set after.
+    // The flood goes with the surface, on the thread that just cut: the cut
+    // complex is in its cache (at 100k tets in cut_bench the halves took
+    // 13.6 µs for the FEM + 6.2 for the flood beside 12.0 for the surface;
+    // now 13.4 beside 11.7 + 5.5). The debris flags of the facets need
+    // both, and are set after.
     double fem_time = 0, surface_time = 0, debris_time = 0;
     SideBySide(
         threads_ >= 2,
@@ -1171,13 +1175,13 @@ class Engine final : public Simulation {
           Stopwatch w;
           UpdateSurface();
           surface_time = w.ElapsedSeconds();
+          UpdateDebris(event);
+          debris_time = w.ElapsedSeconds() - surface_time;
         },
         [&] {
           Stopwatch w;
           RecomputeAfterEvent(event, model_, state_, explicit_viscous, fem_event_);
           fem_time = w.ElapsedSeconds();
-          UpdateDebris(event);
-          debris_time = w.ElapsedSeconds() - fem_time;
         });
     Stopwatch flags_watch;
     FlagDebrisFacets();
