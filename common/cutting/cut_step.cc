@@ -137,7 +137,7 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
 void CutMesh::PrefetchLastWalk(const double* xyz) const {
   // Asked for all at once, the misses overlap; the walk itself takes them
   // nearly one by one (its next vertex comes out of the last one's tets).
-  // Ids only grow but for a rolled-back step's copies: checked.
+  // The ids come from an earlier step: checked against the mesh as it is.
   for (const int32_t t : walked_tets_) {
     if (t >= num_tets()) continue;
     __builtin_prefetch(&recs_[Idx(t)]);
