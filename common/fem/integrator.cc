@@ -8,6 +8,7 @@
 
 #include "common/core/error.h"
 #include "common/fem/forces.h"
+#include "common/fem/node_sums.h"
 #include "common/fem/stable_dt.h"
 
 namespace cutsim::fem {
@@ -123,23 +124,22 @@ double ApplyViscousSystem(const Model<T>& model, const T* x, const T* p, T dt, T
   const int32_t nn = model.num_nodes();
   const T* mass = model.node_masses();
   const uint8_t* fixed = model.fixed_mask();
-  double pq = 0;
+  NodeSums<1> pq(nn);  // the same bits for any thread count (node_sums.h)
 #pragma omp parallel num_threads(nt)
   {
     ElementForcesTeam(model, x, p, ForceMode::kViscousOnly, ef, bad);
 #pragma omp barrier
     GatherNodeForcesTeam<T>(model, ef, nullptr, false, q);  // q = f_visc(p) = −C p
-#pragma omp for schedule(static) reduction(+ : pq)
-    for (int32_t n = 0; n < nn; ++n) {
+    pq.Team([&](int32_t n, std::array<double, 1>& acc) {
       const bool active = fixed[n] == 0 && mass[n] > T(0);
       for (int d = 0; d < 3; ++d) {
         const T qd = active ? mass[n] * p[3 * n + d] - dt * q[3 * n + d] : T(0);
         q[3 * n + d] = qd;
-        pq += static_cast<double>(p[3 * n + d] * qd);
+        acc[0] += static_cast<double>(p[3 * n + d] * qd);
       }
-    }
+    });
   }
-  return pq;
+  return pq.Total(0);
 }
 
 /// Implicit viscous update (ViscousTreatment::kImplicit): solves
@@ -178,9 +178,11 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
   const T warm = opt.cg_warm_start ? T(1) : T(0);
   // v* aside; the start sol = v* + dv; bb = |M v*|²_P⁻¹ (the scale of the
   // residual), e_star = |v*|²_M (the energy bound of the solution).
-  double bb = 0, e_star = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : bb, e_star)
-  for (int32_t n = 0; n < nn; ++n) {
+  // Every sum of the solve gives the same bits for any thread count
+  // (node_sums.h): α, β and the stopping test steer the iterate.
+  NodeSums<2> start_sums(nn);
+#pragma omp parallel num_threads(nt)
+  start_sums.Team([&](int32_t n, std::array<double, 2>& acc) {
     const bool active = fixed[n] == 0 && mass[n] > T(0);
     T b[3], z[3];
     for (int d = 0; d < 3; ++d) {
@@ -194,10 +196,11 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
     }
     ApplyBlock(pre + 6 * n, b, z);
     for (int d = 0; d < 3; ++d) {
-      bb += static_cast<double>(b[d] * z[d]);
-      e_star += static_cast<double>(b[d] * vs[3 * n + d]);
+      acc[0] += static_cast<double>(b[d] * z[d]);
+      acc[1] += static_cast<double>(b[d] * vs[3 * n + d]);
     }
-  }
+  });
+  const double bb = start_sums.Total(0), e_star = start_sums.Total(1);
   int iterations = 0;
   if (!(bb > 0)) {
     // v* = 0 on every free node: the solution is 0.
@@ -215,22 +218,23 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
   // r = M v* − A sol, p = z = P⁻¹ r.
   int32_t bad = INT32_MAX;
   (void)ApplyViscousSystem(model, x, sol, dt, ef, q, &bad, nt);
-  double rz = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : rz)
-  for (int32_t n = 0; n < nn; ++n) {
+  NodeSums<1> rz_sum(nn);
+#pragma omp parallel num_threads(nt)
+  rz_sum.Team([&](int32_t n, std::array<double, 1>& acc) {
     for (int d = 0; d < 3; ++d) r[3 * n + d] = mass[n] * vs[3 * n + d] - q[3 * n + d];
     ApplyBlock(pre + 6 * n, r + 3 * n, p + 3 * n);
-    for (int d = 0; d < 3; ++d) rz += static_cast<double>(r[3 * n + d] * p[3 * n + d]);
-  }
+    for (int d = 0; d < 3; ++d) acc[0] += static_cast<double>(r[3 * n + d] * p[3 * n + d]);
+  });
+  double rz = rz_sum.Total(0);
   bool converged = bad == INT32_MAX && rz <= tol2;
   while (!converged && bad == INT32_MAX && iterations < opt.cg_max_iterations) {
     const double pq = ApplyViscousSystem(model, x, p, dt, ef, q, &bad, nt);
     if (!(pq > 0) || bad != INT32_MAX) break;  // breakdown: keep the iterate (clamped below)
     ++iterations;
     const T alpha = static_cast<T>(rz / pq);
-    double rz_new = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : rz_new)
-    for (int32_t n = 0; n < nn; ++n) {
+    NodeSums<1> rz_new_sum(nn);
+#pragma omp parallel num_threads(nt)
+    rz_new_sum.Team([&](int32_t n, std::array<double, 1>& acc) {
       T z[3];
       for (int d = 0; d < 3; ++d) {
         const int32_t i = 3 * n + d;
@@ -238,8 +242,9 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
         r[i] -= alpha * q[i];
       }
       ApplyBlock(pre + 6 * n, r + 3 * n, z);
-      for (int d = 0; d < 3; ++d) rz_new += static_cast<double>(r[3 * n + d] * z[d]);
-    }
+      for (int d = 0; d < 3; ++d) acc[0] += static_cast<double>(r[3 * n + d] * z[d]);
+    });
+    const double rz_new = rz_new_sum.Total(0);
     if (rz_new <= tol2) {
       converged = true;
       break;
@@ -256,11 +261,12 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
   *capped = !converged;
   // The exact solution has |v⁺|_M ≤ |v*|_M; a truncated (warm-started)
   // iterate may not, so scale it back: the viscous phase never adds energy.
-  double e_sol = 0;
-#pragma omp parallel for schedule(static) num_threads(nt) reduction(+ : e_sol)
-  for (int32_t n = 0; n < nn; ++n) {
-    for (int d = 0; d < 3; ++d) e_sol += static_cast<double>(mass[n] * sol[3 * n + d] * sol[3 * n + d]);
-  }
+  NodeSums<1> e_sol_sum(nn);
+#pragma omp parallel num_threads(nt)
+  e_sol_sum.Team([&](int32_t n, std::array<double, 1>& acc) {
+    for (int d = 0; d < 3; ++d) acc[0] += static_cast<double>(mass[n] * sol[3 * n + d] * sol[3 * n + d]);
+  });
+  const double e_sol = e_sol_sum.Total(0);
   const T scale = !std::isfinite(e_sol) ? T(0)
                   : e_sol > e_star     ? static_cast<T>(std::sqrt(e_star / e_sol))
                                        : T(1);

@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "common/fem/forces.h"
+#include "common/fem/node_sums.h"
 
 namespace cutsim::fem {
 
@@ -156,10 +157,6 @@ double LanczosMax(const Model<T>& model, State<T>& state, bool damping, int k, i
   k = std::clamp(k, 1, kMaxK);
   double alpha[kMaxK], beta[kMaxK];
   const int32_t nn = model.num_nodes();
-  // Blocks of the α sum (below): at most kMaxBlocks, of ≥ 4096 nodes each.
-  constexpr int32_t kMaxBlocks = 256;
-  const int32_t block = std::max<int32_t>(4096, (nn + kMaxBlocks - 1) / kMaxBlocks);
-  const int32_t num_blocks = (nn + block - 1) / block;
   const T* mass = model.node_masses();
   const uint8_t* fixed = model.fixed_mask();
   const T* x = state.x.data();
@@ -214,11 +211,8 @@ double LanczosMax(const Model<T>& model, State<T>& state, bool damping, int k, i
       for (int d = 0; d < 3; ++d) zmax = std::max(zmax, std::abs(static_cast<double>(q[3 * n + d]) * s));
     }
     const double eps = damping ? 1.0 : amp / std::max(zmax, 1e-300);
-    // α = q·Aq is summed per block of nodes (each block by one thread, in
-    // order), then over the blocks in order: the same bits for any thread
-    // count, so a run or a replay with another number of threads steps alike
-    // (an OpenMP reduction differed in the last bits between 1 and 2).
-    double block_sum[kMaxBlocks];
+    // α = q·Aq: the same bits for any thread count (node_sums.h).
+    NodeSums<1> alpha_sum(nn);
 #pragma omp parallel num_threads(nt)
     {
 #pragma omp for schedule(static)
@@ -236,26 +230,19 @@ double LanczosMax(const Model<T>& model, State<T>& state, bool damping, int k, i
       }
 #pragma omp barrier
       GatherNodeForcesTeam<T>(model, ef, nullptr, false, w);
-#pragma omp for schedule(static)
-      for (int32_t blk = 0; blk < num_blocks; ++blk) {
-        double sum = 0;
-        const int32_t end = std::min(nn, (blk + 1) * block);
-        for (int32_t n = blk * block; n < end; ++n) {
-          const bool act = active(n);
-          const double s = act ? 1.0 / (eps * std::sqrt(static_cast<double>(mass[n]))) : 0.0;
-          for (int dd = 0; dd < 3; ++dd) {
-            const int32_t i = 3 * n + dd;
-            const double f0 = damping ? 0.0 : static_cast<double>(state.lanczos_f0[static_cast<size_t>(i)]);
-            const double aq = -(static_cast<double>(w[i]) - f0) * s - beta_prev * static_cast<double>(prev[i]);
-            w[i] = static_cast<T>(aq);
-            sum += aq * static_cast<double>(q[i]);
-          }
+      alpha_sum.Team([&](int32_t n, std::array<double, 1>& acc) {
+        const bool act = active(n);
+        const double s = act ? 1.0 / (eps * std::sqrt(static_cast<double>(mass[n]))) : 0.0;
+        for (int dd = 0; dd < 3; ++dd) {
+          const int32_t i = 3 * n + dd;
+          const double f0 = damping ? 0.0 : static_cast<double>(state.lanczos_f0[static_cast<size_t>(i)]);
+          const double aq = -(static_cast<double>(w[i]) - f0) * s - beta_prev * static_cast<double>(prev[i]);
+          w[i] = static_cast<T>(aq);
+          acc[0] += aq * static_cast<double>(q[i]);
         }
-        block_sum[blk] = sum;
-      }
+      });
     }
-    double a = 0;
-    for (int32_t blk = 0; blk < num_blocks; ++blk) a += block_sum[blk];
+    const double a = alpha_sum.Total(0);
     if (bad != INT32_MAX || !std::isfinite(a)) break;
     alpha[j] = a;
     m = j + 1;

@@ -95,8 +95,8 @@ TEST(FemLanczos, MatchesExactEigenvalueAndBoundsTheBound) {
 }
 
 // The estimate feeds the step size: a run, or a replay of it, with another
-// number of threads must get the same bits. 7 225 nodes: two blocks of the
-// estimate's fixed-order sum, one per thread.
+// number of threads must get the same bits (7 225 nodes: 29 blocks of the
+// estimate's fixed-order sum).
 TEST(FemLanczos, SameEstimateForAnyThreadCount) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(24, 16, 16, 0.048, 0.032, 0.032);
   for (const bool damped : {false, true}) {
