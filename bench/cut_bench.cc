@@ -62,18 +62,18 @@ std::string Stats(const std::vector<double>& seconds) {
 }
 
 // A box of nx × ny × nz 2 mm cells on a fixed base with a tool and cutting.
-std::string BoxScene(int nx, int ny, int nz, int threads) {
+std::string BoxScene(int nx, int ny, int nz, int threads, const std::string& precision) {
   const double h = 0.002;
   return fmt::format(R"pb(
 name: "cut-bench-box"
 mesh {{ box {{ min {{ x: 0 y: 0 z: 0 }} max {{ x: {} y: {} z: {} }} nx: {} ny: {} nz: {} }} }}
 materials {{ name: "tissue" young_poisson {{ youngs_modulus: 50000 poisson_ratio: 0.4 }} density: 1000 damping_psi: 0.05 }}
 boundary {{ plane {{ point {{ x: 0 y: 0 z: 0 }} normal {{ x: 0 y: 0 z: 1 }} }} kind: KIND_FIXED }}
-time_step {{ frame_dt: 0.0002 threads: {} }}
+time_step {{ frame_dt: 0.0002 threads: {} precision: PRECISION_{} }}
 tool {{ blade_length: 0.025 keyframes {{ t: 0 tip {{ x: -0.003 y: 0 z: 0.1 }} blade_dir {{ z: 1 }} }} }}
 cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
 )pb",
-                     nx * h, ny * h, nz * h, nx, ny, nz, threads);
+                     nx * h, ny * h, nz * h, nx, ny, nz, threads, precision);
 }
 
 // Hash of the world mesh (tets and positions), printed to stderr so a
@@ -90,9 +90,9 @@ struct StepResult {
   int64_t attempts = 0, rejected = 0;
 };
 
-StepResult RunStepBench(int nx, int ny, int nz, int threads) {
+StepResult RunStepBench(int nx, int ny, int nz, int threads, const std::string& precision) {
   const cutsim::sim::LoadedScene scene =
-      cutsim::sim::ParseScene(BoxScene(nx, ny, nz, threads), "cut_bench box", ".");
+      cutsim::sim::ParseScene(BoxScene(nx, ny, nz, threads, precision), "cut_bench box", ".");
   auto sim = Simulation::Create(scene);
   const double h = 0.002;
   const double y = (ny / 2) * h + 0.0001;  // 0.1 mm beside a row of nodes
@@ -145,6 +145,7 @@ int main(int argc, char** argv) {
   int target_cuts = 100;
   int min_tets = 0;
   bool step_only = false;
+  std::string precision = "double";
   CLI::App app{"cut step time, stable step and throughput after cuts (issue 4)"};
   app.add_option("--json", json_path, "Also write the JSON here");
   app.add_option("--scene-dir", scene_dir, "Where block.pbtxt is");
@@ -152,6 +153,8 @@ int main(int argc, char** argv) {
   app.add_option("--cuts", target_cuts, "Cut steps on block for (b) and (c)");
   app.add_option("--min-tets", min_tets, "Skip step sizes below this");
   app.add_flag("--step-only", step_only, "Only (a), the cut step times");
+  app.add_option("--precision", precision, "FEM precision of (a)'s boxes")
+      ->check(CLI::IsMember({"double", "float"}));
   CLI11_PARSE(app, argc, argv);
   cutsim::InitLogging("cut_bench", "warn");
 
@@ -169,7 +172,7 @@ int main(int argc, char** argv) {
   for (const Config& c : configs) {
     const int tets = 6 * c.nx * c.ny * c.nz;
     if (tets > max_tets || tets < min_tets) continue;
-    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads);
+    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads, precision == "float" ? "FLOAT" : "DOUBLE");
     std::vector<double> total, criterion, topology, fem, surface, apply, splits;
     for (const CutStepTiming& t : r.timings) {
       total.push_back(t.wall);
