@@ -1003,39 +1003,6 @@ class Engine final : public Simulation {
     return k;
   }
 
-  /// Runs `here` on the calling thread and `there` on a second OpenMP
-  /// thread, side by side, if `parallel`; else (or if the runtime gives one
-  /// thread) `there` then `here` on this one. Exceptions reach the caller.
-  template <typename Here, typename There>
-  static void SideBySide(bool parallel, Here&& here, There&& there) {
-    if (!parallel) {
-      there();
-      here();
-      return;
-    }
-    std::array<std::exception_ptr, 2> error;
-#pragma omp parallel num_threads(2)
-    {
-      const int id = omp_get_thread_num();
-      if (id == omp_get_num_threads() - 1) {
-        try {
-          there();
-        } catch (...) {
-          error[1] = std::current_exception();
-        }
-      }
-      if (id == 0) {
-        try {
-          here();
-        } catch (...) {
-          error[0] = std::current_exception();
-        }
-      }
-    }
-    for (const std::exception_ptr& e : error)
-      if (e) std::rethrow_exception(e);
-  }
-
   /// Seed §3: cut attempt (geometric), criterion (stress), then separation
   /// and remeshing, applied to the FEM as a topology event.
   void TryCut() {
@@ -1072,69 +1039,179 @@ class Engine final : public Simulation {
     step.normal = attempt.normal;
     // The blade's swept plane (tip at t0 → tip now) is the cut plane.
     step.blade = cutting::Blade{pose_.tip, pose_.blade_dir, blade_length_, anchor_tip_};
-    const std::vector<int32_t> candidates = cut_->ContactElements(attempt.v1, attempt.facet_tet);
-    // With a second thread, the cut's plane and split set (steps 1–2, which
-    // only read the cut complex and the world positions) are found while the
-    // criterion reads the contact elements' stresses; a criterion that says
-    // no cancels them. Same cut either way (ExecuteCut makes them itself
-    // otherwise).
-    cutting::CriterionResult crit;
-    cutting::PreparedCut prepared;
-    std::atomic<bool> cancel{false};
-    double prepare_time = 0;
-    auto evaluate = [&] {
-      crit = cutting::EvaluateCriterion(
-          candidates,
-          [this](int32_t t) {
-            return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
-          },
-          params_);
-      timing_.criterion = step_watch.ElapsedSeconds();
-      if (!crit.cut) cancel.store(true, std::memory_order_relaxed);
-    };
-    if (threads_ >= 2 && room >= 64) {
-      // The walk on the calling thread (its lines are then in this core's
-      // cache for the rest of the step), the criterion on the other.
-      SideBySide(
-          true,
-          [&] {
-            Stopwatch w;
-            prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
-            prepare_time = w.ElapsedSeconds();
-          },
-          evaluate);
-    } else {
-      evaluate();
-    }
+    if (threads_ >= 2 && room >= 64 && CutStepOnTwoThreads(step, attempt.facet_tet, room, step_watch)) return;
+    const cutting::CriterionResult crit = Criterion(step.v1, attempt.facet_tet, step_watch, nullptr);
+    if (!CutDecided(crit, room)) return;
+    Stopwatch topology_watch;
+    cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_);
+    timing_.topology = topology_watch.ElapsedSeconds();
+    if (!TakeOutcome(outcome, step, crit)) return;
+    if (!outcome.event.empty()) ApplyEvent(std::move(outcome.event));
+    FinishCutStep(step_watch);
+  }
+
+  /// The stress criterion (seed eqs. 6–11) on the contact elements around
+  /// v1 (and the contact facet's tet); sets `cancel` if it says no.
+  cutting::CriterionResult Criterion(int32_t v1, int32_t facet_tet, const Stopwatch& step_watch,
+                                     std::atomic<bool>* cancel) {
+    const std::vector<int32_t> candidates = cut_->ContactElements(v1, facet_tet);
+    cutting::CriterionResult crit = cutting::EvaluateCriterion(
+        candidates,
+        [this](int32_t t) {
+          return fem::ElementCauchyStress(model_, state_.x.data(), t).template cast<double>().eval();
+        },
+        params_);
+    timing_.criterion = step_watch.ElapsedSeconds();
+    if (!crit.cut && cancel != nullptr) cancel->store(true, std::memory_order_relaxed);
+    return crit;
+  }
+
+  /// After the criterion: whether to cut (it says so and there is room for copies).
+  bool CutDecided(const cutting::CriterionResult& crit, int32_t room) {
     report_.sigma_c = crit.sigma_c;
-    if (!crit.cut) return;
+    if (!crit.cut) return false;
     if (room < 64) {
       if (!warned_capacity_) Log().warn("node capacity exhausted: no more cuts");
       warned_capacity_ = true;
-      return;
+      return false;
     }
-    Stopwatch topology_watch;
-    cutting::CutOutcome outcome = cut_->ExecuteCut(step, world_access_, params_, &prepared);
-    timing_.topology = prepare_time + topology_watch.ElapsedSeconds();
+    return true;
+  }
+
+  /// After ExecuteCut: counts a rejected step, or moves t0 to here for an
+  /// executed one (true).
+  bool TakeOutcome(const cutting::CutOutcome& outcome, const cutting::CutStep& step,
+                   const cutting::CriterionResult& crit) {
     if (outcome.status != cutting::CutStatus::kExecuted) {
       ++cuts_rejected_;
-      return;
+      return false;
     }
     tracker_->OnCutExecuted();
     in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
     sweeps_.push_back({anchor_tip_, pose_.tip, pose_.blade_dir});
     anchor_tip_ = pose_.tip;  // t0 := t: the next step sweeps from here
-    Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
-                cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
-                outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
+    if (log_cuts_)
+      Log().debug("cut {} at t={:.4f}: v0={} v1={} sigma_c={:.4g} Pa, {} splits, {} moves ({} limited, {} skipped)",
+                  cuts_ + 1, state_.time, step.v0, step.v1, crit.sigma_c, outcome.event.splits.size(),
+                  outcome.event.moves.size(), outcome.moves_limited, outcome.moves_skipped);
     timing_.splits = static_cast<int32_t>(outcome.event.splits.size());
     timing_.touched_tets = static_cast<int32_t>(outcome.event.touched_tets.size());
-    if (!outcome.event.empty()) ApplyEvent(std::move(outcome.event));
+    return true;
+  }
+
+  void FinishCutStep(const Stopwatch& step_watch) {
     timing_.wall = step_watch.ElapsedSeconds();
     cut_timings_.push_back(timing_);
     ++cuts_;
     report_.cuts = cuts_;
     report_.cut_this_frame = true;
+  }
+
+  static void SpinPause() {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
+  }
+
+  /// The cut step with a second thread, in one OpenMP region: the other
+  /// thread evaluates the criterion while this one finds the plane and the
+  /// split set (PrepareCut reads only the cut complex and the world
+  /// positions; a criterion that says no cancels it), then, once this one
+  /// has cut and applied the event's nodes (every position final), it
+  /// recomputes the FEM half (elements, node masses, stable-step leaves)
+  /// while this one updates the surface slots, the BVH and the debris. Neither
+  /// half reads what the other writes, so the results are those of one
+  /// thread, bit for bit. One fork per step, and hand-overs by spinning on
+  /// two flags: a fork took 1–3 µs before its threads started (cut_bench,
+  /// 100k tets), and the step needed two. This thread walks so that the
+  /// walk's lines are in the cache of the core that cuts. False (nothing
+  /// done) if the runtime gives one thread.
+  bool CutStepOnTwoThreads(const cutting::CutStep& step, int32_t facet_tet, int32_t room,
+                           const Stopwatch& step_watch) {
+    enum : int { kWait, kRun, kSkip };
+    cutting::CriterionResult crit;
+    cutting::PreparedCut prepared;
+    cutting::CutOutcome outcome;
+    std::atomic<bool> cancel{false};
+    std::atomic<bool> criterion_done{false};
+    std::atomic<int> fem_half{kWait};
+    std::array<std::exception_ptr, 2> error;
+    bool two = true, executed = false;
+    double nodes_time = 0, fem_time = 0, surface_time = 0, apply_begin = 0;
+#pragma omp parallel num_threads(2)
+    {
+      if (omp_get_num_threads() < 2) {
+        two = false;
+      } else if (omp_get_thread_num() == 1) {
+        try {
+          crit = Criterion(step.v1, facet_tet, step_watch, &cancel);
+        } catch (...) {
+          error[1] = std::current_exception();
+          crit.cut = false;
+          cancel.store(true, std::memory_order_relaxed);
+        }
+        criterion_done.store(true, std::memory_order_release);
+        int go = kWait;
+        while ((go = fem_half.load(std::memory_order_acquire)) == kWait) SpinPause();
+        if (go == kRun) {
+          try {
+            Stopwatch w;
+            RecomputeAfterEvent(outcome.event, model_, state_,
+                                step_options_.viscous == fem::ViscousTreatment::kExplicit, fem_event_);
+            fem_time = w.ElapsedSeconds();
+          } catch (...) {
+            error[1] = std::current_exception();
+          }
+        }
+      } else {
+        // Whatever happens here, the other thread stops waiting.
+        struct Release {
+          std::atomic<int>& flag;
+          ~Release() {
+            int expected = kWait;
+            flag.compare_exchange_strong(expected, kSkip, std::memory_order_release);
+          }
+        } release{fem_half};
+        try {
+          Stopwatch w;
+          prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
+          const double prepare_time = w.ElapsedSeconds();
+          while (!criterion_done.load(std::memory_order_acquire)) SpinPause();
+          if (error[1] == nullptr && CutDecided(crit, room)) {
+            Stopwatch topology_watch;
+            outcome = cut_->ExecuteCut(step, world_access_, params_, &prepared);
+            timing_.topology = prepare_time + topology_watch.ElapsedSeconds();
+            executed = TakeOutcome(outcome, step, crit);
+            if (executed && !outcome.event.empty()) {
+              apply_begin = step_watch.ElapsedSeconds();
+              ApplyEventNodesToFem(outcome.event, model_, state_);
+              nodes_time = step_watch.ElapsedSeconds() - apply_begin;
+              fem_half.store(kRun, std::memory_order_release);
+              Stopwatch surface_watch;
+              UpdateSurface();
+              UpdateDebris(outcome.event);
+              surface_time = surface_watch.ElapsedSeconds();
+            }
+          }
+        } catch (...) {
+          error[0] = std::current_exception();
+        }
+      }
+    }
+    if (!two) return false;
+    for (const std::exception_ptr& e : error)
+      if (e) std::rethrow_exception(e);
+    if (!executed) return true;
+    if (!outcome.event.empty()) {
+      Stopwatch flags_watch;
+      FlagDebrisFacets();
+      timing_.fem = nodes_time + fem_time;
+      timing_.surface = surface_time + flags_watch.ElapsedSeconds();
+      timing_.apply = step_watch.ElapsedSeconds() - apply_begin;
+      events_.push_back(std::move(outcome.event));
+    }
+    FinishCutStep(step_watch);
+    return true;
   }
 
   int32_t SurfaceTriTet(int32_t tri) const {
@@ -1143,51 +1220,29 @@ class Engine final : public Simulation {
   }
 
   /// Applies a cut's topology event to the FEM in the order the cut code
-  /// documents (topology_event.h), then refreshes what depends on topology.
-  /// The event is kept (moved, not copied) for checkpoints.
+  /// documents (topology_event.h), then refreshes what depends on topology,
+  /// on this thread (a one-thread cut step, a checkpoint's replay;
+  /// CutStepOnTwoThreads runs the same halves side by side). The event is
+  /// kept (moved, not copied) for checkpoints.
   void ApplyEvent(cutting::TopologyEvent&& event) {
     Stopwatch watch;
-    const bool explicit_viscous = step_options_.viscous == fem::ViscousTreatment::kExplicit;
     ApplyEventNodesToFem(event, model_, state_);
-    const double nodes_time = watch.ElapsedSeconds();
-    if (!has_tool_) {
-      RecomputeAfterEvent(event, model_, state_, explicit_viscous, fem_event_);
-      timing_.fem = timing_.apply = watch.ElapsedSeconds();
-      events_.push_back(std::move(event));
-      return;
-    }
-    // Every node is final now (copies, moves). One half recomputes the
-    // FEM's elements, node masses and stable-step leaves; the other edits
+    // Every node is final now (copies, moves). The FEM half recomputes the
+    // elements, node masses and stable-step leaves; the surface half edits
     // the surface slots and the BVH, reading only the tets' nodes (in the
     // cut complex) and the world positions, then floods for debris (which
-    // reads only the cut complex and the event). With a second thread they
-    // run side by side (the server's default from 20 000 tets): neither
-    // reads what the other writes, so the results are the same either way.
-    // The flood goes with the surface, on the thread that just cut: the cut
-    // complex is in its cache (at 100k tets in cut_bench the halves took
-    // 13.6 µs for the FEM + 6.2 for the flood beside 12.0 for the surface;
-    // now 13.4 beside 11.7 + 5.5). The debris flags of the facets need
-    // both, and are set after.
-    double fem_time = 0, surface_time = 0, debris_time = 0;
-    SideBySide(
-        threads_ >= 2,
-        [&] {
-          Stopwatch w;
-          UpdateSurface();
-          surface_time = w.ElapsedSeconds();
-          UpdateDebris(event);
-          debris_time = w.ElapsedSeconds() - surface_time;
-        },
-        [&] {
-          Stopwatch w;
-          RecomputeAfterEvent(event, model_, state_, explicit_viscous, fem_event_);
-          fem_time = w.ElapsedSeconds();
-        });
-    Stopwatch flags_watch;
-    FlagDebrisFacets();
-    surface_time += debris_time + flags_watch.ElapsedSeconds();
-    timing_.fem = nodes_time + fem_time;
-    timing_.surface = surface_time;
+    // reads only the cut complex and the event). Neither reads what the
+    // other writes. The debris flags of the facets need both.
+    RecomputeAfterEvent(event, model_, state_, step_options_.viscous == fem::ViscousTreatment::kExplicit,
+                        fem_event_);
+    timing_.fem = watch.ElapsedSeconds();
+    if (has_tool_) {
+      Stopwatch surface_watch;
+      UpdateSurface();
+      UpdateDebris(event);
+      FlagDebrisFacets();
+      timing_.surface = surface_watch.ElapsedSeconds();
+    }
     timing_.apply = watch.ElapsedSeconds();
     events_.push_back(std::move(event));
   }
@@ -1265,6 +1320,10 @@ class Engine final : public Simulation {
   uint64_t cuts_rejected_ = 0;
   double cut_wall_time_ = 0;
   bool warned_capacity_ = false;
+  // Whether the per-cut debug line is wanted, asked once: the call into the
+  // logger cost ~3 µs of cold code per cut step at 100k tets in cut_bench
+  // even with debug off (the level is set once, in main).
+  const bool log_cuts_ = Log().should_log(spdlog::level::debug);
   bool in_cut_ = false;  // a cut executed since the blade last lost contact
   std::vector<CutSweep> sweeps_;  // areas those cuts swept (tool_contact.h)
 
