@@ -78,6 +78,7 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <span>
 #include <utility>
@@ -154,6 +155,16 @@ struct PreparedCut {
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();  ///< of P
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();  ///< a point of P, m
 };
+
+/// Called by ExecuteCut once per executed step, as soon as its topology is
+/// final (steps 3–4b), before the remeshing moves (step 5), which change
+/// positions only: `splits` is the event's split list, complete, and stays
+/// valid and unchanged in the event ExecuteCut returns. Work that needs the
+/// new topology but no moved position may run beside the moves, on another
+/// thread: it may read the tets, their face neighbours, the stars, the
+/// surface slots and take the slot change log (TakeChangedSlots); it must not
+/// change the complex, read rest positions or call ExecuteCut.
+using SeparatedCallback = std::function<void(std::span<const Split> splits)>;
 
 struct CutOutcome {
   CutStatus status = CutStatus::kInvalidInput;
@@ -239,8 +250,9 @@ class CutMesh {
   /// the event.
   /// `prepared`: from PrepareCut for the same step, with no cut or
   /// position read in between (else it is ignored and steps 1–2 run here).
+  /// `on_separated`: see SeparatedCallback.
   CutOutcome ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                        const PreparedCut* prepared = nullptr);
+                        const PreparedCut* prepared = nullptr, const SeparatedCallback* on_separated = nullptr);
 
   /// Steps 1–2 of ExecuteCut on the blade's plane, without changing the
   /// mesh (only the step's scratch, so nothing else may use this CutMesh
@@ -317,7 +329,7 @@ class CutMesh {
   /// ExecuteCut on the blade's plane (`blade_plane`, if a blade is given)
   /// or on the seed's plane.
   CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                               bool blade_plane, const PreparedCut* prepared);
+                               bool blade_plane, const PreparedCut* prepared, const SeparatedCallback* on_separated);
   /// Asks for the cache lines of the last slab walk's tets and vertices
   /// (walked_tets_, slab_seen_): records, stamp rows, surface slots, stars,
   /// rest and world positions. Consecutive steps of one stroke walk

@@ -125,12 +125,14 @@ PreparedCut CutMesh::PrepareCut(const CutStep& step, const WorldAccess& world, c
 }
 
 CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                               const PreparedCut* prepared) {
-  CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true, prepared);
+                               const PreparedCut* prepared, const SeparatedCallback* on_separated) {
+  CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true, prepared, on_separated);
   // A blade plane that leaves a singularity the rules cannot remove (rolled
   // back, nothing changed) gets one more try on the seed's plane through
   // v0 and v1, which runs through existing vertices.
-  if (out.status == CutStatus::kRejected && step.blade) out = ExecuteCutOnPlane(step, world, params, false, nullptr);
+  if (out.status == CutStatus::kRejected && step.blade) {
+    out = ExecuteCutOnPlane(step, world, params, false, nullptr, on_separated);
+  }
   return out;
 }
 
@@ -383,7 +385,8 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
 }
 
 CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
-                                      bool blade_plane, const PreparedCut* prepared) {
+                                      bool blade_plane, const PreparedCut* prepared,
+                                      const SeparatedCallback* on_separated) {
   CutOutcome out;
   // Steps 1–2 (plane, split set S in slab_): from `prepared` if it was made
   // for this step on this mesh (nothing changed since: same version, and no
@@ -626,6 +629,8 @@ CutOutcome CutMesh::ExecuteCutOnPlane(const CutStep& step, const WorldAccess& wo
   }
   journaling_ = false;
   journal_.resize(journal_mark);
+  // The topology is final: the moves below change positions only.
+  if (on_separated != nullptr && *on_separated) (*on_separated)(std::span<const Split>(ev.splits));
 
   // ---- 5. local remeshing -----------------------------------------------------
   auto move_group = [&](int32_t node, const Vector3d& target) {

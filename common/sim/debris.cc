@@ -42,11 +42,11 @@ void DebrisTracker::Reset(const cutting::CutMesh& cut) {
   }
 }
 
-void DebrisTracker::Update(const cutting::CutMesh& cut, const cutting::TopologyEvent& event,
+void DebrisTracker::Update(const cutting::CutMesh& cut, std::span<const cutting::Split> splits,
                            std::vector<int32_t>* flagged) {
-  if (event.splits.empty()) return;  // moves only: no piece can come loose
+  if (splits.empty()) return;  // moves only: no piece can come loose
   marks_.Clear(kThisCut);
-  for (const cutting::Split& split : event.splits) {
+  for (const cutting::Split& split : splits) {
     for (const int32_t t : split.tets) FloodFrom(cut, t, flagged);
     for (const int32_t t : cut.node_tets(split.node)) FloodFrom(cut, t, flagged);
   }

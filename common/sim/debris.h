@@ -6,6 +6,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "common/core/stamp_sets.h"
@@ -35,12 +36,17 @@ class DebrisTracker {
   /// after a restore. O(T).
   void Reset(const cutting::CutMesh& cut);
 
-  /// After one cut, whose `event` `cut` has already applied: floods from
-  /// each tet the event moved to a copy and from the tets left on the split
+  /// After one cut, whose `splits` `cut` has already applied: floods from
+  /// each tet a split moved to a copy and from the tets left on the split
   /// node, and flags the pieces found small. O(touched + max_tets) whatever
-  /// the mesh size. Appends the tets it flags to `flagged` (not cleared).
+  /// the mesh size. Reads only the complex's topology (not positions), so
+  /// it may run beside the cut's remeshing moves (SeparatedCallback).
+  /// Appends the tets it flags to `flagged` (not cleared).
   /// Allocation-free once the scratch has grown.
-  void Update(const cutting::CutMesh& cut, const cutting::TopologyEvent& event, std::vector<int32_t>* flagged);
+  void Update(const cutting::CutMesh& cut, std::span<const cutting::Split> splits, std::vector<int32_t>* flagged);
+  void Update(const cutting::CutMesh& cut, const cutting::TopologyEvent& event, std::vector<int32_t>* flagged) {
+    Update(cut, std::span<const cutting::Split>(event.splits), flagged);
+  }
 
   [[nodiscard]] bool is_debris(int32_t t) const { return debris_[static_cast<size_t>(t)] != 0; }
   [[nodiscard]] int32_t num_debris_tets() const { return num_debris_; }

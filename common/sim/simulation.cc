@@ -658,7 +658,21 @@ class Engine final : public Simulation {
   /// Surface update after a cut: only the slots the cut created or freed
   /// (the CutMesh's change log, kept in changed_slots_), each removed from
   /// or inserted into the BVH. Their debris flags: FlagDebrisFacets.
-  void UpdateSurface() {
+  /// Reads the topology (final once `splits` are made) and world_, not the
+  /// FEM's positions, so it may run beside the remeshing moves and the FEM
+  /// half (SeparatedCallback). The boxes of the inserted faces are then
+  /// those of the frame's start (world_, a copy's row from its original's:
+  /// a copy starts where its original is), not the moved ones: the next
+  /// FindContact refits every box from the current positions before any
+  /// query, and the BVH's answers do not depend on how its tree was built
+  /// (bvh.h), so the contact is the same.
+  void UpdateSurface(std::span<const cutting::Split> splits) {
+    // The copies this cut made are the last splits.size() nodes, in order.
+    const int32_t first_copy = cut_->num_nodes() - static_cast<int32_t>(splits.size());
+    for (size_t i = 0; i < splits.size(); ++i) {
+      CUTSIM_CHECK(splits[i].new_node == first_copy + static_cast<int32_t>(i), "split copies out of order");
+      world_.row(splits[i].new_node) = world_.row(splits[i].node);
+    }
     cut_->TakeChangedSlots(changed_slots_);
     std::sort(changed_slots_.begin(), changed_slots_.end());
     changed_slots_.erase(std::unique(changed_slots_.begin(), changed_slots_.end()), changed_slots_.end());
@@ -689,10 +703,8 @@ class Engine final : public Simulation {
       opened_[i] = face.opened ? 1 : 0;
       surface_tet_[i] = face.tet;
       if (face.opened) FlagWallNodes(tri);
-      // World rows of the triangle's nodes (new copies included), then a
-      // local insert: amortised O(log F), the tree is rebuilt only after
+      // A local insert: amortised O(log F), the tree is rebuilt only after
       // as many inserts as half its faces (see bvh.h).
-      for (const int32_t v : tri) CopyWorldRow(v);
       bvh_.Insert(f, tri, world_);
     }
   }
@@ -718,9 +730,9 @@ class Engine final : public Simulation {
 
   /// After a cut: the debris pieces it cut loose (DebrisTracker::Update,
   /// local; reads only the cut complex and the event).
-  void UpdateDebris(const cutting::TopologyEvent& event) {
+  void UpdateDebris(std::span<const cutting::Split> splits) {
     flagged_.clear();
-    if (debris_) debris_->Update(*cut_, event, &flagged_);
+    if (debris_) debris_->Update(*cut_, splits, &flagged_);
   }
 
   /// After UpdateSurface and UpdateDebris: the flags of the slots the cut
@@ -1113,19 +1125,20 @@ class Engine final : public Simulation {
 #endif
   }
 
-  /// The cut step with a second thread, in one OpenMP region: the other
+  /// The cut step with a second thread, in one OpenMP region. The other
   /// thread evaluates the criterion while this one finds the plane and the
   /// split set (PrepareCut reads only the cut complex and the world
-  /// positions; a criterion that says no cancels it), then, once this one
-  /// has cut and applied the event's nodes (every position final), it
-  /// recomputes the FEM half (elements, node masses, stable-step leaves)
-  /// while this one updates the surface slots, the BVH and the debris. Neither
-  /// half reads what the other writes, so the results are those of one
-  /// thread, bit for bit. One fork per step, and hand-overs by spinning on
-  /// two flags: a fork took 1–3 µs before its threads started (cut_bench,
-  /// 100k tets), and the step needed two. This thread walks so that the
-  /// walk's lines are in the cache of the core that cuts. False (nothing
-  /// done) if the runtime gives one thread.
+  /// positions; a criterion that says no cancels it). This one then cuts;
+  /// as soon as the topology is final (SeparatedCallback, before the
+  /// remeshing moves) the other thread updates the surface slots, the BVH
+  /// and the debris, which need the topology only, while this one moves v0
+  /// and v1, applies the event's nodes and recomputes the FEM half
+  /// (elements, node masses, stable-step leaves). Neither reads what the
+  /// other writes, so the results are those of one thread, bit for bit.
+  /// One fork per step (a fork took 1–3 µs before its threads started in
+  /// cut_bench at 100k tets), hand-overs by spinning on two flags. This
+  /// thread walks and cuts so that the walk's lines are in the cache of the
+  /// core that cuts. False (nothing done) if the runtime gives one thread.
   bool CutStepOnTwoThreads(const cutting::CutStep& step, int32_t facet_tet, int32_t room,
                            const Stopwatch& step_watch) {
     enum : int { kWait, kRun, kSkip };
@@ -1134,10 +1147,15 @@ class Engine final : public Simulation {
     cutting::CutOutcome outcome;
     std::atomic<bool> cancel{false};
     std::atomic<bool> criterion_done{false};
-    std::atomic<int> fem_half{kWait};
+    std::atomic<int> surface_half{kWait};
+    std::span<const cutting::Split> splits;  // the event's, set before surface_half = kRun
+    const cutting::SeparatedCallback on_separated = [&](std::span<const cutting::Split> s) {
+      splits = s;
+      surface_half.store(kRun, std::memory_order_release);
+    };
     std::array<std::exception_ptr, 2> error;
     bool two = true, executed = false;
-    double nodes_time = 0, fem_time = 0, surface_time = 0, apply_begin = 0;
+    double surface_time = 0, apply_begin = 0, fem_end = 0;
 #pragma omp parallel num_threads(2)
     {
       if (omp_get_num_threads() < 2) {
@@ -1152,13 +1170,13 @@ class Engine final : public Simulation {
         }
         criterion_done.store(true, std::memory_order_release);
         int go = kWait;
-        while ((go = fem_half.load(std::memory_order_acquire)) == kWait) SpinPause();
+        while ((go = surface_half.load(std::memory_order_acquire)) == kWait) SpinPause();
         if (go == kRun) {
           try {
             Stopwatch w;
-            RecomputeAfterEvent(outcome.event, model_, state_,
-                                step_options_.viscous == fem::ViscousTreatment::kExplicit, fem_event_);
-            fem_time = w.ElapsedSeconds();
+            UpdateSurface(splits);
+            UpdateDebris(splits);
+            surface_time = w.ElapsedSeconds();
           } catch (...) {
             error[1] = std::current_exception();
           }
@@ -1171,7 +1189,7 @@ class Engine final : public Simulation {
             int expected = kWait;
             flag.compare_exchange_strong(expected, kSkip, std::memory_order_release);
           }
-        } release{fem_half};
+        } release{surface_half};
         try {
           Stopwatch w;
           prepared = cut_->PrepareCut(step, world_access_, params_, &cancel);
@@ -1179,18 +1197,15 @@ class Engine final : public Simulation {
           while (!criterion_done.load(std::memory_order_acquire)) SpinPause();
           if (error[1] == nullptr && CutDecided(crit, room)) {
             Stopwatch topology_watch;
-            outcome = cut_->ExecuteCut(step, world_access_, params_, &prepared);
+            outcome = cut_->ExecuteCut(step, world_access_, params_, &prepared, &on_separated);
             timing_.topology = prepare_time + topology_watch.ElapsedSeconds();
             executed = TakeOutcome(outcome, step, crit);
             if (executed && !outcome.event.empty()) {
               apply_begin = step_watch.ElapsedSeconds();
               ApplyEventNodesToFem(outcome.event, model_, state_);
-              nodes_time = step_watch.ElapsedSeconds() - apply_begin;
-              fem_half.store(kRun, std::memory_order_release);
-              Stopwatch surface_watch;
-              UpdateSurface();
-              UpdateDebris(outcome.event);
-              surface_time = surface_watch.ElapsedSeconds();
+              RecomputeAfterEvent(outcome.event, model_, state_,
+                                  step_options_.viscous == fem::ViscousTreatment::kExplicit, fem_event_);
+              fem_end = step_watch.ElapsedSeconds();
             }
           }
         } catch (...) {
@@ -1205,7 +1220,9 @@ class Engine final : public Simulation {
     if (!outcome.event.empty()) {
       Stopwatch flags_watch;
       FlagDebrisFacets();
-      timing_.fem = nodes_time + fem_time;
+      // The surface half began during the moves, inside `topology`; `apply`
+      // is from the event's nodes to the end of both halves.
+      timing_.fem = fem_end - apply_begin;
       timing_.surface = surface_time + flags_watch.ElapsedSeconds();
       timing_.apply = step_watch.ElapsedSeconds() - apply_begin;
       events_.push_back(std::move(outcome.event));
@@ -1238,8 +1255,8 @@ class Engine final : public Simulation {
     timing_.fem = watch.ElapsedSeconds();
     if (has_tool_) {
       Stopwatch surface_watch;
-      UpdateSurface();
-      UpdateDebris(event);
+      UpdateSurface(event.splits);
+      UpdateDebris(event.splits);
       FlagDebrisFacets();
       timing_.surface = surface_watch.ElapsedSeconds();
     }

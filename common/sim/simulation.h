@@ -94,14 +94,15 @@ struct ToolReport {
 /// each on the thread that ran it. On one thread the phases follow each
 /// other and `wall` is their sum plus the bookkeeping between them; with
 /// two, the criterion runs beside the topology's plane and split set, and
-/// the FEM half beside the surface.
+/// the surface half (slots, BVH, debris) beside the remeshing moves and the
+/// FEM half: it starts inside `topology`, once the splits are final.
 struct CutStepTiming {
   double wall = 0;       ///< the whole step, wall time
   double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
   double topology = 0;   ///< CutMesh::PrepareCut + ExecuteCut: plane, splits, singularities, remeshing
   double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
   double surface = 0;    ///< surface slots + BVH update + debris flags
-  double apply = 0;      ///< wall time of fem + surface (less, where a second thread overlaps them)
+  double apply = 0;      ///< wall time from the event's nodes to the end of fem and surface
   int32_t splits = 0;        ///< vertex splits in the event
   int32_t touched_tets = 0;  ///< tets whose geometry or nodes changed
 };

@@ -10,6 +10,7 @@
 #include <map>
 #include <numeric>
 #include <random>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -264,6 +265,66 @@ TEST(PreparedCut, CutsAsExecuteCutAlone) {
 
   const std::atomic<bool> cancel{true};
   EXPECT_FALSE(fresh.PrepareCut(next, world_fresh, params, &cancel).valid);
+}
+
+// ExecuteCut's SeparatedCallback (the sim updates the surface beside the
+// remeshing moves on it): called once per executed step, when the topology
+// is final and before the moves. The splits it gets are the event's, the
+// tets are already the final ones, and the rest positions are still those
+// before the moves. Fails if it is called before the splits are done or
+// after the moves.
+TEST(SeparatedCallback, SeesTheFinalTopologyBeforeTheMoves) {
+  using Eigen::Vector3d;
+  using cutting::testing::Segment;
+  const mesh::TetMesh m = cutting::testing::KuhnBox(Vector3d::Zero(), Vector3d(0.06, 0.04, 0.02), 6, 4, 2, 0.2, 7);
+  cutting::CutMesh cm(m);
+  cutting::VectorWorld world = cutting::testing::WorldFromRest(m);
+  const cutting::CutParams params;
+  (void)cutting::testing::DrivePath(cm, world, Segment(Vector3d(0.001, 0.021, 0.02), Vector3d(0.03, 0.019, 0.02), 20),
+                                    0.012, params, nullptr, [](int) {});
+  cutting::CutStep next;
+  next.cp0 = Vector3d(0.03, 0.019, 0.02);
+  next.cp = Vector3d(0.036, 0.019, 0.02);
+  next.v0 = cutting::testing::ClosestTopVertex(cm, world, next.cp0);
+  next.v1 = cutting::testing::ClosestTopVertex(cm, world, next.cp);
+  next.normal = Vector3d::UnitZ();
+  next.blade.emplace(cutting::Blade{next.cp - 0.012 * Vector3d::UnitZ(), Vector3d::UnitZ(), 0.022});
+
+  int calls = 0;
+  std::vector<cutting::Split> seen;
+  mesh::Tets tets_then;
+  mesh::TetMesh rest_then;
+  const cutting::SeparatedCallback hook = [&](std::span<const cutting::Split> splits) {
+    ++calls;
+    seen.assign(splits.begin(), splits.end());
+    tets_then = cm.TetsMatrix();
+    rest_then = cm.RestMesh();
+  };
+  const cutting::CutOutcome o = cm.ExecuteCut(next, world, params, nullptr, &hook);
+  ASSERT_EQ(o.status, cutting::CutStatus::kExecuted);
+  EXPECT_EQ(calls, 1);
+  ASSERT_FALSE(o.event.splits.empty());
+  ASSERT_FALSE(o.event.moves.empty());
+  ASSERT_EQ(seen.size(), o.event.splits.size());
+  for (size_t k = 0; k < seen.size(); ++k) {
+    EXPECT_EQ(seen[k].node, o.event.splits[k].node);
+    EXPECT_EQ(seen[k].new_node, o.event.splits[k].new_node);
+    EXPECT_EQ(seen[k].tets, o.event.splits[k].tets);
+  }
+  EXPECT_EQ(tets_then, cm.TetsMatrix());
+  const mesh::TetMesh rest_now = cm.RestMesh();
+  ASSERT_EQ(rest_then.num_nodes(), rest_now.num_nodes());
+  std::vector<uint8_t> moved(static_cast<size_t>(rest_now.num_nodes()), 0);
+  int moved_later = 0;
+  for (const cutting::Move& mv : o.event.moves) {
+    moved[static_cast<size_t>(mv.node)] = 1;
+    EXPECT_EQ(Vector3d(rest_now.nodes.row(mv.node)), mv.rest);
+    if (Vector3d(rest_then.nodes.row(mv.node)) != mv.rest) ++moved_later;
+  }
+  EXPECT_GT(moved_later, 0) << "the callback ran after the moves";
+  for (int32_t n = 0; n < rest_now.num_nodes(); ++n) {
+    if (moved[static_cast<size_t>(n)] == 0) EXPECT_EQ(rest_then.nodes.row(n), rest_now.nodes.row(n)) << "node " << n;
+  }
 }
 
 namespace {
