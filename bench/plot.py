@@ -302,12 +302,14 @@ def plot_cut(folder):
     steps = data.get("step", [])
     if not steps:
         return
-    # With two threads the FEM and surface halves overlap: their wall time
+    # With two threads the halves overlap (the surface half starts during
+    # the topology's remeshing moves, the FEM half follows the event's
+    # nodes): the wall time from the event's nodes to the end of both
     # (fem_and_surface_wall) is drawn instead of the two stacked halves.
     phases = [("criterion", "criterion", lambda s: True), ("topology", "topology (CutMesh)", lambda s: True),
               ("fem_update", "FEM update", lambda s: s.get("threads", 1) == 1),
               ("surface_bvh", "surface + BVH + debris", lambda s: s.get("threads", 1) == 1),
-              ("fem_and_surface_wall", "FEM ∥ surface (2 threads, wall)", lambda s: s.get("threads", 1) > 1)]
+              ("fem_and_surface_wall", "event applied (2 threads, wall)", lambda s: s.get("threads", 1) > 1)]
     fig, ax = plt.subplots(figsize=(7, 4))
     x = list(range(len(steps)))
     bottom = [0.0] * len(steps)

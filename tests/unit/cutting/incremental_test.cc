@@ -323,7 +323,8 @@ TEST(SeparatedCallback, SeesTheFinalTopologyBeforeTheMoves) {
   }
   EXPECT_GT(moved_later, 0) << "the callback ran after the moves";
   for (int32_t n = 0; n < rest_now.num_nodes(); ++n) {
-    if (moved[static_cast<size_t>(n)] == 0) EXPECT_EQ(rest_then.nodes.row(n), rest_now.nodes.row(n)) << "node " << n;
+    if (moved[static_cast<size_t>(n)] != 0) continue;
+    EXPECT_EQ(rest_then.nodes.row(n), rest_now.nodes.row(n)) << "node " << n;
   }
 }
 
