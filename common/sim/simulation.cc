@@ -1218,6 +1218,9 @@ class Engine final : public Simulation {
       if (e) std::rethrow_exception(e);
     if (!executed) return true;
     if (!outcome.event.empty()) {
+      // Every executed step calls on_separated (cut_mesh.h); without it the
+      // surface would silently miss this cut.
+      CUTSIM_CHECK(surface_half.load(std::memory_order_acquire) == kRun, "cut executed without its surface half");
       Stopwatch flags_watch;
       FlagDebrisFacets();
       // The surface half began during the moves, inside `topology`; `apply`
