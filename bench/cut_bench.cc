@@ -61,9 +61,11 @@ std::string Stats(const std::vector<double>& seconds) {
                      1e6 * Quantile(seconds, 0.9), 1e6 * Quantile(seconds, 1.0));
 }
 
-// A box of nx × ny × nz 2 mm cells on a fixed base with a tool and cutting.
+// A box of nx × ny × nz 2 mm cells on a fixed base with a tool and cutting;
+// `precision`: "double" or "float".
 std::string BoxScene(int nx, int ny, int nz, int threads, const std::string& precision) {
   const double h = 0.002;
+  const char* precision_enum = precision == "float" ? "FLOAT" : "DOUBLE";
   return fmt::format(R"pb(
 name: "cut-bench-box"
 mesh {{ box {{ min {{ x: 0 y: 0 z: 0 }} max {{ x: {} y: {} z: {} }} nx: {} ny: {} nz: {} }} }}
@@ -73,7 +75,7 @@ time_step {{ frame_dt: 0.0002 threads: {} precision: PRECISION_{} }}
 tool {{ blade_length: 0.025 keyframes {{ t: 0 tip {{ x: -0.003 y: 0 z: 0.1 }} blade_dir {{ z: 1 }} }} }}
 cutting {{ enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 1 }}
 )pb",
-                     nx * h, ny * h, nz * h, nx, ny, nz, threads, precision);
+                     nx * h, ny * h, nz * h, nx, ny, nz, threads, precision_enum);
 }
 
 // Hash of the world mesh (tets and positions), printed to stderr so a
@@ -172,7 +174,7 @@ int main(int argc, char** argv) {
   for (const Config& c : configs) {
     const int tets = 6 * c.nx * c.ny * c.nz;
     if (tets > max_tets || tets < min_tets) continue;
-    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads, precision == "float" ? "FLOAT" : "DOUBLE");
+    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads, precision);
     std::vector<double> total, criterion, topology, fem, surface, apply, splits;
     for (const CutStepTiming& t : r.timings) {
       total.push_back(t.wall);

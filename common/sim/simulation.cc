@@ -1174,8 +1174,7 @@ class Engine final : public Simulation {
         if (go == kRun) {
           try {
             Stopwatch w;
-            UpdateSurface(splits);
-            UpdateDebris(splits);
+            UpdateSurfaceAndDebris(splits);
             surface_time = w.ElapsedSeconds();
           } catch (...) {
             error[1] = std::current_exception();
@@ -1203,8 +1202,7 @@ class Engine final : public Simulation {
             if (executed && !outcome.event.empty()) {
               apply_begin = step_watch.ElapsedSeconds();
               ApplyEventNodesToFem(outcome.event, model_, state_);
-              RecomputeAfterEvent(outcome.event, model_, state_,
-                                  step_options_.viscous == fem::ViscousTreatment::kExplicit, fem_event_);
+              RecomputeFemHalf(outcome.event);
               fem_end = step_watch.ElapsedSeconds();
             }
           }
@@ -1239,6 +1237,20 @@ class Engine final : public Simulation {
     return surface_tet_[static_cast<size_t>(tri)];
   }
 
+  /// The FEM half of a cut step (fem_event.h): elements, node masses and
+  /// stable-step leaves, after the event's nodes.
+  void RecomputeFemHalf(const cutting::TopologyEvent& event) {
+    RecomputeAfterEvent(event, model_, state_, step_options_.viscous == fem::ViscousTreatment::kExplicit,
+                        fem_event_);
+  }
+
+  /// The surface half of a cut step: surface slots and BVH, then the debris
+  /// flood. Needs the topology only (see UpdateSurface).
+  void UpdateSurfaceAndDebris(std::span<const cutting::Split> splits) {
+    UpdateSurface(splits);
+    UpdateDebris(splits);
+  }
+
   /// Applies a cut's topology event to the FEM in the order the cut code
   /// documents (topology_event.h), then refreshes what depends on topology,
   /// on this thread (a one-thread cut step, a checkpoint's replay;
@@ -1253,13 +1265,11 @@ class Engine final : public Simulation {
     // cut complex) and the world positions, then floods for debris (which
     // reads only the cut complex and the event). Neither reads what the
     // other writes. The debris flags of the facets need both.
-    RecomputeAfterEvent(event, model_, state_, step_options_.viscous == fem::ViscousTreatment::kExplicit,
-                        fem_event_);
+    RecomputeFemHalf(event);
     timing_.fem = watch.ElapsedSeconds();
     if (has_tool_) {
       Stopwatch surface_watch;
-      UpdateSurface(event.splits);
-      UpdateDebris(event.splits);
+      UpdateSurfaceAndDebris(event.splits);
       FlagDebrisFacets();
       timing_.surface = surface_watch.ElapsedSeconds();
     }
