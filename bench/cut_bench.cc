@@ -18,7 +18,7 @@
 //      same process, tool lifted clear, alternating rounds (median ratio).
 //
 //   cut_bench [--json FILE] [--scene-dir scenes] [--max-tets 100000] [--cuts 100]
-//             [--min-tets 0] [--step-only]
+//             [--min-tets 0] [--step-only] [--precision double|float] [--evict-mb 0]
 //   (--min-tets/--step-only: one size alone, and no (b)/(c), for callgrind:
 //   valgrind stops at an AVX-512 instruction in (b)'s quality check.)
 #include <algorithm>
@@ -92,7 +92,20 @@ struct StepResult {
   int64_t attempts = 0, rejected = 0;
 };
 
-StepResult RunStepBench(int nx, int ny, int nz, int threads, const std::string& precision) {
+// Streams through `buffer` (read and write, a line at a time) so that what
+// the step used before is no longer in any cache level: the state a cut step
+// meets at 100k tets, where the FEM steps in between stream ~30 MB.
+void EvictCaches(std::vector<double>& buffer) {
+  double sum = 0;
+  for (size_t i = 0; i < buffer.size(); i += 8) {
+    sum += buffer[i];
+    buffer[i] = sum * 1e-300;
+  }
+  volatile double sink = sum;
+  (void)sink;
+}
+
+StepResult RunStepBench(int nx, int ny, int nz, int threads, const std::string& precision, int evict_mb) {
   const cutsim::sim::LoadedScene scene =
       cutsim::sim::ParseScene(BoxScene(nx, ny, nz, threads, precision), "cut_bench box", ".");
   auto sim = Simulation::Create(scene);
@@ -104,7 +117,9 @@ StepResult RunStepBench(int nx, int ny, int nz, int threads, const std::string& 
   ToolPose pose;
   pose.blade_dir = Vector3d::UnitZ();
   const double depth = 0.005;
+  std::vector<double> evict_buffer(static_cast<size_t>(evict_mb) * (1 << 20) / sizeof(double), 1.0);
   for (double x = -0.003; x <= x_end; x += speed) {
+    if (!evict_buffer.empty()) EvictCaches(evict_buffer);
     pose.tip = Vector3d(x, y, top - depth);
     sim->SetToolPose(pose);
     if (sim->AdvanceFrame() != cutsim::sim::SimStatus::kOk) break;
@@ -148,6 +163,7 @@ int main(int argc, char** argv) {
   int min_tets = 0;
   bool step_only = false;
   std::string precision = "double";
+  int evict_mb = 0;
   CLI::App app{"cut step time, stable step and throughput after cuts (issue 4)"};
   app.add_option("--json", json_path, "Also write the JSON here");
   app.add_option("--scene-dir", scene_dir, "Where block.pbtxt is");
@@ -157,6 +173,10 @@ int main(int argc, char** argv) {
   app.add_flag("--step-only", step_only, "Only (a), the cut step times");
   app.add_option("--precision", precision, "FEM precision of (a)'s boxes")
       ->check(CLI::IsMember({"double", "float"}));
+  app.add_option("--evict-mb", evict_mb,
+                 "(a): before every frame, stream this many MiB through the caches (0: off), so every size "
+                 "meets a cut step with cold caches, as 100k tets does")
+      ->check(CLI::Range(0, 4096));
   CLI11_PARSE(app, argc, argv);
   cutsim::InitLogging("cut_bench", "warn");
 
@@ -174,7 +194,7 @@ int main(int argc, char** argv) {
   for (const Config& c : configs) {
     const int tets = 6 * c.nx * c.ny * c.nz;
     if (tets > max_tets || tets < min_tets) continue;
-    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads, precision);
+    const StepResult r = RunStepBench(c.nx, c.ny, c.nz, c.threads, precision, evict_mb);
     std::vector<double> total, criterion, topology, fem, surface, apply, splits;
     for (const CutStepTiming& t : r.timings) {
       total.push_back(t.wall);
