@@ -206,10 +206,10 @@ int main(int argc, char** argv) {
       splits.push_back(t.splits);
     }
     json += fmt::format(
-        "{}\n    {{\"tets\": {}, \"threads\": {}, \"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, "
+        "{}\n    {{\"tets\": {}, \"threads\": {}, \"evict_mb\": {}, \"cut_steps\": {}, \"attempts\": {}, \"rejected\": {}, "
         "\"median_splits\": {:.1f},\n     \"total\": {},\n     \"criterion\": {},\n     \"topology\": {},\n"
         "     \"fem_update\": {},\n     \"surface_bvh\": {},\n     \"fem_and_surface_wall\": {}}}",
-        first ? "" : ",", r.tets, c.threads, r.timings.size(), r.attempts, r.rejected, Quantile(splits, 0.5),
+        first ? "" : ",", r.tets, c.threads, evict_mb, r.timings.size(), r.attempts, r.rejected, Quantile(splits, 0.5),
         Stats(total), Stats(criterion), Stats(topology), Stats(fem), Stats(surface), Stats(apply));
     first = false;
     std::fflush(stdout);
