@@ -80,7 +80,8 @@ struct SessionCounters {
   uint64_t viewer_frames = 0;
 };
 
-/// Latencies of the tool pose behind each published local model.
+/// Latencies of the tool pose behind each local model computed from a pose
+/// taken in its own frame (one sample per such model).
 struct LatencyStats {
   /// Client's device read (ToolSample::stamp_ns) → model published: what the
   /// haptic side measures minus the model's LCM hop. Same CLOCK_MONOTONIC
@@ -96,7 +97,8 @@ std::string StatsJson(const ServerOptions& o, const sim::SimulationSummary& s, c
       "{{\"session\": \"{}\", \"frames\": {}, \"sim_time\": {:.6g}, \"frame_overruns\": {}, "
       "\"frame_time_p50_ms\": {:.4g}, \"frame_time_p99_ms\": {:.4g}, \"frame_time_max_ms\": {:.4g}, "
       "\"pose_to_model_p50_ms\": {:.4g}, \"pose_to_model_p99_ms\": {:.4g}, \"pose_to_model_max_ms\": {:.4g}, "
-      "\"receive_to_model_p50_ms\": {:.4g}, \"receive_to_model_p99_ms\": {:.4g}, "
+      "\"receive_to_model_p50_ms\": {:.4g}, \"receive_to_model_p99_ms\": {:.4g}, \"pose_latency_samples\": {}, "
+      "\"frames_with_pose\": {}, "
       "\"tool_messages\": {}, \"tool_rejected\": {}, \"models_published\": {}, "
       "\"viewer_frames\": {}, \"viewer_frames_without_reader\": {}, \"snapshots\": {}, \"deltas\": {}, "
       "\"tool_unsigned\": {}, \"tool_forged\": {}, \"tool_replayed\": {}, "
@@ -104,7 +106,8 @@ std::string StatsJson(const ServerOptions& o, const sim::SimulationSummary& s, c
       o.session, c.frames, s.sim_time, c.overruns, 1e3 * frame_time.Percentile(0.5),
       1e3 * frame_time.Percentile(0.99), 1e3 * frame_time.max(), 1e3 * latency.pose_to_model.Percentile(0.5),
       1e3 * latency.pose_to_model.Percentile(0.99), 1e3 * latency.pose_to_model.max(),
-      1e3 * latency.receive_to_model.Percentile(0.5), 1e3 * latency.receive_to_model.Percentile(0.99), link.accepted,
+      1e3 * latency.receive_to_model.Percentile(0.5), 1e3 * latency.receive_to_model.Percentile(0.99),
+      latency.pose_to_model.count(), c.tool_messages, link.accepted,
       link.foreign_session + link.stale + link.duplicate + link.invalid + link.decode_errors +
           link.unauthenticated,
       c.models_published, mesh.frames, mesh.skipped_no_reader, mesh.snapshots, mesh.deltas,
@@ -245,9 +248,15 @@ int ServerApp::RunRealtime() {
         contact.stiffness = simulation->ContactStiffness();
       }
       link.PublishModel(haptics::BuildLocalModel(header, contact), last_tool_seq);
-      const int64_t published_ns = MonotonicNs();
-      latency.pose_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_stamp_ns));
-      latency.receive_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_receive_ns));
+      // Latency only for a model computed from a pose taken this frame. A
+      // frame without a new pose (the client paused or ended, within its
+      // timeout) still refreshes the model, but answers no pose: measured
+      // against the last one it would add the pause (up to the timeout).
+      if (applied) {
+        const int64_t published_ns = MonotonicNs();
+        latency.pose_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_stamp_ns));
+        latency.receive_to_model.Add(1e-9 * static_cast<double>(published_ns - last_tool_receive_ns));
+      }
       ++counters.models_published;
       last_cuts = tool.cuts;
     }

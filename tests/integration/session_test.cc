@@ -71,6 +71,11 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
   EXPECT_GE(JsonNumber(s, "components"), 1) << s;
   EXPECT_LE(JsonNumber(s, "components"), 2) << s;
   EXPECT_GT(JsonNumber(s, "models_published"), 10) << s;
+  // Link latency is sampled once per model computed from a pose taken in its
+  // frame; the frames after the client's path ended (within its timeout)
+  // publish models too, but answer no pose.
+  EXPECT_GT(JsonNumber(s, "pose_latency_samples"), 10) << s;
+  EXPECT_LE(JsonNumber(s, "pose_latency_samples"), JsonNumber(s, "frames_with_pose")) << s;
 
   // The client saw the cut state and rendered the decay (seed eq. 13).
   const std::string h = haptic.Stdout();
