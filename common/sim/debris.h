@@ -44,9 +44,6 @@ class DebrisTracker {
   /// Appends the tets it flags to `flagged` (not cleared).
   /// Allocation-free once the scratch has grown.
   void Update(const cutting::CutMesh& cut, std::span<const cutting::Split> splits, std::vector<int32_t>* flagged);
-  void Update(const cutting::CutMesh& cut, const cutting::TopologyEvent& event, std::vector<int32_t>* flagged) {
-    Update(cut, std::span<const cutting::Split>(event.splits), flagged);
-  }
 
   [[nodiscard]] bool is_debris(int32_t t) const { return debris_[static_cast<size_t>(t)] != 0; }
   [[nodiscard]] int32_t num_debris_tets() const { return num_debris_; }

@@ -538,7 +538,7 @@ TEST(IncrementalDebris, LocalFloodsMatchTheWholeMeshRuleAfterEveryCut) {
                                             if (events.size() == seen_events) return;  // nothing changed
                                             seen_events = events.size();
                                             flagged.clear();
-                                            tracker.Update(cm, events.back(), &flagged);
+                                            tracker.Update(cm, events.back().splits, &flagged);
                                             flagged_total += static_cast<int32_t>(flagged.size());
                                             if (seed > 6) flagged_by_count += static_cast<int32_t>(flagged.size());
                                             sim::DebrisTracker fresh(mass, total, limits);
