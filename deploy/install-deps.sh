@@ -9,6 +9,8 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   # maths and utilities
   libeigen3-dev libcli11-dev libspdlog-dev libfmt-dev
+  # sparse Cholesky (CHOLMOD) and the BLAS it runs on, for the implicit step
+  libsuitesparse-dev libopenblas-dev
   # wire: schema, haptic link, observers
   libprotobuf-dev protobuf-compiler
   liblcm-dev liblcm-bin libglib2.0-dev
