@@ -359,7 +359,7 @@ void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
 }
 
 void CutMesh::Rollback(size_t journal_mark, int32_t node_mark) {
-  const bool was = journaling_;
+  const bool was_journaling = journaling_;
   journaling_ = false;
   while (journal_.size() > journal_mark) {
     const Op op = journal_.back();
@@ -367,7 +367,7 @@ void CutMesh::Rollback(size_t journal_mark, int32_t node_mark) {
     RetargetTet(op.tet, op.to, op.from);
   }
   while (num_nodes() > node_mark) RemoveLastNode();
-  journaling_ = was;
+  journaling_ = was_journaling;
 }
 
 int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event) {
@@ -391,10 +391,10 @@ void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32
   // All at once rather than RetargetTet one by one: a face between two
   // moved tets stays interior (its neighbour entries are per local face,
   // and the corner is replaced in place), a surface face keeps its slot
-  // (its triangle now names the copy), and only a face between a moved and
-  // an unmoved tet opens, as two new surface faces. One tet at a time, each
-  // face between two moved tets was opened and closed again (two slots
-  // made and freed, and a mate search in a star).
+  // (its triangle then names the copy), and only a face between a moved and
+  // an unmoved tet opens, as two new surface faces. One tet at a time would
+  // open and close each face between two moved tets again (two slots made
+  // and freed, and a mate search in a star).
   tet_marks_.Clear(kMoving);
   for (const int32_t t : moved) tet_marks_.Insert(kMoving, t);
   for (const int32_t t : moved) {
@@ -563,7 +563,7 @@ bool CutMesh::LinkIsOneCycle() const {
   if (link.empty()) return false;
   const size_t k = link.size();
   if (k <= 32) {
-    // A handful of edges (a surface fan has ~6, a vertex on a cut ~12):
+    // A handful of edges (a vertex's surface fan, a few more on a cut):
     // scans beat sorting. Walk from link[0] along the one out-edge of each
     // vertex reached (its index; −1: none or two). If the walk is back at
     // its start after exactly k edges, they are k distinct edges (each the

@@ -178,7 +178,7 @@ struct CutOutcome {
 struct SurfaceFace {
   int32_t tet = -1;
   int8_t local_face = -1;
-  bool opened = false;  ///< Exposed by a cut (was interior in the uncut mesh).
+  bool opened = false;  ///< Exposed by a cut (interior in the uncut mesh).
   bool alive = false;   ///< Slot in use.
 };
 
@@ -333,9 +333,8 @@ class CutMesh {
   /// Asks for the cache lines of the last slab walk's tets and vertices
   /// (walked_tets_, slab_seen_): records, stamp rows, surface slots, stars,
   /// rest and world positions. Consecutive steps of one stroke walk
-  /// overlapping slabs (about 70 % of a walk's tets at 100k tets in
-  /// cut_bench were in the one before), and the FEM steps in between evict
-  /// them. Changes nothing.
+  /// overlapping slabs, and the FEM steps in between evict them. Changes
+  /// nothing.
   void PrefetchLastWalk(const double* xyz) const;
   /// Steps 1–2 of ExecuteCutOnPlane (S into slab_).
   PreparedCut PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
@@ -361,11 +360,11 @@ class CutMesh {
   std::vector<Eigen::Vector3d> rest_;            // #N, m
   // Per tet, in one 32-byte record: its nodes and its face adjacency,
   // neighbour[f] = the tet across local face f (opposite corner f), −1 on
-  // the surface (a flat table replacing a hash map of sorted face keys, the
-  // cut step's main cost once, issue 4). Together because a cut step reads
-  // both for every tet it visits, on caches the FEM steps in between have
-  // evicted: one line instead of two. slot_[t][f] is the face's surface
-  // slot, −1 if interior (read only where the surface changes).
+  // the surface (a flat table, O(1) per face, no hashing). Together because
+  // a cut step reads both for every tet it visits, on caches the FEM steps
+  // in between have evicted: one line instead of two. slot_[t][f] is the
+  // face's surface slot, −1 if interior (read only where the surface
+  // changes).
   struct alignas(32) TetRecord {
     std::array<int32_t, 4> nodes;
     std::array<int32_t, 4> neighbour;
