@@ -117,8 +117,18 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
     }
   }
   copies_.resize(Idx(n));
-  // Faces: pair tets through a hash of sorted face keys (construction
-  // only), then assign surface slots in tet order (deterministic, like
+  BuildFaces();
+  // Step scratch sized here, not in the first cut step (an O(N) fill).
+  node_marks_.rows.reserve(Idx(cap));
+  node_marks_.rows.resize(Idx(n));
+  tet_marks_.rows.resize(recs_.size());
+  star_connected0_.resize(Idx(n));
+  for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
+}
+
+void CutMesh::BuildFaces() {
+  // Pair tets through a hash of sorted face keys (construction only), then
+  // assign surface slots in tet order (deterministic, like
   // mesh::ExtractSurface).
   for (TetRecord& r : recs_) r.neighbour = {-1, -1, -1, -1};
   slot_.assign(recs_.size(), {-1, -1, -1, -1});
@@ -146,12 +156,6 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
       if (recs_[Idx(t)].neighbour[Idx(f)] < 0) slot_[Idx(t)][Idx(f)] = NewSlot(t, f, false);
     }
   }
-  // Step scratch sized here, not in the first cut step (an O(N) fill).
-  node_marks_.rows.reserve(Idx(cap));
-  node_marks_.rows.resize(Idx(n));
-  tet_marks_.rows.resize(recs_.size());
-  star_connected0_.resize(Idx(n));
-  for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
 }
 
 std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const {

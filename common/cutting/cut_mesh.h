@@ -296,6 +296,8 @@ class CutMesh {
   using NodeMarks = StampRows<internal::NodeScratch, internal::kNumNodeMarks>;
 
   static size_t Idx(int32_t i) { return static_cast<size_t>(i); }
+  /// Face adjacency (recs_[t].neighbour) and surface slots of the tets.
+  void BuildFaces();
   [[nodiscard]] std::span<const int32_t> Star(int32_t node) const {
     const StarBlock& b = star_block_[Idx(node)];
     return {star_pool_.data() + b.begin, Idx(b.size)};
