@@ -109,6 +109,8 @@ struct CachedPosition {
   Eigen::Vector3d x = Eigen::Vector3d::Zero();
   uint32_t generation = 0;
 };
+struct SweptSlab;  // steps 1–2's plane and slab (cut_step_internal.h)
+class StepWorld;   // world positions during a step (cut_step_internal.h)
 }  // namespace internal
 
 /// The blade below the contact point, world.
@@ -329,9 +331,11 @@ class CutMesh {
   void FreeSlot(int32_t slot);
 
   /// ExecuteCut on the blade's plane (`blade_plane`, if a blade is given)
-  /// or on the seed's plane.
+  /// or on the seed's plane: the numbered steps of the file comment.
   CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                bool blade_plane, const PreparedCut* prepared, const SeparatedCallback* on_separated);
+
+  // Steps 1–2 (cut_plane.cc).
   /// Asks for the cache lines of the last slab walk's tets and vertices
   /// (walked_tets_, slab_seen_): records, stamp rows, surface slots, stars,
   /// rest and world positions. Consecutive steps of one stroke walk
@@ -341,6 +345,29 @@ class CutMesh {
   /// Steps 1–2 of ExecuteCutOnPlane (S into slab_).
   PreparedCut PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                              bool blade_plane, const std::atomic<bool>* cancel);
+  /// Steps 1–2 take a new position generation (x_cache_ entries go stale).
+  void NextPositionGeneration();
+  /// Mean world edge length around `node` at `x`, m; none if it has no
+  /// edge or the mean is not positive.
+  [[nodiscard]] std::optional<double> MeanEdgeLength(int32_t node, const Eigen::Vector3d& x,
+                                                     const internal::StepWorld& world) const;
+  /// Step 2: the split set S into slab_, snapping P (slab.origin) onto it.
+  /// False if cancelled.
+  bool CollectSplitSet(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
+                       const std::atomic<bool>* cancel);
+  /// Walks the tets from v1 and v0 through the walk's slab: S into slab_,
+  /// every vertex seen with its level into slab_seen_, every tet looked at
+  /// into walked_tets_. False if cancelled.
+  bool WalkSlab(const CutStep& step, const internal::StepWorld& world, const internal::SweptSlab& slab,
+                const std::atomic<bool>* cancel);
+  /// v1 and v0 into slab_ where the slab takes them (queued by the walk
+  /// whatever their level).
+  void AddSlabEnds(const CutStep& step, const internal::SweptSlab& slab);
+  /// Moves P parallel to itself onto the vertex of S nearest to it and
+  /// updates S. False if cancelled.
+  bool SnapPlane(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
+                 const std::atomic<bool>* cancel);
+
   /// Splits `node` so that `moved` (subset of its tets) use a new copy.
   int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);
   /// Face-connected groups of the star of `node` into group_tets_ (group g
