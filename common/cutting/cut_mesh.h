@@ -111,6 +111,7 @@ struct CachedPosition {
 };
 struct SweptSlab;  // steps 1–2's plane and slab (cut_step_internal.h)
 class StepWorld;   // world positions during a step (cut_step_internal.h)
+struct StepState;  // steps 3–6's shared state (cut_step_internal.h)
 }  // namespace internal
 
 /// The blade below the contact point, world.
@@ -334,6 +335,9 @@ class CutMesh {
   /// or on the seed's plane: the numbered steps of the file comment.
   CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                bool blade_plane, const PreparedCut* prepared, const SeparatedCallback* on_separated);
+  /// True if `prepared` holds steps 1–2 of this step on the mesh as it is:
+  /// same version, and no other step took a new position generation.
+  [[nodiscard]] bool PreparedFits(const PreparedCut* prepared, const CutStep& step, bool blade_plane) const;
 
   // Steps 1–2 (cut_plane.cc).
   /// Asks for the cache lines of the last slab walk's tets and vertices
@@ -367,6 +371,60 @@ class CutMesh {
   /// updates S. False if cancelled.
   bool SnapPlane(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
                  const std::atomic<bool>* cancel);
+
+  // Steps 3–4b (cut_separate.cc): the splits, under the journal.
+  /// Starts the journal; no tet is flipped by the fragment guard yet.
+  void BeginSeparation(internal::StepState& s);
+  /// Stops the journal, rolling the splits back first if `roll_back`.
+  void EndSeparation(const internal::StepState& s, bool roll_back);
+  /// Step 3: splits every vertex of S (slab_) by the plane sides.
+  void SplitByPlaneSides(internal::StepState& s);
+  /// Step 3's side of tet `t` (−1 or 1), computed once per pass.
+  int8_t Side(internal::StepState& s, int32_t t);
+  /// Splits `w` by the plane sides (kPlaneDone); true if it was split.
+  bool PlaneSplit(internal::StepState& s, int32_t w);
+  /// Queues the vertices whose star or link a split of `w` that moved
+  /// `tets` to a copy changed.
+  void EnqueueSplit(int32_t w, std::span<const int32_t> tets);
+  /// Step 4: false if the step must be rejected.
+  bool RemoveSingularities(internal::StepState& s);
+  /// Step 4 at one queued vertex: the vertex rule, else the edge rule.
+  void VisitVertex(internal::StepState& s, int32_t v);
+  /// Step 4's edge rule at `v` for the candidates in nbrs_.
+  void ApplyEdgeRule(internal::StepState& s, int32_t v);
+  /// True if the surface is manifold at every vertex of the splits' tets.
+  [[nodiscard]] bool ManifoldAfterSplits(const TopologyEvent& ev) const;
+  /// Step 4b: false if a redo of steps 3–4 must be rejected.
+  bool GuardFragments(internal::StepState& s);
+  /// The tets of pieces of fewer than min_fragment_tets tets that the
+  /// splits cut loose, into fragments_.
+  const std::vector<int32_t>& FindFragments(const TopologyEvent& ev, const CutParams& params);
+
+  // Step 5 (cut_remesh.cc).
+  /// Step 5: moves the twins of v0 and v1.
+  void Remesh(internal::StepState& s);
+  /// Moves the twins of `node` (move_twins_) towards world `target`, as far
+  /// as the quality rule lets them.
+  void MoveTwins(internal::StepState& s, int32_t node, const Eigen::Vector3d& target);
+  /// The tets around move_twins_ into move_star_, sorted, unique.
+  void GatherMoveStar();
+  /// Rest preimage of world `target` (see the file comment, step 5);
+  /// `fallback` if no tet is usable.
+  Eigen::Vector3d RestPreimage(const internal::StepWorld& world, const Eigen::Vector3d& target,
+                               const Eigen::Vector3d& fallback);
+  /// Adds to search_ the tets next to move_star_ whose padded world
+  /// bounding box holds `target`.
+  void AddRingCandidates(const internal::StepWorld& world, const Eigen::Vector3d& target);
+  /// Corners of tet `t` in rest or world, with the twins at `moved` if given.
+  [[nodiscard]] std::array<Eigen::Vector3d, 4> MoveCorners(const internal::StepWorld& world, int32_t t,
+                                                          bool rest_config, const Eigen::Vector3d* moved) const;
+  /// Step 5's quality rule for move_star_[i] with the twins at `moved`
+  /// (rest or world); `floor_quality` is cubed, as mesh::MeanRatioCubed.
+  bool KeepsQuality(const internal::StepWorld& world, size_t i, bool rest_config, const Eigen::Vector3d& moved,
+                    double floor_quality);
+
+  /// Step 6 (cut_step.cc): completes the event and applies its version.
+  void FinishEvent(internal::StepState& s);
 
   /// Splits `node` so that `moved` (subset of its tets) use a new copy.
   int32_t SplitNode(int32_t node, std::span<const int32_t> moved, TopologyEvent* event);

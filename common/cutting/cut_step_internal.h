@@ -1,7 +1,7 @@
 #pragma once
-// Internal to the cut step (cut_step.cc, cut_plane.cc): the step's view of
-// world positions and the plane and slab of steps 1–2. Not part of the
-// library's interface.
+// Internal to the cut step (cut_step.cc, cut_plane.cc, cut_separate.cc,
+// cut_remesh.cc): the step's view of world positions and the state its
+// numbered steps (cut_mesh.h) share. Not part of the library's interface.
 
 #include <cmath>
 #include <cstdint>
@@ -126,6 +126,35 @@ struct SweptSlab {
     const bool in1 =
         dist <= band && (blade_plane ? along >= -band : along > 0.0) && along <= sweep_len + band && depth >= 0.0;
     return in1 ? 1 : 2;
+  }
+};
+
+// Steps 3–6 of one ExecuteCutOnPlane: its input, plane, event and
+// outcome, passed by reference from step to step.
+struct StepState {
+  StepState(const CutStep& step_in, const CutParams& params_in, const PreparedCut& plane_in,
+            const WorldAccess& base, int32_t nodes_before, std::vector<CachedPosition>& cache,
+            uint32_t generation, CutOutcome& out_in)
+      : step(step_in),
+        params(params_in),
+        plane(plane_in),
+        n0(nodes_before),
+        out(out_in),
+        world(base, nodes_before, ev, cache, generation) {}
+
+  const CutStep& step;
+  const CutParams& params;
+  const PreparedCut& plane;  // P (normal, origin), h, band
+  const int32_t n0;          // nodes before the step
+  CutOutcome& out;
+  TopologyEvent ev;          // what the step did so far (world reads it: declared first)
+  StepWorld world;
+  size_t journal_mark = 0;   // journal size before step 3
+  size_t work_head = 0;      // step 4's FIFO of vertices to check: work_[work_head..)
+
+  // Signed distance of x to P, m.
+  [[nodiscard]] double PlaneDistance(const Eigen::Vector3d& x) const {
+    return plane.normal.dot(x - plane.origin);
   }
 };
 
