@@ -7,72 +7,81 @@
 /// rest position). World positions belong to the FEM and are read through
 /// `WorldAccess`.
 ///
-/// Cut step (seed §3.2–3.3), `ExecuteCut`:
-/// 1. Plane P. With a blade: the plane the blade sweeps, spanned by its
-///    direction d and the tool's motion since t0 (tip0 → tip, else C_p(t0) →
-///    C_p(t)), through the tip, then snapped parallel to itself onto the
-///    slab vertex nearest to it (step 2). Tool positions, not node
-///    positions: the seed's s1 = x(v1) − x(v0) joins closest vertices that
-///    jump between the two rows of nodes beside the blade and are pushed
-///    around by the contact, which swung P across the rows and shattered
-///    the crack. Without a blade (or if the blade plane's step is rejected,
-///    one retry): the seed's plane through x(v1) spanned by the facet
-///    normal n and s1, m = s1 × n / |s1 × n|.
-/// 2. Split set S. With a blade: every vertex in the swept slab,
-///    |m·(x − origin)| ≤ band (band = band_fraction × the mean edge length
-///    around v1, "half an element"), −band ≤ ŝ·(x − tip0) ≤ |motion| + band
-///    (between the previous and the current tool position, with a band
+/// Cut step (seed §3.2–3.3), `ExecuteCut`; each numbered step below is
+/// one function of the same name in cut_plane.cc (1–2), cut_separate.cc
+/// (3–4b), cut_remesh.cc (5) and cut_step.cc (6):
+/// 1. Plane P (ChoosePlane). With a blade: the plane the blade sweeps,
+///    spanned by its direction d and the tool's motion since t0 (tip0 → tip,
+///    else C_p(t0) → C_p(t)), through the tip, then snapped parallel to
+///    itself onto the slab vertex nearest to it (in step 2). Tool positions,
+///    not node positions: the seed's s1 = x(v1) − x(v0) joins closest
+///    vertices that jump between the two rows of nodes beside the blade and
+///    are pushed around by the contact, which would swing P across the rows
+///    and shatter the crack. Without a blade (or if the blade plane's step is
+///    rejected, one retry): the seed's plane through x(v1) spanned by the
+///    facet normal n and s1, m = s1 × n / |s1 × n|.
+/// 2. Split set S (CollectSplitSet). With a blade: every vertex in the swept
+///    slab, |m·(x − origin)| ≤ band (band = band_fraction × the mean edge
+///    length around v1, "half an element"), −band ≤ ŝ·(x − tip0) ≤ |motion| +
+///    band (between the previous and the current tool position, with a band
 ///    behind, so the edge where the blade came in is taken, and ahead, the
 ///    vertex the tip is reaching), and 0 ≤ (x − tip)·d ≤ blade length; v1
 ///    only if it is in the band (the closest vertex may be on the far row).
-///    Without a blade, {v1}. Splitting a vertex opens the faces of its
-///    star, so the crack reaches up to one element below the deepest split
-///    vertex. A blade longer than the thickness hence cuts through; a
-///    shallower one leaves a slit.
-/// 3. Every tet around S gets a side: the sign of the signed distance to P of
-///    its vertex farthest from P (crossed tets go with their farthest vertex;
-///    exact ties keep the first vertex in tet order; all-zero goes to the
-///    positive side). Each w in S whose star holds tets of both sides is split:
-///    the negative side moves to the new copy.
-/// 4. Singularities, on the complex, over every vertex of a retargeted tet
-///    until none is left: (vertex rule) a vertex whose incident tets fall
-///    into k > 1 face-connected groups gets k − 1 copies, one per group (the
-///    group holding the lowest tet id keeps the vertex); (edge rule) an edge
-///    whose tets fall into more than one face-connected group around it has
-///    an endpoint that is not yet plane-split split by the plane sides (then
-///    the vertex rule applies again), preferring the endpoint nearer to P. A
-///    step that still leaves a non-manifold vertex or edge on the surface, or
-///    needs more than max_splits_per_step copies, is rolled back entirely
-///    (status kRejected, nothing changes, no event).
-/// 4b. Fragment guard: a step that cuts loose a piece of fewer than
-///    min_fragment_tets tets (found by flood fills from the retargeted tets,
-///    stopped at that size: local) is rolled back and redone with those
-///    tets on the other side (up to 3 times). Such a piece is debris of the
-///    discretisation (a tet the farthest-vertex rule put on the far side of
-///    its neighbours), not a cut, and would fly off under the blade.
-/// 5. Remeshing. With a blade: the twins of v0 and of v1 (if within the
-///    band) move onto P, to their nearest point (the seed's move to C_p
+///    The slab is found by a walk over the tets from v1 and v0; P is then
+///    snapped onto the vertex of S nearest to it (a plane midway between two
+///    layers of vertices would put both in the band and make their tets tie
+///    on the farthest-vertex rule of step 3). Without a blade, {v1}.
+///    Splitting a vertex opens the faces of its star, so the crack reaches up
+///    to one element below the deepest split vertex. A blade longer than the
+///    thickness hence cuts through; a shallower one leaves a slit.
+/// 3. Plane sides (SplitByPlaneSides). Every tet around S gets a side: the
+///    sign of the signed distance to P of its vertex farthest from P (crossed
+///    tets go with their farthest vertex; exact ties keep the first vertex in
+///    tet order; all-zero goes to the positive side). Each w in S whose star
+///    holds tets of both sides is split: the negative side moves to the new
+///    copy.
+/// 4. Singularities (RemoveSingularities), on the complex, over every vertex
+///    of a retargeted tet until none is left: (vertex rule) a vertex whose
+///    incident tets fall into k > 1 face-connected groups gets k − 1 copies,
+///    one per group (the group holding the lowest tet id keeps the vertex);
+///    (edge rule) an edge whose tets fall into more than one face-connected
+///    group around it has an endpoint that is not yet plane-split split by
+///    the plane sides (then the vertex rule applies again), preferring the
+///    endpoint nearer to P. A step that still leaves a non-manifold vertex or
+///    edge on the surface, or needs more than max_splits_per_step copies, is
+///    rolled back entirely (status kRejected, nothing changes, no event).
+/// 4b. Fragment guard (GuardFragments): a step that cuts loose a piece of
+///    fewer than min_fragment_tets tets (found by flood fills from the
+///    retargeted tets, stopped at that size: local) is rolled back and redone
+///    from step 3 with those tets on the other side (up to 3 times). Such a
+///    piece is debris of the discretisation (a tet the farthest-vertex rule
+///    put on the far side of its neighbours), not a cut, and would fly off
+///    under the blade.
+/// 5. Remeshing (Remesh). With a blade: the twins of v0 and of v1 (if within
+///    the band) move onto P, to their nearest point (the seed's move to C_p
 ///    also slides them along the cut by up to α·d_v, which does not change
 ///    the cut's profile but shears their elements into slivers). Without a
-///    blade, the seed's: the twins of v0 (coincident copies of the same original
-///    vertex) move to C_p(t0) and those of v1 to C_p(t): world to C_p, rest to
-///    the barycentric preimage of C_p in the world tet around the vertex
-///    (or next to its star) that contains it best (largest smallest
-///    barycentric coordinate; if none does, affine extrapolation from the
-///    tet around the vertex nearest to holding it). A move is accepted if every
-///    tet around the moved twins keeps positive volume and mean-ratio quality
-///    ≥ min(max(min_quality, keep_quality), its quality before the move), in
-///    rest and in world; otherwise the displacement is halved (up to
-///    max_move_halvings times) and the move is skipped if no fraction passes.
-///    Sliver guard (keep_quality, default 0.4): a split never changes a tet's
-///    shape, so the thin elements after many cuts come from these moves. In
-///    the sim the contact pushes the nodes beside the blade apart by up to
-///    half a cell, the move puts them back onto P and maps the target to rest
+///    blade, the seed's: the twins of v0 (coincident copies of the same
+///    original vertex) move to C_p(t0) and those of v1 to C_p(t): world to
+///    C_p, rest to the barycentric preimage of C_p in the world tet around
+///    the vertex (or next to its star) that contains it best (largest
+///    smallest barycentric coordinate; if none does, affine extrapolation
+///    from the tet around the vertex nearest to holding it). A move is
+///    accepted if every tet around the moved twins keeps positive volume and
+///    mean-ratio quality ≥ min(max(min_quality, keep_quality), its quality
+///    before the move), in rest and in world; otherwise the displacement is
+///    halved (up to max_move_halvings times) and the move is skipped if no
+///    fraction passes.
+///    Sliver guard (keep_quality): a split never changes a tet's shape, so
+///    the thin elements after many cuts come from these moves. In the sim
+///    the contact pushes the nodes beside the blade apart by up to half a
+///    cell, the move puts them back onto P and maps the target to rest
 ///    through the deformed tets, and passes over one region move the same
-///    twins again and again; with the floor at min_quality (0.05) alone each
-///    move may take a tet down to it (cut_bench "block": min quality 0.053,
-///    stable step 0.10× the uncut mesh's; with the guard 0.73×). A tet
+///    twins again and again; with the floor at min_quality alone each move
+///    may take a tet down to it, and the stable time step with it. A tet
 ///    already below keep_quality may not get worse at all.
+/// 6. Event (FinishEvent): the touched tets and nodes, sorted and unique,
+///    and the new topology version.
 
 #include <algorithm>
 #include <array>
