@@ -1,7 +1,7 @@
 #pragma once
 /// @file
-/// The numerical stability stress cases of issue #8, shared by
-/// bench/stability_bench.cc (full size) and tests/unit/fem/stability_test.cc
+/// The numerical stability stress cases, shared by
+/// bench/stability_bench.cc (full size) and tests/unit/sim/stability_test.cc
 /// (short size, also under ASan). Each case drives common/fem (or, for
 /// cutting and the tool, common/sim Simulation) through an extreme load and
 /// reports whether it held and how the guards reacted:

@@ -165,7 +165,7 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
   *capped = false;
   // The preconditioner only steers CG (the tolerance sets the accuracy), so
   // it is reused while the state moves little: building it costs about one
-  // system product, a fifth of a ligament step at ~2.6 iterations.
+  // system product, a sizeable part of a step that takes a few iterations.
   if (state.cg_precond_step < 0 || state.step < state.cg_precond_step ||
       state.step - state.cg_precond_step >= kPrecondRefreshSteps ||
       state.cg_precond_topology != model.topology_version() ||
@@ -442,8 +442,8 @@ T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& opt
   // oscillation (the trust in the Lanczos ratio flipping with the element
   // drift) pumps energy into it, while a step that drops at a cut or a
   // contact should come back at once. Only for an undamped model: with
-  // damping the pumping is dissipated, and the back-off cost damped scenes
-  // with contact and cuts 20-90 % more steps (bench/README.md, stability).
+  // damping the pumping is dissipated, and the back-off would cost damped
+  // scenes with contact and cuts many more steps.
   const bool conservative = !model.damped() && !(options.mass_damping > 0);
   if (!(state.dt_held > 0) || !(estimate >= state.dt_held)) {
     if (conservative && state.dt_held > 0 && state.dt_last_grow_step >= 0) {
@@ -467,6 +467,13 @@ T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& opt
   return std::min(static_cast<T>(state.dt_held), static_cast<T>(options.max_dt));
 }
 
+Substep EqualSubstep(double remaining, double dt_max) {
+  // The count of steps left, less a hair so that round-off in `remaining`
+  // does not add a sliver step.
+  const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
+  return {.dt = remaining / std::max(1.0, n), .last = n <= 1};
+}
+
 template <typename T>
 StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
                    const StepOptions& options) {
@@ -474,20 +481,17 @@ StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
   res.step = state.step;
   double remaining = frame_time;
   while (remaining > 0) {
-    const double dt_max = static_cast<double>(CurrentTimeStep(model, state, options));
-    // Equal substeps for the rest of the frame, so the last one is not a sliver.
-    const double n = std::ceil(remaining / dt_max * (1.0 - 1e-12));
-    const double dt = remaining / std::max(1.0, n);
+    const Substep sub = EqualSubstep(remaining, static_cast<double>(CurrentTimeStep(model, state, options)));
     const int substeps = res.substeps;
     const int cg_iterations = res.cg_iterations;
     const int cg_capped = res.cg_capped;
-    res = Step(model, state, static_cast<T>(dt), options);
+    res = Step(model, state, static_cast<T>(sub.dt), options);
     res.substeps = substeps + (res.ok() ? 1 : 0);
     res.cg_iterations += cg_iterations;
     res.cg_capped += cg_capped;
     if (!res.ok()) return res;
-    remaining -= dt;
-    if (n <= 1) break;
+    remaining -= sub.dt;
+    if (sub.last) break;
   }
   return res;
 }

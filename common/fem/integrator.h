@@ -1,9 +1,10 @@
 #pragma once
 /// @file
 /// Time integration: symplectic Euler (v += dt·M⁻¹f, then x += dt·v; the
-/// seed's "modified Euler", DESIGN.md), fixed nodes not integrated,
-/// substepping to a frame time under the stable-step bound, and a guard that
-/// stops before writing a non-finite or runaway state.
+/// seed's "modified Euler"), fixed nodes not integrated, substepping to a
+/// frame time under the stable-step bound (EqualSubstep: the one substep
+/// rule, shared with the simulation's frame), and a guard that stops before
+/// writing a non-finite or runaway state.
 ///
 /// A step allocates nothing and never throws: it returns a StepResult.
 
@@ -41,12 +42,10 @@ struct StepOptions {
   int cg_max_iterations = 30;
   /// Implicit viscous: stop when |r|_P⁻¹ ≤ tol·|M v*|_P⁻¹ (P the block-Jacobi
   /// preconditioner), which bounds the velocity error of the step by about
-  /// tol·|v*|_M. 1e-3: on the seed's ligament pressed, released and left to
-  /// ring, the trajectory stays within 0.6% of the max displacement of a
-  /// solve converged to 1e-12 (the explicit damping discretisation differs
-  /// from it by 0.12%; 1e-4 gives 0.08%) at 2–2.6 iterations a step, against
-  /// 26 converged and 10–14 at 1e-6 (tests/unit/fem/viscous_solve_test.cc,
-  /// bench/README.md). Far below the buffer model's 10% force budget.
+  /// tol·|v*|_M. 1e-3 keeps a pressed and released ligament's trajectory
+  /// within a small fraction of its displacement of a fully converged solve
+  /// (tests/unit/fem/viscous_solve_test.cc checks the bound) at a few
+  /// iterations a step, well inside the buffer model's 10% force budget.
   double cg_tolerance = 1e-3;
   /// Implicit viscous: start CG at v* + the last step's correction (else at v*).
   bool cg_warm_start = true;
@@ -55,15 +54,15 @@ struct StepOptions {
   /// Fraction of the estimated true stable limit used by Advance: the limit
   /// is the per-element bound × the Lanczos ratio (stable_dt.h) when
   /// spectral_iterations > 0, else the per-element bound alone (which is
-  /// itself 1.6–2× below the truth). 0.85: see stable_dt.h for the measured
-  /// margins (the stress tests hold at 1.0).
+  /// itself below the truth). 0.85 leaves a margin under the stress tests'
+  /// limit of 1.0 (stable_dt.h).
   double safety_factor = 0.85;
   /// Fraction of the per-element bound used while the state is in a fast
   /// transient (the bound moved > 2% between its last refreshes, or > 10%
   /// since the Lanczos refresh), where the Lanczos ratio is not trusted:
-  /// the stress tests (stable_dt_test) blow up above ~0.6 of the bound in
-  /// violent releases (variable-dt symplectic Euler pumps energy when the
-  /// limit moves within the refresh interval), so 0.5.
+  /// in violent releases variable-dt symplectic Euler pumps energy when the
+  /// limit moves within the refresh interval, and the stress tests
+  /// (stable_dt_test) need a step well under the bound, so 0.5.
   double transient_safety_factor = 0.5;
   int dt_refresh_interval = 10;   ///< Steps between per-element bound refreshes.
   /// Lanczos steps of the global estimate (0: per-element bound only).
@@ -112,8 +111,21 @@ struct StepResult {
 template <typename T>
 StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions& options = {});
 
-/// Advances by `frame_time` in equal substeps no larger than the held step
-/// (CurrentTimeStep) and max_dt. Stops at the first failing step.
+/// One substep of a frame: its size and whether it ends the frame.
+struct Substep {
+  double dt = 0;      ///< s
+  bool last = false;  ///< the frame ends with this substep
+};
+
+/// The substep rule: the rest of a frame, `remaining` seconds, in equal
+/// substeps no larger than `dt_max`, so the last one is not a sliver. Gives
+/// the next one; a caller steps it, subtracts its dt from `remaining` and
+/// stops after the `last` one.
+[[nodiscard]] Substep EqualSubstep(double remaining, double dt_max);
+
+/// Advances by `frame_time` in equal substeps (EqualSubstep) no larger than
+/// the held step (CurrentTimeStep) and max_dt. Stops at the first failing
+/// step.
 template <typename T>
 StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
                    const StepOptions& options = {});
@@ -128,9 +140,8 @@ StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
 /// held (State::dt_held): 0.85 × the estimate when set, re-set at once when
 /// the estimate falls below it, and only when the estimate grows by 20%
 /// otherwise. Variable-step symplectic Euler is not symplectic: a step that
-/// followed the estimate's wiggles with the oscillation pumped ~9% energy
-/// per 10⁴ undamped steps (stability_test); a held step conserves it like a
-/// fixed one.
+/// follows the estimate's wiggles with the oscillation pumps energy into
+/// it (stability_test); a held step conserves it like a fixed one.
 template <typename T>
 T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& options = {});
 

@@ -94,6 +94,171 @@ cutting::TopologyEvent EventFromProto(const v1::CheckpointEvent& p, const std::s
   return e;
 }
 
+uint64_t SceneFingerprint(const std::string& scene_name, int32_t node_capacity, const mesh::TetMesh& mesh) {
+  uint64_t h = Fnv1a64(scene_name.data(), scene_name.size());
+  h = Fnv1a64(&node_capacity, sizeof(node_capacity), h);
+  const mesh::Positions& p = mesh.nodes;
+  h = Fnv1a64(p.data(), static_cast<size_t>(p.size()) * sizeof(double), h);
+  const mesh::Tets& t = mesh.tets;
+  return Fnv1a64(t.data(), static_cast<size_t>(t.size()) * sizeof(t(0, 0)), h);
+}
+
+template <typename T>
+v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity, const CheckpointProgress& progress,
+                                      const fem::State<T>& state, int32_t num_nodes) {
+  v1::CheckpointBody b;
+  b.set_scene_name(identity.scene_name);
+  b.set_scene_fingerprint(identity.fingerprint);
+  b.set_precision(identity.precision);
+  b.set_initial_nodes(identity.initial_nodes);
+  b.set_initial_tets(identity.initial_tets);
+  b.set_sim_time(state.time);
+  b.set_steps(state.step);
+  b.set_frames(progress.frames);
+  b.set_cuts(progress.cuts);
+  b.set_topology_version(progress.topology_version);
+  for (const cutting::TopologyEvent& e : progress.events) *b.add_events() = EventToProto(e);
+  const size_t n3 = 3 * static_cast<size_t>(num_nodes);
+  b.mutable_positions()->Reserve(static_cast<int>(n3));
+  b.mutable_velocities()->Reserve(static_cast<int>(n3));
+  for (size_t i = 0; i < n3; ++i) {
+    b.add_positions(static_cast<double>(state.x[i]));
+    b.add_velocities(static_cast<double>(state.v[i]));
+  }
+  return b;
+}
+
+void ReplayEvent(cutting::CutMesh& cut, const cutting::TopologyEvent& event) {
+  while (cut.version() + 1 < event.version) {
+    cutting::TopologyEvent empty;
+    empty.version = cut.version() + 1;
+    cut.ApplyEvent(empty);
+  }
+  cut.ApplyEvent(event);
+}
+
+namespace {
+
+[[noreturn]] void Fail(const std::string& source, const std::string& field, const std::string& why) {
+  ThrowInputError({.file = source, .field = field}, why);
+}
+
+/// Scene, mesh, precision and counters of `b` against the target.
+void CheckIdentity(const v1::CheckpointBody& b, const std::string& source, const RestoreTarget& target) {
+  const CheckpointIdentity& id = target.identity;
+  if (!target.fresh) Fail(source, "", "restore needs a freshly created simulation");
+  if (b.scene_name() != id.scene_name) {
+    Fail(source, "scene_name",
+         fmt::format("checkpoint of scene '{}', this server runs '{}'", b.scene_name(), id.scene_name));
+  }
+  if (b.scene_fingerprint() != id.fingerprint || b.initial_nodes() != id.initial_nodes ||
+      b.initial_tets() != id.initial_tets) {
+    Fail(source, "scene_fingerprint",
+         fmt::format("checkpoint of another mesh of scene '{}' ({} nodes, {} tets; "
+                     "this one has {} nodes, {} tets, or its mesh/settings changed)",
+                     b.scene_name(), b.initial_nodes(), b.initial_tets(), id.initial_nodes, id.initial_tets));
+  }
+  if (b.precision() != id.precision) {
+    Fail(source, "precision",
+         fmt::format("checkpoint written in {} precision, this server runs {} (use --precision {})", b.precision(),
+                     id.precision, b.precision()));
+  }
+  if (!std::isfinite(b.sim_time()) || b.sim_time() < 0 || b.steps() < 0 || b.frames() < 0) {
+    Fail(source, "sim_time", "negative or non-finite time or counters");
+  }
+  if (b.events_size() > 0 && target.cut == nullptr) {
+    Fail(source, "events", "the scene has no cutting but the checkpoint has cuts");
+  }
+}
+
+/// Converts and replays every event of `b` on a copy of the cut complex;
+/// returns the events and sets `num_nodes` to the replayed mesh's.
+std::vector<cutting::TopologyEvent> DryRunEvents(const v1::CheckpointBody& b, const std::string& source,
+                                                 const RestoreTarget& target, int32_t& num_nodes) {
+  std::vector<cutting::TopologyEvent> events;
+  num_nodes = target.num_nodes;
+  if (target.cut == nullptr) return events;
+  events.reserve(static_cast<size_t>(b.events_size()));
+  cutting::CutMesh trial = *target.cut;
+  for (int i = 0; i < b.events_size(); ++i) {
+    const std::string field = fmt::format("events[{}]", i);
+    events.push_back(EventFromProto(b.events(i), source, field));
+    const cutting::TopologyEvent& e = events.back();
+    if (e.version <= trial.version()) Fail(source, field + ".version", "versions must increase");
+    try {
+      ReplayEvent(trial, e);
+    } catch (const InputError& err) {
+      Fail(source, field + "." + err.source().field, err.message());
+    }
+    for (const int32_t t : e.touched_tets) {
+      if (t < 0 || t >= target.num_tets) Fail(source, field + ".touched_tets", fmt::format("tet {} out of range", t));
+    }
+    for (const int32_t n : e.touched_nodes) {
+      if (n < 0 || n >= trial.num_nodes()) {
+        Fail(source, field + ".touched_nodes", fmt::format("node {} out of range", n));
+      }
+    }
+  }
+  if (b.topology_version() < trial.version()) {
+    Fail(source, "topology_version",
+         fmt::format("{} is below the last event's version {}", b.topology_version(), trial.version()));
+  }
+  num_nodes = trial.num_nodes();
+  return events;
+}
+
+/// Sizes and values of the positions and velocities for `num_nodes` nodes.
+void CheckNodeValues(const v1::CheckpointBody& b, const std::string& source, int32_t num_nodes,
+                     int32_t node_capacity) {
+  if (num_nodes > node_capacity) {
+    Fail(source, "events", fmt::format("{} nodes exceed the node capacity {}", num_nodes, node_capacity));
+  }
+  const int n3 = 3 * num_nodes;
+  if (b.positions_size() != n3) {
+    Fail(source, "positions",
+         fmt::format("{} values, the replayed mesh needs {} (3 per node)", b.positions_size(), n3));
+  }
+  if (b.velocities_size() != n3) {
+    Fail(source, "velocities",
+         fmt::format("{} values, the replayed mesh needs {} (3 per node)", b.velocities_size(), n3));
+  }
+  for (int i = 0; i < n3; ++i) {
+    if (!std::isfinite(b.positions(i))) Fail(source, fmt::format("positions[{}]", i), "non-finite");
+    if (!std::isfinite(b.velocities(i))) Fail(source, fmt::format("velocities[{}]", i), "non-finite");
+  }
+}
+
+}  // namespace
+
+std::vector<cutting::TopologyEvent> CheckCheckpointBody(const v1::CheckpointBody& body, const std::string& source,
+                                                        const RestoreTarget& target) {
+  CheckIdentity(body, source, target);
+  int32_t num_nodes = 0;
+  std::vector<cutting::TopologyEvent> events = DryRunEvents(body, source, target, num_nodes);
+  CheckNodeValues(body, source, num_nodes, target.node_capacity);
+  return events;
+}
+
+template <typename T>
+void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state) {
+  for (int i = 0; i < body.positions_size(); ++i) {
+    state.x[static_cast<size_t>(i)] = static_cast<T>(body.positions(i));
+    state.v[static_cast<size_t>(i)] = static_cast<T>(body.velocities(i));
+  }
+  state.time = body.sim_time();
+  state.step = body.steps();
+  state.dt_refreshed_step = -1;  // positions changed: refresh the stable step
+  state.cg_precond_step = -1;    // and the viscous solve's preconditioner
+}
+
+#define CUTSIM_SIM_CHECKPOINT_INSTANTIATE(T)                                                          \
+  template v1::CheckpointBody MakeCheckpointBody<T>(const CheckpointIdentity&, const CheckpointProgress&, \
+                                                    const fem::State<T>&, int32_t);                    \
+  template void RestoreFemState<T>(const v1::CheckpointBody&, fem::State<T>&);
+
+CUTSIM_SIM_CHECKPOINT_INSTANTIATE(float)
+CUTSIM_SIM_CHECKPOINT_INSTANTIATE(double)
+
 void WriteCheckpointFile(const std::filesystem::path& path, const v1::CheckpointBody& body) {
   v1::CheckpointFile file;
   file.set_magic(kMagic);

@@ -11,11 +11,16 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <span>
 #include <string>
+#include <vector>
 
-#include "common/cutting/topology_event.h"
-#include "common/sim/simulation.h"
 #include "common/core/hash.h"  // Fnv1a64
+#include "common/cutting/cut_mesh.h"
+#include "common/cutting/topology_event.h"
+#include "common/fem/state.h"
+#include "common/mesh/tet_mesh.h"
+#include "common/sim/simulation.h"
 #include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
@@ -26,6 +31,67 @@ namespace cutsim::sim {
 [[nodiscard]] v1::CheckpointEvent EventToProto(const cutting::TopologyEvent& event);
 [[nodiscard]] cutting::TopologyEvent EventFromProto(const v1::CheckpointEvent& event, const std::string& source,
                                                     const std::string& field);
+
+// ---- the state a checkpoint keeps (Simulation::CheckpointState) ----------
+
+/// What identifies the uncut scene a checkpoint belongs to.
+struct CheckpointIdentity {
+  std::string scene_name;
+  uint64_t fingerprint = 0;  ///< SceneFingerprint
+  std::string precision;     ///< "float" or "double"
+  int32_t initial_nodes = 0;
+  int32_t initial_tets = 0;
+};
+
+/// Hash of the scene's name, the node capacity and the reordered uncut mesh.
+[[nodiscard]] uint64_t SceneFingerprint(const std::string& scene_name, int32_t node_capacity,
+                                        const mesh::TetMesh& mesh);
+
+/// The live part of a checkpoint besides its identity.
+struct CheckpointProgress {
+  int64_t frames = 0;
+  uint64_t cuts = 0;
+  uint64_t topology_version = 0;
+  std::span<const cutting::TopologyEvent> events;  ///< every event so far, in order
+};
+
+/// A checkpoint body: identity, progress, and the first `num_nodes` nodes'
+/// positions and velocities, time and step count of `state`.
+template <typename T>
+[[nodiscard]] v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity,
+                                                    const CheckpointProgress& progress, const fem::State<T>& state,
+                                                    int32_t num_nodes);
+
+/// The simulation a checkpoint is restored into.
+struct RestoreTarget {
+  const CheckpointIdentity& identity;
+  const cutting::CutMesh* cut = nullptr;  ///< its cut complex (null without cutting)
+  int32_t num_nodes = 0;
+  int32_t num_tets = 0;
+  int32_t node_capacity = 0;
+  bool fresh = true;  ///< no frame stepped and no event applied yet
+};
+
+/// Checks `body` against `target` (scene, mesh, precision, counters) and
+/// replays its events on a copy of the cut complex, so a bad event is
+/// reported before the real mesh or the FEM changes; then the sizes and
+/// values of the positions and velocities. Returns the events, ready to
+/// apply. Throws InputError naming `source` and the field; changes nothing.
+[[nodiscard]] std::vector<cutting::TopologyEvent> CheckCheckpointBody(const v1::CheckpointBody& body,
+                                                                      const std::string& source,
+                                                                      const RestoreTarget& target);
+
+/// Applies `event` to a cut complex, first bumping its version across cut
+/// steps that changed nothing (their empty events are not recorded).
+void ReplayEvent(cutting::CutMesh& cut, const cutting::TopologyEvent& event);
+
+/// Positions, velocities, time and step count of a checked `body` into
+/// `state`, with the stable step and the viscous preconditioner due for a
+/// refresh.
+template <typename T>
+void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state);
+
+// ---- files ------------------------------------------------------------------
 
 /// Frames and writes `body` atomically: `path`.tmp, fsync, rename onto
 /// `path`. Throws InputError (file error) when the directory is not writable.

@@ -1,0 +1,144 @@
+#include "common/sim/contact_stiffness.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/SparseCholesky>
+
+#include "common/fem/element.h"
+
+namespace cutsim::sim {
+namespace {
+
+template <typename T>
+Eigen::Vector3d NodeX(const T* x, int32_t n) {
+  const size_t i = 3 * static_cast<size_t>(n);
+  return {static_cast<double>(x[i]), static_cast<double>(x[i + 1]), static_cast<double>(x[i + 2])};
+}
+
+/// Fills `scratch.unknown` (and `column`) with the free nodes of `nodes`
+/// and of the kStiffnessRings rings of elements around them.
+template <typename T>
+void CollectPatch(const fem::Model<T>& model, const std::array<int32_t, 3>& nodes, PatchScratch& scratch) {
+  std::vector<int32_t>& column = scratch.column;
+  if (column.size() < static_cast<size_t>(model.node_capacity())) {
+    column.assign(static_cast<size_t>(model.node_capacity()), -1);
+  }
+  std::vector<int32_t>& unknown = scratch.unknown;
+  unknown.clear();
+  auto visit = [&](int32_t node) {
+    if (column[static_cast<size_t>(node)] >= 0 || model.fixed(node)) return;
+    column[static_cast<size_t>(node)] = static_cast<int32_t>(unknown.size());
+    unknown.push_back(node);
+  };
+  for (const int32_t node : nodes) visit(node);
+  const int32_t* slots = model.incidence_slots();
+  size_t ring_begin = 0;
+  for (int ring = 0; ring < kStiffnessRings; ++ring) {
+    const size_t ring_end = unknown.size();
+    for (size_t k = ring_begin; k < ring_end; ++k) {
+      const int32_t node = unknown[k];
+      for (int32_t s = model.incidence_begin(node); s < model.incidence_end(node); ++s) {
+        for (int c = 0; c < 4; ++c) visit(model.tet_node(slots[s] / 12, c));
+      }
+    }
+    ring_begin = ring_end;
+  }
+}
+
+/// Appends the lower triangle of element `t`'s tangent, on the unknowns
+/// among its corners, to `scratch.entries` (SimplicialLDLT reads the lower
+/// part; the element tangents are symmetric).
+template <typename T>
+void AddElementEntries(const fem::Model<T>& model, const T* x, int32_t t, PatchScratch& scratch) {
+  std::array<int32_t, 4> local{};  // unknown index of each corner, −1 if held
+  for (int c = 0; c < 4; ++c) {
+    local[static_cast<size_t>(c)] = scratch.column[static_cast<size_t>(model.tet_node(t, c))];
+  }
+  const Eigen::Matrix<double, 12, 12> Ke = ElementStiffness(model, x, t);
+  for (int cj = 0; cj < 4; ++cj) {
+    const int32_t col = local[static_cast<size_t>(cj)];
+    if (col < 0) continue;
+    for (int ci = 0; ci < 4; ++ci) {
+      const int32_t row = local[static_cast<size_t>(ci)];
+      if (row < col) continue;  // held (−1) or above the diagonal
+      for (int a = 0; a < 3; ++a) {
+        for (int b = row == col ? a : 0; b < 3; ++b) {
+          scratch.entries.emplace_back(3 * row + b, 3 * col + a, Ke(3 * ci + b, 3 * cj + a));
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+template <typename T>
+Eigen::Matrix<double, 12, 12> ElementStiffness(const fem::Model<T>& model, const T* x, int32_t t) {
+  fem::Mat34<double> xe;
+  for (int c = 0; c < 4; ++c) xe.col(c) = NodeX(x, model.tet_node(t, c));
+  return fem::StvkElementStiffness<double>(xe, model.DmInv(t).template cast<double>(),
+                                           static_cast<double>(model.rest_volume(t)),
+                                           static_cast<double>(model.lambdas()[t]),
+                                           static_cast<double>(model.mus()[t]));
+}
+
+template <typename T>
+double NodeNormalStiffness(const fem::Model<T>& model, const T* x, int32_t node, const Eigen::Vector3d& n) {
+  const int32_t* slots = model.incidence_slots();
+  double k = 0;
+  for (int32_t s = model.incidence_begin(node); s < model.incidence_end(node); ++s) {
+    const int corner = (slots[s] % 12) / 3;
+    k += n.dot(ElementStiffness(model, x, slots[s] / 12).template block<3, 3>(3 * corner, 3 * corner) * n);
+  }
+  return k;
+}
+
+template <typename T>
+double SolvePatchCompliance(const fem::Model<T>& model, const T* x, const std::array<int32_t, 3>& nodes,
+                            const Eigen::Vector3d& w, const Eigen::Vector3d& u, PatchScratch& scratch) {
+  model.IncidentTets(scratch.unknown, scratch.tets);
+  scratch.entries.clear();
+  for (const int32_t t : scratch.tets) AddElementEntries(model, x, t, scratch);
+  const int n = 3 * static_cast<int>(scratch.unknown.size());
+  Eigen::SparseMatrix<double> K(n, n);
+  K.setFromTriplets(scratch.entries.begin(), scratch.entries.end());
+  Eigen::VectorXd f = Eigen::VectorXd::Zero(n);
+  for (int i = 0; i < 3; ++i) {
+    const int32_t col = scratch.column[static_cast<size_t>(nodes[static_cast<size_t>(i)])];
+    if (col >= 0) f.segment<3>(3 * col) = w[i] * u;
+  }
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver(K);
+  if (solver.info() != Eigen::Success) return 0.0;
+  const double compliance = f.dot(solver.solve(f));
+  return solver.info() == Eigen::Success && std::isfinite(compliance) && compliance > 0 ? 1.0 / compliance : 0.0;
+}
+
+template <typename T>
+double PatchStiffness(const fem::Model<T>& model, const T* x, const std::array<int32_t, 3>& nodes,
+                      const Eigen::Vector3d& w, const Eigen::Vector3d& u, PatchScratch& scratch) {
+  CollectPatch(model, nodes, scratch);
+  const double k_tissue = scratch.unknown.empty() ? 0.0 : SolvePatchCompliance(model, x, nodes, w, u, scratch);
+  for (const int32_t node : scratch.unknown) scratch.column[static_cast<size_t>(node)] = -1;
+  if (k_tissue > 0) return k_tissue;
+  double k_diagonal = 0;
+  for (int i = 0; i < 3; ++i) k_diagonal += w[i] * NodeNormalStiffness(model, x, nodes[static_cast<size_t>(i)], u);
+  return std::max(k_diagonal, 0.0);
+}
+
+double SeriesStiffness(double k_contact, double k_tissue) {
+  return (k_contact + k_tissue) > 0 ? k_contact * k_tissue / (k_contact + k_tissue) : 0.0;
+}
+
+#define CUTSIM_SIM_STIFFNESS_INSTANTIATE(T)                                                                       \
+  template Eigen::Matrix<double, 12, 12> ElementStiffness<T>(const fem::Model<T>&, const T*, int32_t);            \
+  template double NodeNormalStiffness<T>(const fem::Model<T>&, const T*, int32_t, const Eigen::Vector3d&);        \
+  template double SolvePatchCompliance<T>(const fem::Model<T>&, const T*, const std::array<int32_t, 3>&,          \
+                                          const Eigen::Vector3d&, const Eigen::Vector3d&, PatchScratch&);         \
+  template double PatchStiffness<T>(const fem::Model<T>&, const T*, const std::array<int32_t, 3>&,                \
+                                    const Eigen::Vector3d&, const Eigen::Vector3d&, PatchScratch&);
+
+CUTSIM_SIM_STIFFNESS_INSTANTIATE(float)
+CUTSIM_SIM_STIFFNESS_INSTANTIATE(double)
+
+}  // namespace cutsim::sim

@@ -1,0 +1,293 @@
+#include "common/sim/scene_fem.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Core>
+#include <fmt/format.h>
+
+#include "common/core/error.h"
+#include "common/core/log.h"
+#include "common/fem/forces.h"
+#include "common/fem/stable_dt.h"
+
+namespace cutsim::sim {
+namespace {
+
+using v1::BoundaryCondition;
+using v1::TimeStepPolicy;
+
+Eigen::Vector3d ToEigen(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+fem::Material MaterialOf(const v1::Material& m) {
+  fem::Material fm;
+  if (m.has_lame()) {
+    fm.lambda = m.lame().lambda();
+    fm.mu = m.lame().mu();
+  } else {
+    fm = fem::Material::FromYoungPoisson(m.young_poisson().youngs_modulus(), m.young_poisson().poisson_ratio(),
+                                         m.density());
+  }
+  fm.density = m.density();
+  fm.psi = m.damping_psi();
+  fm.phi = m.damping_phi();
+  return fm;
+}
+
+/// The scene's material for a mesh region: the first that lists it, else
+/// the one without regions (`catch_all`), else −1.
+int MaterialOfRegion(const v1::Scene& scene, int32_t region, int catch_all) {
+  for (int i = 0; i < scene.materials_size(); ++i) {
+    for (int r : scene.materials(i).regions()) {
+      if (r == region) return i;
+    }
+  }
+  return catch_all;
+}
+
+fem::ModelOptions MakeModelOptions(const LoadedScene& scene, int32_t num_nodes) {
+  fem::ModelOptions o;
+  o.node_capacity = NodeCapacity(scene.scene, num_nodes);
+  o.gravity = ToEigen(scene.scene.gravity());
+  o.source = scene.path.string();
+  return o;
+}
+
+/// The nodes a box or a plane selects.
+std::vector<int32_t> NodesInBox(const v1::Box& box, const mesh::Positions& nodes) {
+  std::vector<int32_t> out;
+  const Eigen::Vector3d lo = ToEigen(box.min()), hi = ToEigen(box.max());
+  for (int32_t n = 0; n < nodes.rows(); ++n) {
+    const Eigen::Vector3d p = nodes.row(n).transpose();
+    if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) out.push_back(n);
+  }
+  return out;
+}
+
+std::vector<int32_t> NodesOnPlane(const v1::Plane& plane, const mesh::Positions& nodes) {
+  std::vector<int32_t> out;
+  const Eigen::Vector3d point = ToEigen(plane.point());
+  const Eigen::Vector3d normal = ToEigen(plane.normal()).normalized();
+  const double diag = (nodes.colwise().maxCoeff() - nodes.colwise().minCoeff()).norm();
+  // Default tolerance: a millionth of the mesh size, enough for round-off in generated meshes.
+  const double tol = plane.tolerance() > 0 ? plane.tolerance() : 1e-6 * diag;
+  for (int32_t n = 0; n < nodes.rows(); ++n) {
+    if (std::abs((nodes.row(n).transpose() - point).dot(normal)) <= tol) out.push_back(n);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<fem::Material> MaterialsPerTet(const v1::Scene& scene, const mesh::TetMesh& mesh,
+                                           const std::string& source) {
+  std::vector<fem::Material> by_material;
+  int catch_all = -1;
+  for (int i = 0; i < scene.materials_size(); ++i) {
+    by_material.push_back(MaterialOf(scene.materials(i)));
+    if (scene.materials(i).regions_size() == 0) catch_all = i;
+  }
+  std::vector<fem::Material> per_tet(static_cast<size_t>(mesh.num_tets()));
+  for (int32_t t = 0; t < mesh.num_tets(); ++t) {
+    const int32_t region = mesh.regions.empty() ? 0 : mesh.regions[static_cast<size_t>(t)];
+    const int chosen = MaterialOfRegion(scene, region, catch_all);
+    if (chosen < 0) {
+      ThrowInputError({.file = source, .field = "materials"},
+                      fmt::format("mesh region {} (tet {}) has no material; list it in a "
+                                  "material's `regions` or add a material without regions",
+                                  region, t));
+    }
+    per_tet[static_cast<size_t>(t)] = by_material[static_cast<size_t>(chosen)];
+  }
+  return per_tet;
+}
+
+std::vector<int32_t> SelectNodes(const BoundaryCondition& bc, const SceneMesh& sm, const std::string& source,
+                                 int index) {
+  const auto& nodes = sm.mesh.nodes;
+  std::vector<int32_t> out;
+  const std::string field = fmt::format("boundary[{}]", index);
+  switch (bc.selector_case()) {
+    case BoundaryCondition::kNodes:
+      for (int k = 0; k < bc.nodes().ids_size(); ++k) {
+        const int32_t id = bc.nodes().ids(k);
+        if (id >= static_cast<int32_t>(nodes.rows())) {
+          ThrowInputError({.file = source, .field = fmt::format("{}.nodes.ids[{}]", field, k)},
+                          fmt::format("node {} does not exist (mesh has {} nodes)", id, nodes.rows()));
+        }
+        out.push_back(sm.permutation.old_to_new[static_cast<size_t>(id)]);
+      }
+      break;
+    case BoundaryCondition::kBox:
+      out = NodesInBox(bc.box(), nodes);
+      break;
+    case BoundaryCondition::kPlane:
+      out = NodesOnPlane(bc.plane(), nodes);
+      break;
+    case BoundaryCondition::SELECTOR_NOT_SET:
+      break;
+  }
+  if (out.empty()) {
+    ThrowInputError({.file = source, .field = field}, "selects no node of the mesh");
+  }
+  return out;
+}
+
+int32_t NodeCapacity(const v1::Scene& scene, int32_t num_nodes) {
+  const bool cutting = scene.has_tool() && scene.has_cutting() && scene.cutting().enabled();
+  return cutting ? 3 * num_nodes + 1024 : num_nodes;
+}
+
+template <typename T>
+mesh::Tets TetsMatrix(const fem::Model<T>& model) {
+  mesh::Tets tets(model.num_tets(), 4);
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    for (int c = 0; c < 4; ++c) tets(t, c) = model.tet_node(t, c);
+  }
+  return tets;
+}
+
+template <typename T>
+SceneFem<T>::SceneFem(const LoadedScene& scene, const SceneMesh& mesh, const SimulationOptions& options)
+    : model_(mesh.mesh, MaterialsPerTet(scene.scene, mesh.mesh, scene.path.string()),
+             MakeModelOptions(scene, mesh.mesh.num_nodes())),
+      state_(model_) {
+  ApplyBoundaryConditions(scene, mesh);
+  SetStepOptions(scene, options);
+  SetRestTolerances(scene, mesh.mesh);
+}
+
+template <typename T>
+void SceneFem<T>::ApplyBoundaryConditions(const LoadedScene& scene, const SceneMesh& mesh) {
+  const auto& s = scene.scene;
+  const std::string source = scene.path.string();
+  for (int i = 0; i < s.boundary_size(); ++i) {
+    const auto& bc = s.boundary(i);
+    const auto nodes = SelectNodes(bc, mesh, source, i);
+    if (bc.kind() == BoundaryCondition::KIND_FIXED) {
+      for (int32_t n : nodes) model_.SetFixed(n, true);
+      continue;
+    }
+    // A force condition spreads its total force evenly over its nodes.
+    const Eigen::Vector3d per_node = ToEigen(bc.force()) / static_cast<double>(nodes.size());
+    for (int32_t n : nodes) {
+      const Eigen::Vector3d prior(model_.prescribed_forces()[3 * n], model_.prescribed_forces()[3 * n + 1],
+                                  model_.prescribed_forces()[3 * n + 2]);
+      model_.SetPrescribedForce(n, (prior + per_node).template cast<T>());
+    }
+  }
+  num_free_ = 0;
+  for (int32_t n = 0; n < model_.num_nodes(); ++n) num_free_ += model_.fixed(n) ? 0 : 1;
+}
+
+template <typename T>
+void SceneFem<T>::SetStepOptions(const LoadedScene& scene, const SimulationOptions& options) {
+  const auto& s = scene.scene;
+  // Default threads: all cores for big meshes; one below 20 000 tets, where
+  // a step takes microseconds and OpenMP's fork/barrier cost (worse on a
+  // loaded machine) exceeds the work it would split.
+  constexpr int32_t kParallelTets = 20000;
+  threads_ = options.threads > 0                ? options.threads
+             : s.time_step().threads() > 0      ? s.time_step().threads()
+             : model_.num_tets() >= kParallelTets ? omp_get_num_procs()
+                                                : 1;
+  step_options_.num_threads = threads_;
+  step_options_.safety_factor = s.time_step().safety_factor();
+  step_options_.dt_refresh_interval = s.time_step().refresh_every_steps();
+  step_options_.viscous = ChooseViscous(s.time_step().viscosity());
+  step_options_.mass_damping = s.mass_damping();
+  if (s.time_step().fixed_dt() <= 0) return;
+  (void)fem::CurrentTimeStep(model_, state_, step_options_);  // refreshes the estimate
+  const double limit = fem::EffectiveStableStep(state_);
+  if (s.time_step().fixed_dt() > limit) {
+    ThrowInputError({.file = scene.path.string(), .field = "time_step.fixed_dt"},
+                    fmt::format("{:.3g} s exceeds the estimated stable limit {:.3g} s", s.time_step().fixed_dt(),
+                                limit));
+  }
+  // Substeps are min(safety × limit, max_dt): pin them to the fixed step.
+  step_options_.max_dt = s.time_step().fixed_dt();
+  step_options_.safety_factor = 1.0;
+}
+
+/// AUTO: implicit viscosity only where the explicit viscous limit would cut
+/// the step below 80% of the elastic one (then it costs a CG solve per step
+/// but saves more in step count).
+template <typename T>
+fem::ViscousTreatment SceneFem<T>::ChooseViscous(TimeStepPolicy::Viscosity v) {
+  if (v == TimeStepPolicy::VISCOSITY_EXPLICIT || !model_.damped()) return fem::ViscousTreatment::kExplicit;
+  if (v == TimeStepPolicy::VISCOSITY_IMPLICIT) return fem::ViscousTreatment::kImplicit;
+  T with_visc = std::numeric_limits<T>::infinity(), elastic = with_visc;
+  for (int32_t t = 0; t < model_.num_tets(); ++t) {
+    with_visc = std::min(with_visc, fem::ElementStableStep(model_, state_.x.data(), t, true));
+    elastic = std::min(elastic, fem::ElementStableStep(model_, state_.x.data(), t, false));
+  }
+  const bool implicit = with_visc < T(0.8) * elastic;
+  Log().info("stable step: elastic {:.3g} s, with explicit viscosity {:.3g} s → {} viscosity",
+             static_cast<double>(elastic), static_cast<double>(with_visc), implicit ? "implicit" : "explicit");
+  return implicit ? fem::ViscousTreatment::kImplicit : fem::ViscousTreatment::kExplicit;
+}
+
+/// Rest tolerances (scene `rest`, else defaults): kinetic energy below
+/// 1e-8 × m·|g|·L (L the bounding-box diagonal: the gravity work scale),
+/// residual force below 1e-3 × the mean nodal load (weight + prescribed).
+/// With no load at all, absolute 1e-12 J and 1e-9 N.
+template <typename T>
+void SceneFem<T>::SetRestTolerances(const LoadedScene& scene, const mesh::TetMesh& mesh) {
+  const auto& nodes = mesh.nodes;
+  const double diag = (nodes.colwise().maxCoeff() - nodes.colwise().minCoeff()).norm();
+  const double g = model_.gravity().template cast<double>().norm();
+  const double mass = model_.TotalMass();
+  double prescribed = 0;
+  for (int32_t n = 0; n < model_.num_nodes(); ++n) {
+    prescribed += Eigen::Vector3d(model_.prescribed_forces()[3 * n], model_.prescribed_forces()[3 * n + 1],
+                                  model_.prescribed_forces()[3 * n + 2])
+                      .norm();
+  }
+  const double load = mass * g + prescribed;
+  const auto& rest = scene.scene.rest();
+  rest_.kinetic_energy = rest.kinetic_energy() > 0 ? rest.kinetic_energy() : (load > 0 ? 1e-8 * load * diag : 1e-12);
+  rest_.residual_force = rest.residual_force() > 0 ? rest.residual_force()
+                                                   : (load > 0 ? 1e-3 * load / std::max(1, num_free_) : 1e-9);
+}
+
+template <typename T>
+double SceneFem<T>::KineticEnergy() const {
+  return fem::KineticEnergy(model_, state_.v.data());
+}
+
+template <typename T>
+double SceneFem<T>::ResidualForce() const {
+  double worst = 0;
+  const auto& f = state_.f;
+  for (int32_t n = 0; n < model_.num_nodes(); ++n) {
+    if (model_.fixed(n)) continue;
+    const double f2 = static_cast<double>(f[3 * n] * f[3 * n] + f[3 * n + 1] * f[3 * n + 1] +
+                                          f[3 * n + 2] * f[3 * n + 2]);
+    worst = std::max(worst, f2);
+  }
+  return std::sqrt(worst);
+}
+
+template <typename T>
+double SceneFem<T>::MaxDisplacement() const {
+  double worst = 0;
+  for (int32_t i = 0; i < 3 * model_.num_nodes(); i += 3) {
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double d = static_cast<double>(state_.x[i + k] - model_.rest_positions()[i + k]);
+      d2 += d * d;
+    }
+    worst = std::max(worst, d2);
+  }
+  return std::sqrt(worst);
+}
+
+template mesh::Tets TetsMatrix<float>(const fem::Model<float>&);
+template mesh::Tets TetsMatrix<double>(const fem::Model<double>&);
+template class SceneFem<float>;
+template class SceneFem<double>;
+
+}  // namespace cutsim::sim

@@ -1,0 +1,93 @@
+#pragma once
+/// @file
+/// Scene → FEM: the model and state a scene describes (one material per
+/// tet, boundary conditions), the step options (threads, safety factor,
+/// viscosity treatment, fixed step) and the rest tolerances. The first
+/// stage of a Simulation; every other stage takes its model and state as
+/// arguments.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "common/fem/integrator.h"
+#include "common/fem/model.h"
+#include "common/fem/state.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/scene_mesh.h"
+#include "common/sim/types.h"
+
+namespace cutsim::sim {
+
+/// One fem::Material per tet from the scene's region → material mapping.
+/// Throws InputError (field "materials") for a region without a material.
+[[nodiscard]] std::vector<fem::Material> MaterialsPerTet(const v1::Scene& scene, const mesh::TetMesh& mesh,
+                                                         const std::string& source);
+
+/// Nodes a boundary condition selects, in the reordered numbering. Throws
+/// InputError (field "boundary[i]…") for a node that does not exist or a
+/// selector that selects nothing.
+[[nodiscard]] std::vector<int32_t> SelectNodes(const v1::BoundaryCondition& bc, const SceneMesh& sm,
+                                               const std::string& source, int index);
+
+/// Node capacity: a cut copies nodes (seed §3.2), so cutting reserves room
+/// for them.
+[[nodiscard]] int32_t NodeCapacity(const v1::Scene& scene, int32_t num_nodes);
+
+/// The model's tets as a matrix.  // #T×4
+template <typename T>
+[[nodiscard]] mesh::Tets TetsMatrix(const fem::Model<T>& model);
+
+/// When the tissue counts as at rest (scene `rest`, else defaults tied to
+/// its load; see SceneFem).
+struct RestTolerances {
+  double kinetic_energy = 0;  ///< J
+  double residual_force = 0;  ///< N, largest net force on a free node
+};
+
+/// The FEM of a scene, set up: owns the model and state (in T, float or
+/// double) and the options every step uses. Not movable: adapters hold
+/// references into the state.
+template <typename T>
+class SceneFem {
+ public:
+  /// Builds the model over `mesh` (materials, boundary conditions), picks
+  /// threads and viscosity and checks a fixed step against the stable
+  /// limit. Throws InputError naming the scene file and field.
+  SceneFem(const LoadedScene& scene, const SceneMesh& mesh, const SimulationOptions& options);
+  SceneFem(const SceneFem&) = delete;
+  SceneFem& operator=(const SceneFem&) = delete;
+
+  [[nodiscard]] fem::Model<T>& model() { return model_; }
+  [[nodiscard]] const fem::Model<T>& model() const { return model_; }
+  [[nodiscard]] fem::State<T>& state() { return state_; }
+  [[nodiscard]] const fem::State<T>& state() const { return state_; }
+  [[nodiscard]] const fem::StepOptions& step_options() const { return step_options_; }
+  [[nodiscard]] int threads() const { return threads_; }
+  [[nodiscard]] int num_free() const { return num_free_; }
+  [[nodiscard]] const RestTolerances& rest() const { return rest_; }
+
+  /// Kinetic energy, J; the largest net force on a free node, N; the largest
+  /// displacement from rest, m.
+  [[nodiscard]] double KineticEnergy() const;
+  [[nodiscard]] double ResidualForce() const;
+  [[nodiscard]] double MaxDisplacement() const;
+
+ private:
+  void ApplyBoundaryConditions(const LoadedScene& scene, const SceneMesh& mesh);
+  void SetStepOptions(const LoadedScene& scene, const SimulationOptions& options);
+  [[nodiscard]] fem::ViscousTreatment ChooseViscous(v1::TimeStepPolicy::Viscosity v);
+  void SetRestTolerances(const LoadedScene& scene, const mesh::TetMesh& mesh);
+
+  fem::Model<T> model_;
+  fem::State<T> state_;
+  fem::StepOptions step_options_;
+  int threads_ = 1;
+  int num_free_ = 0;
+  RestTolerances rest_;
+};
+
+extern template class SceneFem<float>;
+extern template class SceneFem<double>;
+
+}  // namespace cutsim::sim

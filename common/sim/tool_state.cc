@@ -1,0 +1,247 @@
+#include "common/sim/tool_state.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <utility>
+
+#include "common/core/units.h"
+#include "common/mesh/surface.h"
+
+namespace cutsim::sim {
+namespace {
+
+Eigen::Vector3d ToEigen(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+template <typename T>
+Eigen::Vector3d NodeX(const T* x, int32_t n) {
+  const size_t i = 3 * static_cast<size_t>(n);
+  return {static_cast<double>(x[i]), static_cast<double>(x[i + 1]), static_cast<double>(x[i + 2])};
+}
+
+haptics::ToolPath ReadPath(const LoadedScene& scene) {
+  const auto& tool = scene.scene.tool();
+  if (!tool.path_file().empty()) {
+    const std::filesystem::path p(tool.path_file());
+    return haptics::ToolPath::Read(p.is_absolute() ? p : scene.base_dir / p);
+  }
+  if (tool.keyframes_size() == 0) return {};
+  std::vector<haptics::ToolKeyframe> frames;
+  for (const auto& k : tool.keyframes()) frames.push_back({k.t(), ToEigen(k.tip()), ToEigen(k.blade_dir())});
+  return haptics::ToolPath(std::move(frames), scene.path.string() + ": tool.keyframes");
+}
+
+double MeanSurfaceEdge(const mesh::TetMesh& mesh) {
+  const mesh::Surface surf = mesh::ExtractSurface(mesh.tets);
+  double sum = 0;
+  int64_t count = 0;
+  for (int32_t f = 0; f < surf.tris.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      sum += (mesh.nodes.row(surf.tris(f, k)) - mesh.nodes.row(surf.tris(f, (k + 1) % 3))).norm();
+      ++count;
+    }
+  }
+  return count > 0 ? sum / static_cast<double>(count) : 1e-3;
+}
+
+/// Where the tool waits without a path until a client sets a pose: clear
+/// of the tissue, blade vertical with its tip one blade length above the
+/// top of the body (the default pose, tip at the origin, would lie on the
+/// body of any scene built from the origin, e.g. along a box's edge).
+ToolPose ParkedPose(const mesh::TetMesh& mesh, double blade_length) {
+  if (mesh.num_nodes() == 0) return {};
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -lo;
+  for (int32_t n = 0; n < mesh.num_nodes(); ++n) {
+    lo = lo.cwiseMin(mesh.nodes.row(n).transpose());
+    hi = hi.cwiseMax(mesh.nodes.row(n).transpose());
+  }
+  return {Eigen::Vector3d(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z() + blade_length),
+          Eigen::Vector3d::UnitZ()};
+}
+
+}  // namespace
+
+template <typename T>
+ToolState<T>::ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, const fem::Model<T>& model)
+    : path_(ReadPath(scene)) {
+  const auto& tool = scene.scene.tool();
+  blade_length_ = tool.blade_length();
+  // Defaults tied to the tissue: a penalty spring as stiff as one element
+  // of the first material (E·h̄), an indentation limit of one mean edge.
+  mean_edge_ = MeanSurfaceEdge(mesh);
+  const double E = units::YoungFromLame({static_cast<double>(model.lambdas()[0]), static_cast<double>(model.mus()[0])});
+  contact_stiffness_ = tool.contact_stiffness() > 0 ? tool.contact_stiffness() : E * mean_edge_;
+  contact_damping_ = tool.contact_damping();
+  indent_limit_ = 0.5 * mean_edge_;
+  grip_limit_ = mean_edge_;
+  if (blade_length_ <= 0) blade_length_ = 2.0 * mean_edge_;
+  report_.present = true;
+  if (path_.empty()) pose_ = ParkedPose(mesh, blade_length_);
+  pose_ = Sample(0.0);
+  report_.pose = pose_;
+}
+
+template <typename T>
+ToolPose ToolState<T>::Sample(double t) const {
+  if (path_.empty()) return pose_;
+  const haptics::ToolKeyframe k = path_.Sample(t);
+  return {k.tip, k.blade_dir};
+}
+
+template <typename T>
+void ToolState<T>::FindContact(const SurfaceTracker& surface, const fem::Model<T>& model, const T* x) {
+  facet_ = FindContactFacet(surface.bvh(), surface.world(), surface.triangles(), pose_.tip, pose_.blade_dir,
+                            blade_length_, mean_edge_, hits_scratch_, box_scratch_, surface.debris_facets(), in_cut_,
+                            surface.wall_nodes());
+  if (!facet_.touching) {
+    in_cut_ = false;  // the blade left the tissue (see tool_contact.h)
+    sweeps_.clear();
+  }
+  // Behind its own cut front the tissue is cut (tool_contact.h, in its own cut).
+  if (in_cut_ && facet_.touching && !facet_.on_cut) {
+    facet_.on_cut = InSweptArea(sweeps_, facet_.point, indent_limit_);
+  }
+  // Capped at the indentation limit; none in its own cut, where the tip
+  // never pushes (tool_contact.h, in its own cut).
+  if (facet_.touching) {
+    facet_.depth = facet_.on_cut || facet_.in_slit ? 0.0 : std::min(facet_.depth, indent_limit_);
+  }
+  UpdateGrip(model, x);
+  report_.touching = facet_.touching;
+  report_.pose = pose_;
+  report_.point = facet_.point;
+  report_.normal = facet_.normal;
+  report_.depth = facet_.depth;
+  if (!Loaded()) report_.force_on_tool.setZero();
+}
+
+/// Edge coupling (tool_contact.h): the blade is inside once the contact
+/// point is more than the indentation limit up the blade from its tip.
+/// A grip from an older topology is released (a cut: the tissue gave
+/// way, the spring restarts unloaded at the new crossing); one whose
+/// tissue end drifted more than half the limit from its material point
+/// moves to the current crossing, keeping its world point. In its own
+/// cut a facet on the cut releases the grip, and an in-slit contact keeps
+/// one but never takes one (tool_contact.h, in its own cut).
+template <typename T>
+void ToolState<T>::UpdateGrip(const fem::Model<T>& model, const T* x) {
+  const bool inside =
+      facet_.touching && !facet_.on_cut && (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
+  if (!inside) {
+    grip_.active = false;
+    return;
+  }
+  const uint64_t version = model.topology_version();
+  if (!grip_.active || grip_.topology_version != version) {
+    // A new grip only where the edge crosses uncut tissue; in the slit it
+    // may only keep the one it holds (tool_contact.h, in-cut rule).
+    if (facet_.in_slit) {
+      grip_.active = false;
+      return;
+    }
+    grip_ = MakeGrip(facet_, facet_.point, version);
+  } else if (grip_.offset.norm() > 0.5 * grip_limit_) {
+    const auto& nd = grip_.nodes;
+    grip_ = MakeGrip(facet_, GripPoint(grip_, NodeX(x, nd[0]), NodeX(x, nd[1]), NodeX(x, nd[2])), version);
+  }
+  facet_.depth = 0.0;  // no tip penalty inside: the edge carries the load
+}
+
+/// The penalty spring is stiffness the FEM's stable-step estimate does not
+/// see: K_c = k·(b ⊗ b)·n nᵀ on the facet nodes. Its largest frequency is
+/// ω_c² ≤ k·Σ bᵢ²/mᵢ; with the elastic one, ω² ≤ ω_e² + ω_c² (Weyl: both
+/// parts are positive semi-definite), ω_e taken as 2·safety/dt_max
+/// (conservative: dt_max is at most safety × the limit). The approach
+/// damper c adds dt ≤ min mᵢ/(c·bᵢ). On a finely cut body the facet nodes
+/// are split copies of a few milligrams, where a spring sized for the body
+/// (E·h̄) would otherwise set the limit.
+template <typename T>
+double ToolState<T>::ContactLimitedStep(double dt_max, const fem::Model<T>& model, double safety_factor) const {
+  double w2 = 0;
+  double damper_limit = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < 3; ++i) {
+    const double b = ForceWeights()[i];
+    const double m = static_cast<double>(model.node_mass(ForceNodes()[static_cast<size_t>(i)]));
+    if (!(m > 0) || b <= 0) continue;
+    w2 += contact_stiffness_ * b * b / m;
+    if (contact_damping_ > 0) damper_limit = std::min(damper_limit, m / (contact_damping_ * b));
+  }
+  const double safety = std::min(1.0, safety_factor);
+  const double we = 2.0 * safety / dt_max;
+  const double limited = 2.0 * safety / std::sqrt(we * we + w2);
+  return std::min({dt_max, limited, safety * damper_limit});
+}
+
+template <typename T>
+void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+                                     fem::State<T>& state) {
+  const T* x = state.x.data();
+  const auto& nd = ForceNodes();
+  const Eigen::Vector3d x0 = NodeX(x, nd[0]), x1 = NodeX(x, nd[1]), x2 = NodeX(x, nd[2]);
+  Eigen::Vector3d F;
+  if (grip_.active) {
+    F = EdgeGripForce(grip_, x0, x1, x2, tip, pose_.blade_dir, contact_stiffness_, grip_limit_);
+    facet_.point = facet_.bary[0] * NodeX(x, facet_.nodes[0]) + facet_.bary[1] * NodeX(x, facet_.nodes[1]) +
+                   facet_.bary[2] * NodeX(x, facet_.nodes[2]);
+  } else {
+    F = PenaltyForce(facet_, x0, x1, x2, tip, tool_velocity, contact_stiffness_, contact_damping_, indent_limit_);
+  }
+  const Eigen::Vector3d& w = ForceWeights();
+  for (int i = 0; i < 3; ++i) {
+    const size_t b = 3 * static_cast<size_t>(nd[static_cast<size_t>(i)]);
+    for (int k = 0; k < 3; ++k) state.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(w[i] * F[k]);
+  }
+  applied_nodes_ = nd;
+  report_.force_on_tool = -F;
+  report_.depth = grip_.active ? grip_.stretch.norm() : facet_.depth;
+  report_.point = facet_.point;
+  // The haptic side renders unilaterally along this direction: the push
+  // on the tool (against the blade's sideways motion when gripping).
+  const double f = F.norm();
+  report_.normal = grip_.active && f > 0 ? Eigen::Vector3d(-F / f) : facet_.normal;
+}
+
+template <typename T>
+void ToolState<T>::ClearContactForce(fem::State<T>& state) {
+  for (const int32_t n : applied_nodes_) {
+    if (n < 0) continue;
+    for (int k = 0; k < 3; ++k) state.f_ext[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] = T(0);
+  }
+  applied_nodes_ = {-1, -1, -1};
+}
+
+/// The contact spring k in series with the tissue's point stiffness along
+/// the direction it pushes (PatchStiffness). The tip penalty acts along n:
+/// K = k_eff·n nᵀ. The edge grip acts across the blade, K = k_eff·(I − d dᵀ),
+/// with the tissue taken along the stretch (or, unloaded, along the facet
+/// normal's part across the blade).
+template <typename T>
+Eigen::Matrix3d ToolState<T>::ContactStiffness(const fem::Model<T>& model, const T* x) const {
+  if (!Loaded()) return Eigen::Matrix3d::Zero();
+  Eigen::Vector3d u = facet_.normal;
+  Eigen::Matrix3d shape = u * u.transpose();
+  if (grip_.active) {
+    const Eigen::Vector3d d = pose_.blade_dir;
+    u = grip_.stretch;
+    if (u.norm() <= 1e-12 * (1.0 + indent_limit_)) u = facet_.normal - facet_.normal.dot(d) * d;
+    const double u_len = u.norm();
+    if (!(u_len > 0)) return Eigen::Matrix3d::Zero();
+    u /= u_len;
+    shape = Eigen::Matrix3d::Identity() - d * d.transpose();
+  }
+  const double k_tissue = PatchStiffness(model, x, ForceNodes(), ForceWeights(), u, patch_);
+  return SeriesStiffness(contact_stiffness_, k_tissue) * shape;
+}
+
+template <typename T>
+void ToolState<T>::EnterCut(const CutSweep& sweep) {
+  in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
+  sweeps_.push_back(sweep);
+}
+
+template class ToolState<float>;
+template class ToolState<double>;
+
+}  // namespace cutsim::sim

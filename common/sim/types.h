@@ -1,0 +1,140 @@
+#pragma once
+/// @file
+/// The types the simulation's stages share and its interface speaks: run
+/// options, status and summary, the tool's pose and report, a cut step's
+/// timing, the observable mesh, and the adapter that shows the FEM state's
+/// positions to the cut code. Below every stage: it includes no stage.
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "common/cutting/world_access.h"
+#include "common/mesh/tet_mesh.h"
+
+namespace cutsim::sim {
+
+/// Overrides a user gives on the command line (0/empty = take the scene's).
+struct SimulationOptions {
+  int threads = 0;
+  std::string precision;  ///< "", "float" or "double"
+};
+
+/// Why stepping stopped, if it did.
+enum class SimStatus {
+  kOk,
+  kNonFinite,       ///< NaN/Inf detected: the diagnosis says where
+  kEnergyRunaway,   ///< energy grew past the guard's bound
+};
+
+/// Numbers a run reports (the headless JSON summary).
+struct SimulationSummary {
+  std::string scene;
+  std::string precision;
+  int num_nodes = 0;
+  int num_tets = 0;
+  int num_free_nodes = 0;
+  int threads = 1;
+  int64_t steps = 0;
+  int64_t frames = 0;
+  double dt = 0.0;              ///< s, last step size
+  double stable_dt = 0.0;       ///< s, last stable-limit estimate (before safety factor)
+  double sim_time = 0.0;        ///< s
+  double wall_time = 0.0;       ///< s spent stepping
+  double tet_steps_per_s = 0.0;
+  double realtime_factor = 0.0; ///< simulated s per wall s
+  double kinetic_energy = 0.0;  ///< J
+  double strain_energy = 0.0;   ///< J
+  double residual_force = 0.0;  ///< N, largest net force on a free node
+  double max_displacement = 0.0;///< m
+  bool at_rest = false;
+  std::string status = "ok";
+  std::string diagnosis;
+  // Tool and cutting (zero without a tool).
+  uint64_t cuts = 0;             ///< executed cut steps
+  uint64_t cut_attempts = 0;     ///< geometric attempts (seed §3.1)
+  uint64_t cuts_rejected = 0;    ///< attempts that passed the stress test but were rolled back
+  uint64_t topology_version = 0;
+  int components = 1;            ///< face-connected parts of the mesh
+  int opened_faces = 0;          ///< surface faces opened by cuts
+  double min_rest_volume = 0.0;  ///< m³, smallest tet rest volume
+  double total_mass = 0.0;       ///< kg
+  double cut_wall_time = 0.0;    ///< s spent in cut steps (criterion + split + FEM update)
+};
+
+/// A tool pose: blade tip and unit direction from the tip toward the handle.
+struct ToolPose {
+  Eigen::Vector3d tip = Eigen::Vector3d::Zero();       ///< m, world
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< unit
+};
+
+/// What the tool did in the last frame: the haptic local model's inputs.
+struct ToolReport {
+  bool present = false;          ///< the scene has a tool
+  bool touching = false;
+  ToolPose pose;
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();   ///< C_p, m
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ(); ///< outward facet normal
+  Eigen::Vector3d force_on_tool = Eigen::Vector3d::Zero();  ///< N
+  double depth = 0.0;            ///< indentation, m
+  uint64_t cuts = 0;             ///< cut steps so far
+  bool cut_this_frame = false;
+  double sigma_c = 0.0;          ///< last evaluated cutting stress (eq. 10), Pa
+};
+
+/// Time of one executed cut step by phase, s (the cut benchmark's split),
+/// each on the thread that ran it. On one thread the phases follow each
+/// other and `wall` is their sum plus the bookkeeping between them; with
+/// two, the criterion runs beside the topology's plane and split set, and
+/// the surface half (slots, BVH, debris) beside the remeshing moves and the
+/// FEM half: it starts inside `topology`, once the splits are final.
+struct CutStepTiming {
+  double wall = 0;       ///< the whole step, wall time
+  double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
+  double topology = 0;   ///< CutMesh::PrepareCut + ExecuteCut: plane, splits, singularities, remeshing
+  double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
+  double surface = 0;    ///< surface slots + BVH update + debris flags
+  double apply = 0;      ///< wall time from the event's nodes to the end of fem and surface
+  int32_t splits = 0;        ///< vertex splits in the event
+  int32_t touched_tets = 0;  ///< tets whose geometry or nodes changed
+};
+
+/// The observable mesh (for viewers): world positions, tets, boundary
+/// surface and which of its faces a cut opened.
+struct MeshView {
+  mesh::Positions world;      // #N×3, m
+  mesh::Positions rest;       // #N×3, m
+  mesh::Tets tets;            // #T×4
+  mesh::Triangles surface;    // #F×3
+  std::vector<uint8_t> opened;  // #F
+  std::vector<uint8_t> debris;  // #F with cutting (else empty): 1 on a facet of a debris piece (debris.h)
+};
+
+/// World positions of the FEM state (float or double) for the cut code.
+template <typename T>
+class StateWorld final : public cutting::WorldAccess {
+ public:
+  /// `x`: #N·3 positions, m; kept by reference (the state's own vector).
+  explicit StateWorld(std::vector<T>& x) : x_(x) {}
+  [[nodiscard]] Eigen::Vector3d Get(int32_t n) const override {
+    const size_t i = 3 * static_cast<size_t>(n);
+    return {static_cast<double>(x_[i]), static_cast<double>(x_[i + 1]), static_cast<double>(x_[i + 2])};
+  }
+  void Set(int32_t n, const Eigen::Vector3d& p) override {
+    const size_t i = 3 * static_cast<size_t>(n);
+    for (int k = 0; k < 3; ++k) x_[i + static_cast<size_t>(k)] = static_cast<T>(p[k]);
+  }
+  [[nodiscard]] const double* Xyz() const override {
+    if constexpr (std::is_same_v<T, double>) return x_.data();
+    return nullptr;
+  }
+
+ private:
+  std::vector<T>& x_;
+};
+
+}  // namespace cutsim::sim
