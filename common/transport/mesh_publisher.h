@@ -74,9 +74,10 @@ class MeshStreamPublisher {
   /// reused `MeshFrame` (resize in place, storage kept between frames).
   /// Publishes a snapshot when a new reader matched, the keyframe interval
   /// elapsed, or the topology changed beyond what a delta carries, and the
-  /// frame's delta in every case. Never throws for frame contents: an
-  /// inconsistent frame (sizes, out-of-range indices, non-finite values)
-  /// is logged and skipped.
+  /// frame's delta whenever a delta can carry the change. Never throws for
+  /// frame contents: an inconsistent frame (sizes, out-of-range indices) is
+  /// logged and skipped; non-finite coordinates are quantised like any
+  /// other (NaN to 0, ±∞ clamped, see `Quantise`).
   void PublishFrame(const std::function<void(MeshFrame&)>& fill);
 
   /// Publishes a status message (session is filled in). Never throws.
