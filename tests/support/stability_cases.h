@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The numerical stability stress cases of issue #8, shared by
+/// The numerical stability stress cases, shared by
 /// bench/stability_bench.cc (full size) and tests/unit/fem/stability_test.cc
 /// (short size, also under ASan). Each case drives common/fem (or, for
 /// cutting and the tool, common/sim Simulation) through an extreme load and
@@ -39,7 +39,7 @@
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 
-namespace cutsim::bench::stability {
+namespace cutsim::support::stability {
 
 /// How big each case is: the bench runs the full size, the unit test the short one.
 struct Size {
@@ -667,4 +667,4 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
   return out;
 }
 
-}  // namespace cutsim::bench::stability
+}  // namespace cutsim::support::stability
