@@ -1,4 +1,4 @@
-// Record and replay (issue 7). The shipped recording scenes/ligament-cut.lcm
+// Record and replay. The shipped recording scenes/ligament-cut.lcm
 // (a real-time session: scripted haptic client cutting the ligament over LCM)
 // replays to the recorded cuts and final mesh hash, twice; a tampered
 // recording is reported as a mismatch; and LCM's own tools read and write the
@@ -13,7 +13,6 @@
 #include <filesystem>
 #include <optional>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -31,6 +30,8 @@ using testing::JsonNumber;
 using testing::RunProcess;
 using testing::Subprocess;
 using testing::TempDir;
+using testing::UdpPortBound;
+using testing::WaitUntil;
 using namespace std::chrono_literals;
 
 const std::string kRecording = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament-cut.lcm";
@@ -168,19 +169,24 @@ TEST(ReplayTest, LcmLoggerAndLogplayerReadAndWriteTheFormat) {
     GTEST_SKIP() << "lcm-logger/lcm-logplayer not installed (Debian package liblcm-bin)";
   }
   TempDir dir("cutsim-replay-lcm");
-  const std::string url = "udpm://239.255.76.67:" + std::to_string(7990 + testing::UniqueTestIndex() % 9) +
-                          "?ttl=0";
+  const int port = 7990 + testing::UniqueTestIndex() % 9;
+  const std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
   const std::string copy = dir.path() + "/copy.lcm";
+  // Inside the test's private network namespace only the logger binds the
+  // port: once it has, it is subscribed and the player may start.
+  ASSERT_FALSE(UdpPortBound(port)) << "port " << port << " already in use";
   Subprocess logger({"/usr/bin/lcm-logger", "--lcm-url=" + url, "-q", "-f", "--flush-interval=10", copy});
-  std::this_thread::sleep_for(500ms);  // subscribed before the player starts
+  ASSERT_TRUE(WaitUntil([&] { return UdpPortBound(port); }, 30s)) << logger.Stderr();
   const auto played =
       RunProcess({"/usr/bin/lcm-logplayer", "--lcm-url=" + url, "--speed=4", kRecording}, 60s);
   ASSERT_EQ(played.exit_code, 0) << played.err;
-  std::this_thread::sleep_for(500ms);  // flushed
+  const auto original = ReadAll(kRecording);
+  // Flushed: every event is in the copy (or the deadline says some were lost).
+  (void)WaitUntil([&] { return std::filesystem::exists(copy) && ReadAll(copy).size() >= original.size(); }, 10s,
+                  20ms);
   logger.Signal(SIGINT);
   ASSERT_TRUE(logger.Wait(10s).has_value());
 
-  const auto original = ReadAll(kRecording);
   const auto copied = ReadAll(copy);
   ASSERT_EQ(copied.size(), original.size()) << "events lost on loopback";
   for (size_t i = 0; i < original.size(); ++i) {

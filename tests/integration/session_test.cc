@@ -4,7 +4,6 @@
 // (deploy/netns-run.sh), with a unique session, LCM port and DDS domain.
 #include <algorithm>
 #include <filesystem>
-#include <thread>
 #include <string>
 #include <vector>
 
@@ -24,6 +23,7 @@ using testing::ReadTextFile;
 using testing::Subprocess;
 using testing::TempDir;
 using testing::UniqueTestIndex;
+using testing::WaitForStderr;
 
 std::vector<std::filesystem::path> SortedPngs(const std::string& dir) {
   std::vector<std::filesystem::path> out;
@@ -51,7 +51,8 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
                      d + "/frames", "--exit-when-idle", "3", "--summary", d + "/viewer.json", "--fps", "5"});
   Subprocess haptic({BinPath("cutsim-haptic"), "--device", "scripted", "--path", scenes + "/ligament-cut.path",
                      "--session", session, "--lcm-url", lcm, "--csv", d + "/haptic.csv", "--no-rt"});
-  std::this_thread::sleep_for(2s);
+  // The late viewer joins a running stream: once the first has verified a frame.
+  ASSERT_TRUE(WaitForStderr(viewer, "first verified frame", 60s)) << viewer.Stderr() << server.Stderr();
   Subprocess late({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain, "--frames",
                    d + "/frames-late", "--exit-when-idle", "3", "--summary", d + "/late.json", "--fps", "5"});
 
