@@ -92,9 +92,9 @@ struct StepResult {
   int64_t attempts = 0, rejected = 0;
 };
 
-// Streams through `buffer` (read and write, a line at a time) so that what
-// the step used before is no longer in any cache level: the state a cut step
-// meets at 100k tets, where the FEM steps in between stream ~30 MB.
+// Streams through `buffer` (read and write, a line at a time) so that the
+// data of the previous step is in no cache level: the state a cut step meets
+// at 100k tets, where the FEM steps in between stream the whole state.
 void EvictCaches(std::vector<double>& buffer) {
   double sum = 0;
   for (size_t i = 0; i < buffer.size(); i += 8) {
@@ -270,11 +270,9 @@ int main(int argc, char** argv) {
            glide(Vector3d(0.043, y, 0.005), speed) || glide(Vector3d(0.043, y, 0.05), 0.002);
   }
   // Lift the blade out along itself, then park it clear. Both glides run to
-  // the end: the lift used to stop after its first frame once the target was
-  // reached, which left the blade 3 mm deep in the last slit during (b) and
-  // (c); with the tip-penalty contact of de8a52e that shook the tissue
-  // (kinetic energy ~1e-4 J that never decayed, vs 1e-13 J uncut) and made
-  // the cut copy re-run the Lanczos estimate every ~140 steps (0.78-0.83x).
+  // the end even once the target is reached: a blade left in the last slit
+  // during (b) and (c) keeps the cut copy shaking, which is not the state
+  // (b) and (c) compare with the uncut copy.
   (void)glide(Vector3d(pose.tip.x(), pose.tip.y(), 0.05), 0.002, true);
   (void)glide(Vector3d(0.02, 0.01, 0.05), 0.002, true);
   for (int i = 0; i < 20; ++i) (void)cut->AdvanceFrame();  // settle, tool clear

@@ -214,7 +214,7 @@ struct Row {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"skip table at the session level: each skip against the same scene with the work forced on (issue 8)"};
+  CLI::App app{"skip table at the session level: each skip against the same scene with the work forced on"};
   std::string scene_dir = "scenes";
   std::string json_path;
   int rounds = 7;

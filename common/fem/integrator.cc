@@ -442,8 +442,8 @@ T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& opt
   // oscillation (the trust in the Lanczos ratio flipping with the element
   // drift) pumps energy into it, while a step that drops at a cut or a
   // contact should come back at once. Only for an undamped model: with
-  // damping the pumping is dissipated, and the back-off cost damped scenes
-  // with contact and cuts 20-90 % more steps (bench/README.md, stability).
+  // damping the pumping is dissipated, and the back-off would only cost
+  // damped scenes with contact and cuts extra steps (stability_bench).
   const bool conservative = !model.damped() && !(options.mass_damping > 0);
   if (!(state.dt_held > 0) || !(estimate >= state.dt_held)) {
     if (conservative && state.dt_held > 0 && state.dt_last_grow_step >= 0) {

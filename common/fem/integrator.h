@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// Time integration: symplectic Euler (v += dt·M⁻¹f, then x += dt·v; the
-/// seed's "modified Euler", DESIGN.md), fixed nodes not integrated,
+/// seed's "modified Euler", docs/DESIGN.md), fixed nodes not integrated,
 /// substepping to a frame time under the stable-step bound, and a guard that
 /// stops before writing a non-finite or runaway state.
 ///
@@ -41,12 +41,11 @@ struct StepOptions {
   int cg_max_iterations = 30;
   /// Implicit viscous: stop when |r|_P⁻¹ ≤ tol·|M v*|_P⁻¹ (P the block-Jacobi
   /// preconditioner), which bounds the velocity error of the step by about
-  /// tol·|v*|_M. 1e-3: on the seed's ligament pressed, released and left to
-  /// ring, the trajectory stays within 0.6% of the max displacement of a
-  /// solve converged to 1e-12 (the explicit damping discretisation differs
-  /// from it by 0.12%; 1e-4 gives 0.08%) at 2–2.6 iterations a step, against
-  /// 26 converged and 10–14 at 1e-6 (tests/unit/fem/viscous_solve_test.cc,
-  /// bench/README.md). Far below the buffer model's 10% force budget.
+  /// tol·|v*|_M. 1e-3 keeps the trajectory of the seed's ligament close to a
+  /// fully converged solve at a few iterations a step
+  /// (tests/unit/fem/viscous_solve_test.cc checks the agreement; the
+  /// accuracy study, bench/accuracy_bench.cc, measures its cost), well inside
+  /// the buffer model's 10% force budget.
   double cg_tolerance = 1e-3;
   /// Implicit viscous: start CG at v* + the last step's correction (else at v*).
   bool cg_warm_start = true;
@@ -128,9 +127,9 @@ StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
 /// held (State::dt_held): 0.85 × the estimate when set, re-set at once when
 /// the estimate falls below it, and only when the estimate grows by 20%
 /// otherwise. Variable-step symplectic Euler is not symplectic: a step that
-/// followed the estimate's wiggles with the oscillation pumped ~9% energy
-/// per 10⁴ undamped steps (stability_test); a held step conserves it like a
-/// fixed one.
+/// follows the estimate's wiggles with the oscillation pumps energy into an
+/// undamped body; a held step conserves it like a fixed one (stability_test
+/// bounds the drift over long runs).
 template <typename T>
 T CurrentTimeStep(const Model<T>& model, State<T>& state, const StepOptions& options = {});
 

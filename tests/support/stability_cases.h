@@ -593,8 +593,8 @@ inline Result ToolDrawnThrough(const Size& size, const std::string& scene_path) 
 }
 
 /// The blade held pointing +z along the block's corner edge, its tip at
-/// height `tip_z` on the edge. At the origin (where a tool without a path
-/// used to sit) the blade stands along the whole edge: it is inside the
+/// height `tip_z` on the edge. At the origin (the worst place a tool could
+/// rest) the blade stands along the whole edge: it is inside the
 /// tissue and its edge grip holds it (tool_contact.h). At 0.5 mm under the
 /// top (under the indentation limit) the tip presses the top corner: the
 /// penalty acts on a vertex and the edges shared by the top and side facets.
