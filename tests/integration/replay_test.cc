@@ -18,6 +18,7 @@
 #include <gtest/gtest.h>
 
 #include "common/transport/codec.h"
+#include "common/transport/lcm_bus.h"
 #include "common/transport/lcm_log.h"
 #include "cutsim/v1/wire.pb.h"
 #include "tests/integration/subprocess.h"
@@ -29,6 +30,7 @@ using testing::BinPath;
 using testing::JsonNumber;
 using testing::RunProcess;
 using testing::Subprocess;
+using testing::MulticastGroupJoined;
 using testing::TempDir;
 using testing::UdpPortBound;
 using testing::WaitUntil;
@@ -173,21 +175,41 @@ TEST(ReplayTest, LcmLoggerAndLogplayerReadAndWriteTheFormat) {
   const std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
   const std::string copy = dir.path() + "/copy.lcm";
   // Inside the test's private network namespace only the logger binds the
-  // port: once it has, it is subscribed and the player may start.
+  // port and joins the group: once it has both, it receives what the player
+  // sends.
   ASSERT_FALSE(UdpPortBound(port)) << "port " << port << " already in use";
   Subprocess logger({"/usr/bin/lcm-logger", "--lcm-url=" + url, "-q", "-f", "--flush-interval=10", copy});
-  ASSERT_TRUE(WaitUntil([&] { return UdpPortBound(port); }, 30s)) << logger.Stderr();
+  ASSERT_TRUE(WaitUntil([&] { return UdpPortBound(port) && MulticastGroupJoined("239.255.76.67"); }, 30s))
+      << logger.Stderr();
   const auto played =
       RunProcess({"/usr/bin/lcm-logplayer", "--lcm-url=" + url, "--speed=4", kRecording}, 60s);
   ASSERT_EQ(played.exit_code, 0) << played.err;
+  // Until every event is on disk: the logger flushes when it writes an event
+  // after its flush interval, so a marker on a channel of its own, sent every
+  // 20 ms, pushes the tail of the recording out (the replay ignores it).
   const auto original = ReadAll(kRecording);
-  // Flushed: every event is in the copy (or the deadline says some were lost).
-  (void)WaitUntil([&] { return std::filesystem::exists(copy) && ReadAll(copy).size() >= original.size(); }, 10s,
-                  20ms);
+  const std::string marker = "REPLAY_TEST_MARKER";
+  const auto recorded = [&] {
+    std::vector<transport::LcmLogEvent> events;
+    if (!std::filesystem::exists(copy)) return events;
+    for (auto& e : ReadAll(copy)) {
+      if (e.channel != marker) events.push_back(std::move(e));
+    }
+    return events;
+  };
+  transport::LcmBus bus(url);
+  const std::vector<uint8_t> nothing = {0};
+  ASSERT_TRUE(WaitUntil(
+      [&] {
+        bus.PublishBytes(marker, nothing);
+        return recorded().size() >= original.size();
+      },
+      30s, 20ms))
+      << recorded().size() << " of " << original.size() << " events recorded; logger: " << logger.Stderr();
   logger.Signal(SIGINT);
   ASSERT_TRUE(logger.Wait(10s).has_value());
 
-  const auto copied = ReadAll(copy);
+  const auto copied = recorded();
   ASSERT_EQ(copied.size(), original.size()) << "events lost on loopback";
   for (size_t i = 0; i < original.size(); ++i) {
     EXPECT_EQ(copied[i].channel, original[i].channel) << "event " << i;

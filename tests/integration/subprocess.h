@@ -75,6 +75,11 @@ size_t CountLines(const std::string& path);
 /// (/proc/net/udp and udp6): a subscriber has opened its receive socket.
 bool UdpPortBound(int port);
 
+/// Whether a socket of this network namespace has joined the IPv4 multicast
+/// group `address` (dotted quad) on some interface (/proc/net/igmp): a udpm
+/// subscriber receives the group's datagrams from then on.
+bool MulticastGroupJoined(const std::string& address);
+
 /// Path to an executable in <build>/bin.
 std::string BinPath(const std::string& name);
 
