@@ -15,7 +15,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <thread>
-#include <vector>
 
 namespace cutsim::testing {
 namespace {
@@ -130,32 +129,22 @@ size_t CountLines(const std::string& path) {
   return static_cast<size_t>(std::count(text.begin(), text.end(), '\n'));
 }
 
-namespace {
-
-/// Receive-queue sizes (bytes) of the UDP sockets bound to `port`.
-std::vector<unsigned long> UdpReceiveQueues(int port) {
+bool UdpPortBound(int port) {
   char hex[8];
   std::snprintf(hex, sizeof hex, ":%04X", port);
-  std::vector<unsigned long> queues;
   for (const char* table : {"/proc/net/udp", "/proc/net/udp6"}) {
     std::ifstream in(table);
     std::string line;
     std::getline(in, line);  // header
     while (std::getline(in, line)) {
       std::istringstream fields(line);
-      std::string slot, local, remote, state, queue;
-      fields >> slot >> local >> remote >> state >> queue;  // queue = "tx_queue:rx_queue", hex
-      if (local.size() < 5 || local.compare(local.size() - 5, 5, hex) != 0) continue;
-      const auto colon = queue.find(':');
-      queues.push_back(colon == std::string::npos ? 0 : std::stoul(queue.substr(colon + 1), nullptr, 16));
+      std::string slot, local;
+      fields >> slot >> local;  // local address:port, hex
+      if (local.size() >= 5 && local.compare(local.size() - 5, 5, hex) == 0) return true;
     }
   }
-  return queues;
+  return false;
 }
-
-}  // namespace
-
-bool UdpPortBound(int port) { return !UdpReceiveQueues(port).empty(); }
 
 bool MulticastGroupJoined(const std::string& address) {
   unsigned a = 0, b = 0, c = 0, d = 0;
