@@ -64,6 +64,8 @@ def beam_mesh(element, level):
 
 
 def run_beam(ccx, poisson, element, level, timeout_s):
+    """Solves the cantilever on (5·level, level, level) cells; the tip
+    deflection by the definitions of beam_document's tip_definition."""
     mesh = beam_mesh(element, level)
     length, section = BEAM["length_m"], BEAM["section_m"]
     fixed = mesh.nodes_where(lambda p: p[0] < 1e-12)
@@ -191,6 +193,8 @@ def block_analytic():
 
 
 def run_block(ccx, variant, element, level, timeout_s):
+    """Compresses the cube on level³ cells ("slip" or "bonded" faces); the
+    volume ratio V/V₀ and the z force on the top face."""
     a = BLOCK["size_m"]
     mesh = deck.QuadraticBoxMesh((a, a, a), (level, level, level), element)
     bottom = mesh.nodes_where(lambda p: p[2] < 1e-12)

@@ -26,7 +26,9 @@ double TimoshenkoTip(double poisson) {
   const double area = kSection * kSection, inertia = std::pow(kSection, 4) / 12.0;
   const double q = kDensity * kGravity * area;  // N/m
   const double shear = kYoung / (2.0 * (1.0 + poisson));
-  return -q * std::pow(kLength, 4) / (8.0 * kYoung * inertia) - q * kLength * kLength / (2.0 * (5.0 / 6.0) * shear * area);
+  const double bending = q * std::pow(kLength, 4) / (8.0 * kYoung * inertia);
+  const double shearing = q * kLength * kLength / (2.0 * (5.0 / 6.0) * shear * area);  // shear factor 5/6
+  return -(bending + shearing);
 }
 
 TEST(ReferenceDataTest, BeamSweepCoversThePoissonRatiosConverged) {
