@@ -13,8 +13,14 @@ namespace cutsim::fem {
 
 namespace {
 
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
+/// Below this many tets the automatic thread count is one: the element
+/// pass has a barrier per colour and PCG a few per iteration, which cost
+/// more than a small mesh's work (and much more on an oversubscribed
+/// machine, where a barrier can wait for a time slice).
+constexpr int32_t kMinTetsForThreads = 4096;
 
+/// Out-of-pattern penalty couplings kept without allocation (more allocate).
+constexpr size_t kExtraBlockReserve = 64;
 /// Armijo sufficient-decrease constant of the line search.
 constexpr double kArmijo = 1e-4;
 /// Relative round-off of Φ: near the solution the decrease Φ can show is
@@ -83,6 +89,11 @@ double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t n
 ImplicitIntegrator::ImplicitIntegrator(const ImplicitOptions& options)
     : options_(options), solver_(options.asynchronous_factorization) {}
 
+int ImplicitIntegrator::NumThreads() const {
+  if (options_.num_threads > 0) return options_.num_threads;
+  return system_.num_tets() < kMinTetsForThreads ? 1 : omp_get_max_threads();
+}
+
 void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& result) {
   if (system_.Stale(model)) {
     system_.Build(model);
@@ -96,6 +107,8 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     }
     tet_energy_.assign(static_cast<size_t>(system_.num_tets()), 0.0);
     active_.assign(static_cast<size_t>(system_.num_nodes()), 0);
+    extra_.clear();
+    extra_.reserve(kExtraBlockReserve);
     solver_.Resize(system_);
     have_jacobian_ = false;
     result.pattern_rebuilt = true;
@@ -107,7 +120,7 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
 
 void ImplicitIntegrator::ElementPass(const Model<double>& model, const double* x, double tangent_scale,
                                      bool clamped, bool skip_inactive, double* values) {
-  const int nt = Threads(options_.num_threads);
+  const int nt = NumThreads();
   const uint8_t* active = skip_inactive ? active_.data() : nullptr;
   double* force = node_force_.data();
   double* energy = tet_energy_.data();
@@ -141,7 +154,7 @@ void ImplicitIntegrator::ElementPass(const Model<double>& model, const double* x
 
 void ImplicitIntegrator::DampingPass(const Model<double>& model, const double* x, double scale,
                                      double mass_scale, bool skip_inactive, double* values) {
-  const int nt = Threads(options_.num_threads);
+  const int nt = NumThreads();
   const uint8_t* active = skip_inactive ? active_.data() : nullptr;
   const auto nnz = static_cast<size_t>(system_.nnz());
   std::fill(values, values + nnz, 0.0);
@@ -171,6 +184,7 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
     x_[static_cast<size_t>(i)] = x0_[static_cast<size_t>(i)] + (active_[static_cast<size_t>(i / 3)] != 0 ? h * v_[static_cast<size_t>(i)] : 0.0);
   }
   std::memcpy(a_values_.data(), b_values_.data(), a_values_.size() * sizeof(double));
+  extra_.clear();
   for (const PenaltyTerm& p : penalties) {
     const Eigen::Matrix3d ks = 0.5 * (p.stiffness + p.stiffness.transpose());
     for (int i = 0; i < 3; ++i) {
@@ -179,10 +193,13 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
       for (int j = 0; j < 3; ++j) {
         const int32_t b = p.nodes[static_cast<size_t>(j)];
         if (b < 0 || active_[static_cast<size_t>(b)] == 0) continue;
-        const int32_t off = system_.FindBlock(a, b);
-        if (off < 0) continue;  // not in the pattern: the coupling is left out of A
         const double w = p.weights[static_cast<size_t>(i)] * p.weights[static_cast<size_t>(j)];
-        system_.AddBlock(a_values_.data(), off, b, (h * h * w) * ks);
+        const int32_t off = system_.FindBlock(a, b);
+        if (off >= 0) {
+          system_.AddBlock(a_values_.data(), off, b, (h * h * w) * ks);
+        } else if (i < j) {  // outside the pattern: applied by the PCG product
+          extra_.push_back({a, b, (h * h * w) * ks});
+        }
       }
     }
   }
@@ -192,7 +209,7 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
 ImplicitIntegrator::Eval ImplicitIntegrator::Evaluate(const Model<double>& model, const State<double>& state,
                                                       double h, std::span<const PenaltyTerm> penalties,
                                                       const double* v, double* residual) {
-  const int nt = Threads(options_.num_threads);
+  const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
   const uint8_t* active = active_.data();
   for (int32_t i = 0; i < 3 * nn; ++i) x_[static_cast<size_t>(i)] = x0_[static_cast<size_t>(i)] + (active[i / 3] != 0 ? h * v[i] : 0.0);
@@ -267,7 +284,7 @@ double ImplicitIntegrator::LoadScale(const Model<double>& model, const State<dou
 bool ImplicitIntegrator::LineSearch(const Model<double>& model, const State<double>& state, double h,
                                     std::span<const PenaltyTerm> penalties, Eval& current,
                                     ImplicitResult& result) {
-  const int nt = Threads(options_.num_threads);
+  const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
   const double slope = Dot(residual_, dir_, nn, nt);  // ∇Φ·d
   double alpha = 1.0;
@@ -292,18 +309,18 @@ bool ImplicitIntegrator::LineSearch(const Model<double>& model, const State<doub
 
 /// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.
 void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResult& result, bool* clamped) {
-  const int nt = Threads(options_.num_threads);
+  const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
   for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
   solver_.Acquire();
-  if (!solver_.has_factor() || solver_.factor_pattern_builds() != system_.builds()) {
+  if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
     if (solver_.RequestFactor(system_, a_values_.data())) result.factor_requested = true;
     if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
   }
   const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
   const double lin_tol = std::max(options_.linear_tolerance * rhs_norm, 0.1 * h * tolerance);
   const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(),
-                                     lin_tol, options_.max_pcg_iterations, options_.num_threads);
+                                     lin_tol, options_.max_pcg_iterations, NumThreads(), extra_);
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
@@ -393,9 +410,9 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(std::span<const int32_t> 
       any = true;
     }
     if (!any) return Eigen::Matrix3d::Zero();
-    const double norm = std::sqrt(Dot(rhs_, rhs_, nn, Threads(options_.num_threads)));
+    const double norm = std::sqrt(Dot(rhs_, rhs_, nn, NumThreads()));
     solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(), 1e-12 * norm,
-                  options_.max_pcg_iterations, options_.num_threads);
+                  options_.max_pcg_iterations, NumThreads(), extra_);
     for (size_t i = 0; i < nodes.size(); ++i) {
       const int32_t n = nodes[i];
       if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;

@@ -57,7 +57,8 @@ enum class TangentMode : uint8_t {
 };
 
 struct ImplicitOptions {
-  int num_threads = 0;  ///< OpenMP threads; 0 = omp_get_max_threads().
+  /// OpenMP threads; 0: one below 4096 tets, else omp_get_max_threads().
+  int num_threads = 0;
   /// Absolute force tolerance, N: converged when every free node has
   /// |r_node|/h ≤ it. 0: relative_force_tolerance × the load scale.
   double force_tolerance = 0;
@@ -87,8 +88,9 @@ struct ImplicitOptions {
 /// An extra spring inside the solve (tool penalty, grip): a point
 /// p = Σ w_i x_i on up to three nodes (unused: node −1) pulled with force
 /// f(p) = force − stiffness·(p − p₀), p₀ the point at the start of the step;
-/// node i gets w_i·f. Enters the residual and, as w_i w_j·stiffness (where
-/// the pattern has block (i, j); the diagonal blocks always), the Jacobian.
+/// node i gets w_i·f. Enters the residual and, as w_i w_j·stiffness, the
+/// Jacobian: in the assembled matrix where the pattern has block (i, j),
+/// else in the PCG product only (ExtraBlock).
 struct PenaltyTerm {
   std::array<int32_t, 3> nodes{-1, -1, -1};
   std::array<double, 3> weights{0, 0, 0};
@@ -168,6 +170,7 @@ class ImplicitIntegrator {
     bool finite = true;
   };
   void Prepare(const Model<double>& model, ImplicitResult& result);
+  [[nodiscard]] int NumThreads() const;
   /// Element pass at positions x: internal node forces into node_force_,
   /// energies into tet_energy_, and, when `tangent_scale` > 0,
   /// tangent_scale·K (K⁺ when clamped) added into `values` (colour by
@@ -207,6 +210,7 @@ class ImplicitIntegrator {
   std::vector<double> dir_;          // Newton direction  // #N×3
   std::vector<double> tet_energy_;   // #T
   std::vector<double> rhs_;          // #N×3
+  std::vector<ExtraBlock> extra_;    // penalty couplings outside the pattern
   double last_h_ = 0;
   bool have_jacobian_ = false;
 };

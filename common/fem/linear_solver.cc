@@ -20,7 +20,7 @@ struct LinearSolver::Factor {
   cholmod_factor* L = nullptr;
   int32_t dofs = 0;
   uint64_t topology_version = 0;
-  int64_t pattern_builds = -1;
+  int64_t pattern_id = -1;
 };
 
 /// A copy of A for the worker and the symbolic analysis of its pattern.
@@ -29,7 +29,7 @@ struct LinearSolver::Snapshot {
   std::vector<double> values;
   int32_t dofs = 0;
   uint64_t topology_version = 0;
-  int64_t pattern_builds = -1;  // SparseSystem::builds() the pattern came from
+  int64_t pattern_id = -1;  // SparseSystem::pattern_id() of the pattern
   bool pattern_changed = false;  // the worker drops `symbolic` and analyses anew
   cholmod_factor* symbolic = nullptr;
 };
@@ -128,13 +128,13 @@ bool LinearSolver::RequestFactor(const SparseSystem& system, const double* value
   {
     std::lock_guard<std::mutex> lock(mutex_);
     Snapshot& s = *snapshot_;
-    if (s.pattern_builds != system.builds() || s.dofs != system.num_dofs()) {
+    if (s.pattern_id != system.pattern_id() || s.dofs != system.num_dofs()) {
       s.pattern_changed = true;
       s.col_ptr.assign(system.col_ptr(), system.col_ptr() + system.num_dofs() + 1);
       s.row_index.assign(system.row_index(), system.row_index() + system.nnz());
       s.dofs = system.num_dofs();
       s.topology_version = system.topology_version();
-      s.pattern_builds = system.builds();
+      s.pattern_id = system.pattern_id();
     }
     s.values.resize(static_cast<size_t>(system.nnz()));
     std::copy(values, values + system.nnz(), s.values.begin());
@@ -165,8 +165,8 @@ uint64_t LinearSolver::factor_topology_version() const {
   return front_ != nullptr ? front_->topology_version : 0;
 }
 
-int64_t LinearSolver::factor_pattern_builds() const {
-  return front_ != nullptr ? front_->pattern_builds : -1;
+int64_t LinearSolver::factor_pattern_id() const {
+  return front_ != nullptr ? front_->pattern_id : -1;
 }
 
 FactorStats LinearSolver::stats() const {
@@ -216,7 +216,7 @@ void LinearSolver::Factorize(Snapshot& s) {
   auto* f = new Factor;
   f->dofs = s.dofs;
   f->topology_version = s.topology_version;
-  f->pattern_builds = s.pattern_builds;
+  f->pattern_id = s.pattern_id;
   bool ok = false, shifted = false;
   if (s.symbolic != nullptr) {
     double mean_diag = 0;
@@ -338,7 +338,7 @@ void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t
 
 PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                               const double* b, double* x, double tolerance, int max_iterations,
-                              int num_threads) {
+                              int num_threads, std::span<const ExtraBlock> extra) {
   const int nt = Threads(num_threads);
   const int32_t nn = system.num_nodes();
   Acquire();
@@ -371,21 +371,25 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
     })[0];
     const double beta = it == 0 ? 0.0 : rz / rz_old;
     rz_old = rz;
-    NodeSums<1> pq_sum(nn);
 #pragma omp parallel num_threads(nt)
     {
 #pragma omp for schedule(static)
       for (int32_t i = 0; i < 3 * nn; ++i) p[i] = z[i] + beta * p[i];
       system.MultiplyTeam(values, p, q);
-      pq_sum.Team([&](int32_t n, std::array<double, 1>& acc) {
-        for (int d = 0; d < 3; ++d) {
-          const int32_t i = 3 * n + d;
-          if (active[n] == 0) q[i] = 0;
-          acc[0] += p[i] * q[i];
-        }
-      });
     }
-    const double pq = pq_sum.Total(0);
+    for (const ExtraBlock& e : extra) {
+      Eigen::Map<Eigen::Vector3d>(q + 3 * e.a) += e.k * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.b);
+      if (e.a != e.b) {
+        Eigen::Map<Eigen::Vector3d>(q + 3 * e.b) += e.k.transpose() * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.a);
+      }
+    }
+    const double pq = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
+      for (int d = 0; d < 3; ++d) {
+        const int32_t i = 3 * n + d;
+        if (active[n] == 0) q[i] = 0;
+        acc[0] += p[i] * q[i];
+      }
+    })[0];
     if (!(pq > 0)) {
       res.negative_curvature = true;
       if (it == 0) std::copy(z, z + 3 * nn, x);  // preconditioned rhs: a descent direction

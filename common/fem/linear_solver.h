@@ -44,6 +44,14 @@ struct PcgResult {
   bool negative_curvature = false;
 };
 
+/// A coupling outside the pattern, applied by the product only (the
+/// preconditioner does not see it): A(a, b) += k and A(b, a) += kᵀ (once,
+/// k, when a == b). Penalty springs between nodes that share no tet.
+struct ExtraBlock {
+  int32_t a = 0, b = 0;
+  Eigen::Matrix3d k = Eigen::Matrix3d::Zero();
+};
+
 /// Cumulative counters of the factorisations.
 struct FactorStats {
   int64_t requested = 0;     ///< Snapshots handed to the worker.
@@ -81,8 +89,8 @@ class LinearSolver {
   [[nodiscard]] int32_t factor_dofs() const;
   /// Topology version of the pattern the current factor was made from.
   [[nodiscard]] uint64_t factor_topology_version() const;
-  /// SparseSystem::builds() of that pattern (−1: no factor).
-  [[nodiscard]] int64_t factor_pattern_builds() const;
+  /// SparseSystem::pattern_id() of that pattern (−1: no factor).
+  [[nodiscard]] int64_t factor_pattern_id() const;
   /// Makes the newest finished factor current (never waits).
   void Acquire();
   [[nodiscard]] FactorStats stats() const;
@@ -93,7 +101,7 @@ class LinearSolver {
   /// Allocates nothing once Resize ran and a factor of this size was used.
   PcgResult Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                   const double* b, double* x, double tolerance, int max_iterations,
-                  int num_threads);
+                  int num_threads, std::span<const ExtraBlock> extra = {});
 
  private:
   struct Factor;

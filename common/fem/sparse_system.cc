@@ -1,11 +1,14 @@
 #include "common/fem/sparse_system.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cstddef>
 
 namespace cutsim::fem {
 
 namespace {
+
+std::atomic<int64_t> g_next_pattern_id{0};
 
 /// Greedy colouring: each tet takes the smallest colour none of its nodes
 /// has yet, in tet order (deterministic). Returns per-tet colours.
@@ -98,6 +101,7 @@ void SparseSystem::Build(const Model<double>& model) {
   topology_version_ = model.topology_version();
   built_ = true;
   ++builds_;
+  pattern_id_ = g_next_pattern_id.fetch_add(1);
 }
 
 int32_t SparseSystem::FindBlock(int32_t a, int32_t b) const {

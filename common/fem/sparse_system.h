@@ -46,8 +46,11 @@ class SparseSystem {
   /// Scalar nonzeros of the full symmetric matrix (9 per block).
   [[nodiscard]] int64_t nnz() const { return static_cast<int64_t>(row_index_.size()); }
   [[nodiscard]] uint64_t topology_version() const { return topology_version_; }
-  /// How many times Build ran.
+  /// How many times Build ran on this object.
   [[nodiscard]] int64_t builds() const { return builds_; }
+  /// Identifies the pattern of the last Build among all systems of the
+  /// process (a factor made from one pattern is recognised by it).
+  [[nodiscard]] int64_t pattern_id() const { return pattern_id_; }
 
   // ---- scalar CSC ----------------------------------------------------------
   [[nodiscard]] const int32_t* col_ptr() const { return col_ptr_.data(); }      // #3N+1
@@ -92,6 +95,7 @@ class SparseSystem {
   int32_t num_tets_ = 0;
   uint64_t topology_version_ = 0;
   int64_t builds_ = 0;
+  int64_t pattern_id_ = -1;
   std::vector<int32_t> block_ptr_;    // #N+1: node b's blocks are [block_ptr_[b], block_ptr_[b+1])
   std::vector<int32_t> block_row_;    // #blocks: row node a, ascending within a column node
   std::vector<int32_t> col_ptr_;      // #3N+1
