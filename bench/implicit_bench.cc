@@ -11,6 +11,8 @@
 // and after it, with the DOFs the factor in use covers.
 //
 //   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
+//                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
+//                  [--refactor-iterations 12] [--verbose]
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -32,6 +34,9 @@ struct Case {
   double lx, ly, lz;  // m
   double youngs;      // Pa
 };
+
+bool g_verbose = false;
+ImplicitOptions g_options;
 
 const Case kCases[] = {
     {"organ", 28, 12, 11, 0.12, 0.05, 0.045, 3e4},
@@ -121,6 +126,16 @@ Phase RunSteps(ImplicitIntegrator& integ, const Model<double>& model, State<doub
     p.newton.push_back(r.newton_iterations);
     p.pcg.push_back(r.pcg_iterations);
     p.not_converged += r.ok() ? 0 : 1;
+    if (g_verbose) {
+      std::fprintf(stderr, "h %g step %d: status %d newton %d pcg %d (max %d) halvings %d clamped %d negcurv %d"
+                   " residual %.3g tol %.3g factor_dofs %d |", h, s, static_cast<int>(r.status),
+                   r.newton_iterations, r.pcg_iterations, r.max_pcg_iterations, r.line_search_halvings,
+                   r.clamped, r.negative_curvature, r.residual, r.tolerance, r.factor_dofs);
+      for (int k = 0; k < std::min(r.newton_iterations, ImplicitResult::kHistory); ++k) {
+        std::fprintf(stderr, " %.2g", r.residual_history[static_cast<size_t>(k)]);
+      }
+      std::fprintf(stderr, "\n");
+    }
     if (pcg_per_step != nullptr) pcg_per_step->push_back(r.pcg_iterations);
     if (factor_dofs != nullptr) factor_dofs->push_back(r.factor_dofs);
   }
@@ -134,7 +149,7 @@ void RunCase(const Case& c, int steps, bool first) {
   std::printf("   \"steps\": [");
   for (const double h : {0.01, 0.02}) {
     State<double> state(model);
-    ImplicitIntegrator integ;
+    ImplicitIntegrator integ(g_options);
     const auto t0 = std::chrono::steady_clock::now();
     const ImplicitResult first_step = integ.Step(model, state, h);  // waits for the first factor
     const double first_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -155,7 +170,7 @@ void RunCase(const Case& c, int steps, bool first) {
   std::printf("],\n");
   // Topology change at 10 ms steps.
   State<double> state(model);
-  ImplicitIntegrator integ;
+  ImplicitIntegrator integ(g_options);
   std::vector<int> before, after, dofs_before, dofs_after;
   RunSteps(integ, model, state, 0.01, steps / 2 + 1, &before, &dofs_before);
   Slit(c, model, state);
@@ -176,6 +191,11 @@ int main(int argc, char** argv) {
   int steps = 20;
   app.add_option("--cases", cases, "Comma-separated: organ, organ_soft, large");
   app.add_option("--steps", steps, "Timed steps per step size")->check(CLI::PositiveNumber);
+  auto& o = cutsim::fem::g_options;
+  app.add_option("--relative-tolerance", o.relative_force_tolerance, "Newton force tolerance / load scale");
+  app.add_option("--linear-tolerance", o.linear_tolerance, "PCG tolerance relative to the Newton residual");
+  app.add_option("--refactor-iterations", o.refactor_pcg_iterations, "PCG iterations that trigger a refactor");
+  app.add_flag("--verbose", cutsim::fem::g_verbose, "Per-step results on stderr");
   CLI11_PARSE(app, argc, argv);
   std::printf("{\"bench\": \"implicit\", \"cases\": [\n");
   bool first = true;

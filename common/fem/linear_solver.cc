@@ -101,6 +101,10 @@ LinearSolver::~LinearSolver() {
     cholmod_free_factor(&f->L, cw);
     delete f;
   }
+  if (spare_ != nullptr) {
+    cholmod_free_factor(&spare_->L, cw);
+    delete spare_;
+  }
   cholmod_free_factor(&snapshot_->symbolic, cw);
   delete snapshot_;
   cholmod_common* cs = Common(solve_common_);
@@ -213,7 +217,15 @@ void LinearSolver::Factorize(Snapshot& s) {
     s.symbolic = cholmod_analyze(&a, cw);
     analyze_seconds = Seconds(t0);
   }
-  auto* f = new Factor;
+  // Reuse the memory of a retired factor of this pattern (no allocation,
+  // no page faults); otherwise copy the symbolic analysis.
+  if (spare_ != nullptr && spare_->pattern_id != s.pattern_id) {
+    cholmod_free_factor(&spare_->L, cw);
+    delete spare_;
+    spare_ = nullptr;
+  }
+  Factor* f = spare_ != nullptr ? spare_ : new Factor;
+  spare_ = nullptr;
   f->dofs = s.dofs;
   f->topology_version = s.topology_version;
   f->pattern_id = s.pattern_id;
@@ -228,8 +240,7 @@ void LinearSolver::Factorize(Snapshot& s) {
     mean_diag /= std::max(1, s.dofs);
     double shift = 0;
     for (int attempt = 0; attempt < 6 && !ok; ++attempt) {
-      cholmod_free_factor(&f->L, cw);
-      f->L = cholmod_copy_factor(s.symbolic, cw);
+      if (f->L == nullptr) f->L = cholmod_copy_factor(s.symbolic, cw);
       double beta[2] = {shift, 0};
       cholmod_factorize_p(&a, beta, nullptr, 0, f->L, cw);
       ok = f->L != nullptr && cw->status == CHOLMOD_OK && f->L->minor == f->L->n;
@@ -263,27 +274,24 @@ void LinearSolver::Factorize(Snapshot& s) {
     delete f;
   }
   for (Factor* g : to_free) {
+    if (spare_ == nullptr && g->pattern_id == s.pattern_id) {
+      spare_ = g;
+      continue;
+    }
     cholmod_free_factor(&g->L, cw);
     delete g;
   }
 }
 
-/// Makes the finished factor current; the old one is retired (freed by the
-/// worker, so solves never free CHOLMOD memory).
+/// Makes the finished factor current; the old one is retired (the next
+/// factorisation frees it or keeps it as its spare, so solves never free
+/// CHOLMOD memory).
 void LinearSolver::Acquire() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (ready_ == nullptr) return;
   if (front_ != nullptr) retired_.push_back(front_);
   front_ = ready_;
   ready_ = nullptr;
-  if (!asynchronous_) {
-    cholmod_common* cw = Common(worker_common_);
-    for (Factor* g : retired_) {
-      cholmod_free_factor(&g->L, cw);
-      delete g;
-    }
-    retired_.clear();
-  }
 }
 
 void LinearSolver::BuildBlockJacobi(const SparseSystem& system, const double* values,

@@ -121,6 +121,7 @@ class LinearSolver {
   Factor* front_ = nullptr;
   Factor* ready_ = nullptr;
   std::vector<Factor*> retired_;
+  Factor* spare_ = nullptr;  // a retired factor of the current pattern, owned by the worker
   Snapshot* snapshot_ = nullptr;
   mutable std::mutex mutex_;
   std::condition_variable cv_;
