@@ -10,7 +10,8 @@
 // h / step time. Then, for 10 ms steps, a cut-like topology change (a slit:
 // the nodes on the mid plane x = L/2 above mid height are split, tets on the
 // +x side move to the copies) and the PCG iterations of each step before
-// and after it, with the DOFs the factor in use covers.
+// and after it, with the DOFs the factor in use covers. Exits 1 when a
+// step does not converge.
 //
 //   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
 //                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
@@ -41,6 +42,9 @@ struct Case {
 };
 
 bool g_verbose = false;
+/// A step that did not converge (or a first step that failed) makes the
+/// bench exit 1: the solver failed, whatever its time.
+bool g_failed = false;
 ImplicitOptions g_options;
 
 const Case kCases[] = {
@@ -164,6 +168,7 @@ void RunCase(const Case& c, int steps, bool first) {
     const Phase p = RunSteps(integ, model, state, h, steps, nullptr, nullptr);
     const FactorStats fs = integ.linear_solver().stats();
     const double med = Median(p.seconds);
+    if (p.not_converged > 0 || !first_step.ok()) g_failed = true;
     std::printf("%s\n    {\"h_s\": %g, \"median_step_s\": %.6f, \"max_step_s\": %.6f, \"first_step_s\": %.4f,"
                 " \"first_step_ok\": %s, \"newton_mean\": %.2f, \"newton_max\": %g, \"pcg_mean\": %.2f,"
                 " \"pcg_max\": %g, \"not_converged\": %d, \"factorizations\": %lld,"
@@ -183,6 +188,7 @@ void RunCase(const Case& c, int steps, bool first) {
   RunSteps(integ, model, state, 0.01, steps / 2 + 1, &before, &dofs_before);
   Slit(c, model, state);
   const Phase p = RunSteps(integ, model, state, 0.01, steps, &after, &dofs_after);
+  if (p.not_converged > 0) g_failed = true;
   std::printf("   \"cut\": {\"nodes_after\": %d, \"dofs_after\": %d, \"pcg_before\": %s, \"pcg_after\": %s,"
               " \"factor_dofs_after\": %s, \"median_step_after_s\": %.6f, \"not_converged\": %d}}",
               model.num_nodes(), 3 * model.num_nodes(), Array(before).c_str(), Array(after).c_str(),
@@ -218,5 +224,5 @@ int main(int argc, char** argv) {
     first = false;
   }
   std::printf("\n]}\n");
-  return 0;
+  return cutsim::fem::g_failed ? 1 : 0;
 }

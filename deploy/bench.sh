@@ -72,13 +72,21 @@ echo "== organ_mesh (sliver cleanup and stable step of the organ)"
 run organ_mesh "$out/organ_mesh.log" "$bin/organ_mesh" > "$out/organ_mesh.json"
 cat "$out/organ_mesh.json"
 
-echo "== organ scene run (real-time factor)"
-if [[ -f scenes/organ.pbtxt ]]; then
-  run organ_run "$out/organ_run.log" "$bin/cutsim-server" --headless --scene scenes/organ.pbtxt \
-    --duration 0.5 --no-progress > "$out/organ_run.json"
-else
-  echo "scenes/organ.pbtxt not present: skipped"
-fi
+echo "== shipped scenes headless (real-time factor, integrator each scene's time_step picks)"
+# Each scene for SCENE_SECONDS simulated seconds on its default threads;
+# bench/scene_targets.py then checks the real-time targets on the JSON.
+for scene in ligament beam block organ; do
+  run "scene_$scene" "$out/scene_$scene.log" "$bin/cutsim-server" --headless --scene "scenes/$scene.pbtxt" \
+    --duration "${SCENE_SECONDS:-2}" --no-progress > "$out/scene_$scene.json"
+done
+run scene_targets "$out/scene_targets.log" /usr/bin/python3 bench/scene_targets.py "$out" \
+  > "$out/scene_targets.json"
+cat "$out/scene_targets.json" 2>/dev/null || true
+
+echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
+run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
+  > "$out/implicit.json"
+cat "$out/implicit.json" 2>/dev/null || true
 
 echo "== haptic loop under load (real server physics on the other core) vs bare loop"
 # Exit 77: no network namespace here (deploy/netns-run.sh), a skip, not a failure.
