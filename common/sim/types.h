@@ -14,6 +14,7 @@
 #include <Eigen/Core>
 
 #include "common/cutting/world_access.h"
+#include "common/mesh/mesh_frame.h"
 #include "common/mesh/tet_mesh.h"
 
 namespace cutsim::sim {
@@ -104,15 +105,10 @@ struct CutStepTiming {
 };
 
 /// The observable mesh (for viewers): world positions, tets, boundary
-/// surface and which of its faces a cut opened.
-struct MeshView {
-  mesh::Positions world;      // #N×3, m
-  mesh::Positions rest;       // #N×3, m
-  mesh::Tets tets;            // #T×4
-  mesh::Triangles surface;    // #F×3
-  std::vector<uint8_t> opened;  // #F
-  std::vector<uint8_t> debris;  // #F with cutting (else empty): 1 on a facet of a debris piece (debris.h)
-};
+/// surface, which of its faces a cut opened and which belong to debris.
+/// `FillMeshView` fills the mesh fields only; the frame's identity and the
+/// stress field are the caller's.
+using MeshView = mesh::MeshFrame;
 
 /// World positions of the FEM state (float or double) for the cut code.
 template <typename T>
