@@ -202,12 +202,11 @@ std::optional<sim::ToolPose> RealtimeLoop::TakeToolPose(int64_t frame_start) {
   // The newest valid pose drives the blade (stale ones are dropped).
   const auto tool = p_.link.PollTool();
   if (!tool) return std::nullopt;
-  const sim::ToolPose pose{tool->tip, tool->blade_dir};
-  p_.simulation.SetToolPose(pose);
+  p_.simulation.SetToolPose(tool->pose);
   tool_ = {.frame_ns = frame_start, .seq = tool->seq, .stamp_ns = tool->stamp_ns,
            .receive_ns = tool->receive_ns};
   ++counters_.tool_messages;
-  return pose;
+  return tool->pose;
 }
 
 void RealtimeLoop::PublishLocalModel(bool pose_this_frame) {

@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
 #include "common/cutting/world_access.h"
 #include "common/mesh/mesh_frame.h"
 #include "common/mesh/tet_mesh.h"
@@ -67,11 +68,9 @@ struct SimulationSummary {
   double cut_wall_time = 0.0;    ///< s spent in cut steps (criterion + split + FEM update)
 };
 
-/// A tool pose: blade tip and unit direction from the tip toward the handle.
-struct ToolPose {
-  Eigen::Vector3d tip = Eigen::Vector3d::Zero();       ///< m, world
-  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< unit
-};
+/// A tool pose: blade tip and unit direction from the tip toward the handle
+/// (common/core/tool_pose.h).
+using ToolPose = ::cutsim::ToolPose;
 
 /// What the tool did in the last frame: the haptic local model's inputs.
 struct ToolReport {

@@ -87,7 +87,7 @@ TEST(HapticServerLinkTest, DropsStaleDuplicateForeignInvalidAndGarbageAndCountsT
   EXPECT_EQ(first->seq, 5U);
   EXPECT_EQ(first->stamp_ns, 5000);
   EXPECT_GT(first->receive_ns, 0);
-  EXPECT_NEAR(first->blade_dir.z(), 1.0, 1e-15);
+  EXPECT_NEAR(first->pose.blade_dir.z(), 1.0, 1e-15);
   EXPECT_EQ(first->buttons, 1U);
 
   EXPECT_FALSE(send_and_poll(Tool(session, 5, 5000)).has_value());       // duplicate
@@ -227,7 +227,7 @@ TEST(HapticClientLinkTest, HandsTheNewestModelToTheConsumerThreadAndSendsTools) 
     transport::ReceivedModel rm;
     ToolSample tool;
     while (!stop.load()) {
-      tool.tip.z() = 0.001 * static_cast<double>(taken.load());
+      tool.pose.tip.z() = 0.001 * static_cast<double>(taken.load());
       client.PublishTool(tool);
       while (client.TakeModel(&rm)) {
         if (rm.model.seq <= last_seen.load()) order_ok.store(false);
