@@ -412,7 +412,7 @@ TEST(HapticServerLinkTest, ReceiveThreadHandsOverTheNewestPoseWithoutPolling) {
   auto got = link.PollTool();
   ASSERT_TRUE(got.has_value());
   EXPECT_EQ(got->seq, 5U);  // the newest, not the first since the last poll
-  EXPECT_DOUBLE_EQ(got->tip.z(), 0.005);
+  EXPECT_DOUBLE_EQ(got->pose.tip.z(), 0.005);
   EXPECT_GT(got->receive_ns, 0);
   EXPECT_FALSE(link.PollTool().has_value());
   // A stale pose is still dropped on the receive thread.
