@@ -24,16 +24,14 @@
 
 namespace {
 
-using cutsim::haptics::ToolKeyframe;
-
 // Press 2 mm into the ligament's top, slide 6 mm across it, lift: contact
 // throughout the middle second, no cut (cutting is disabled for this study).
 cutsim::haptics::ToolPath PressAndSlide() {
   const Eigen::Vector3d up(0, 0, 1);
-  return cutsim::haptics::ToolPath({{0.0, {0.015, -0.003, 0.0065}, up},
-                                    {0.4, {0.015, -0.003, 0.0020}, up},
-                                    {1.4, {0.015, 0.003, 0.0020}, up},
-                                    {1.8, {0.015, 0.003, 0.0065}, up}},
+  return cutsim::haptics::ToolPath({{0.0, {{0.015, -0.003, 0.0065}, up}},
+                                    {0.4, {{0.015, -0.003, 0.0020}, up}},
+                                    {1.4, {{0.015, 0.003, 0.0020}, up}},
+                                    {1.8, {{0.015, 0.003, 0.0065}, up}}},
                                    "press-and-slide");
 }
 
@@ -63,8 +61,7 @@ int main(int argc, char** argv) {
   {
     auto sim = make();
     for (int i = 0; i < ticks; ++i) {
-      const ToolKeyframe k = path.Sample(1e-3 * (i + 1));
-      sim->SetToolPose({k.tip, k.blade_dir});
+      sim->SetToolPose(path.Sample(1e-3 * (i + 1)));
       sim->AdvanceFrame(1e-3);
       reference[static_cast<size_t>(i)] = sim->Tool().force_on_tool;
     }
@@ -91,8 +88,7 @@ int main(int argc, char** argv) {
         err_buffer += (f - reference[static_cast<size_t>(i)]).squaredNorm();
         err_hold += (hold - reference[static_cast<size_t>(i)]).squaredNorm();
       }
-      const ToolKeyframe k = path.Sample(std::min(end, (frame + 1) / rate));
-      sim->SetToolPose({k.tip, k.blade_dir});
+      sim->SetToolPose(path.Sample(std::min(end, (frame + 1) / rate)));
       sim->AdvanceFrame(1.0 / rate);
       const cutsim::sim::ToolReport tool = sim->Tool();
       cutsim::haptics::ModelHeader header;

@@ -181,15 +181,10 @@ class Runner {
 
   void Publish() {
     publisher_->PublishFrame([&](cutsim::transport::MeshFrame& frame) {
-      sim_->FillMeshView(view_);
+      sim_->FillMeshView(frame);
       frame.frame = frame_;
       frame.sim_time = sim_->sim_time();
       frame.topology_version = sim_->topology_version();
-      frame.world.swap(view_.world);
-      frame.rest.swap(view_.rest);
-      frame.tets.swap(view_.tets);
-      frame.surface.swap(view_.surface);
-      frame.opened.swap(view_.opened);
       frame.stress.clear();
     });
   }
@@ -198,7 +193,6 @@ class Runner {
   std::unique_ptr<Simulation> sim_;
   std::unique_ptr<cutsim::transport::MeshStreamPublisher> publisher_;
   std::unique_ptr<cutsim::transport::MeshStreamSubscriber> subscriber_;
-  cutsim::sim::MeshView view_;
   cutsim::v1::HapticModel model_msg_;
   std::vector<uint8_t> bytes_;
   uint64_t frame_ = 0;

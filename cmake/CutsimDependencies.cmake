@@ -22,7 +22,7 @@ add_library(cutsim::lcm_c ALIAS cutsim_lcm)
 target_include_directories(cutsim_lcm SYSTEM INTERFACE ${LCM_INCLUDE_DIR})
 target_link_libraries(cutsim_lcm INTERFACE ${LCM_LIBRARY})
 
-# OpenSSL's libcrypto (libssl-dev): HMAC-SHA256 of tool messages (issue 7).
+# OpenSSL's libcrypto (libssl-dev): HMAC-SHA256 of tool messages (tool_auth.h).
 find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
 
 # gmsh (libgmsh-dev): .msh reading/writing and surface tetrahedralisation.

@@ -18,6 +18,8 @@
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
+
 namespace cutsim::haptic_client {
 
 /// What a device can do.
@@ -32,9 +34,8 @@ struct DeviceInfo {
 
 /// One reading of the device.
 struct DeviceState {
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();    ///< m, tool tip in the world frame.
-  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();    ///< m/s.
-  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ();  ///< unit, tip → handle.
+  ToolPose pose;                                       ///< The tool in the world frame.
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();  ///< m/s, of the tip.
   uint32_t buttons = 0;  ///< bit 0: cutting enabled.
   bool done = false;     ///< A virtual device's script has ended (a real one: never).
 };

@@ -31,7 +31,7 @@ const char* ServoLoop::Run(const std::atomic<bool>& stop) {
     device_.Read(wake.now_ns, &state_);
     if (ticks_ % static_cast<uint64_t>(tool_every_) == 0) SendTool(wake.now_ns);
     TakeModel(wake.now_ns);
-    const Eigen::Vector3d force = renderer_.Tick(state_.position, state_.velocity, wake.now_ns, wake.dt_s);
+    const Eigen::Vector3d force = renderer_.Tick(state_.pose.tip, state_.velocity, wake.now_ns, wake.dt_s);
     device_.SetForce(force);
     Record(wake, force);
     ++ticks_;
@@ -61,8 +61,7 @@ ServoLoop::Wake ServoLoop::MeasureWake(int64_t deadline_ns) {
 void ServoLoop::SendTool(int64_t now_ns) {
   transport::ToolSample sample;
   sample.stamp_ns = now_ns;
-  sample.tip = state_.position;
-  sample.blade_dir = state_.blade_dir;
+  sample.pose = state_.pose;
   sample.velocity = state_.velocity;
   sample.buttons = state_.buttons;
   const uint64_t seq = link_.PublishTool(sample);
@@ -90,7 +89,7 @@ void ServoLoop::Record(const Wake& wake, const Eigen::Vector3d& force) {
   if (!write_csv_) return;
   const auto& st = renderer_.stats();
   ring_.Push(CsvRow{.t = 1e-9 * static_cast<double>(wake.now_ns - t0_),
-                    .x = state_.position.x(), .y = state_.position.y(), .z = state_.position.z(),
+                    .x = state_.pose.tip.x(), .y = state_.pose.tip.y(), .z = state_.pose.tip.z(),
                     .fx = force.x(), .fy = force.y(), .fz = force.z(),
                     .model_age_ms = age_ms,
                     .period_us = 1e6 * wake.dt_s,

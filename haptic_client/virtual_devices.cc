@@ -21,23 +21,22 @@ ScriptedDevice::ScriptedDevice(haptics::ToolPath path, DeviceInfo info, haptics:
     : path_(std::move(path)), info_(std::move(info)), timing_(timing) {
   if (path_.empty()) ThrowInputError(SourceRef{.field = "--path"}, "the tool path has no keyframes");
   for (const auto& k : path_.keyframes()) {
-    if (!InWorkspace(info_, k.tip)) {
-      Log().warn("tool path keyframe at t={} s ({}, {}, {}) m is outside the {} workspace", k.t, k.tip.x(),
-                 k.tip.y(), k.tip.z(), info_.name);
+    const Eigen::Vector3d& tip = k.pose.tip;
+    if (!InWorkspace(info_, tip)) {
+      Log().warn("tool path keyframe at t={} s ({}, {}, {}) m is outside the {} workspace", k.t, tip.x(), tip.y(),
+                 tip.z(), info_.name);
     }
   }
 }
 
 void ScriptedDevice::Read(int64_t now_ns, DeviceState* state) noexcept {
   const double t = path_.start_time() + 1e-9 * static_cast<double>(now_ns - start_ns_);
-  const haptics::ToolKeyframe k = path_.Sample(t, timing_);
   // Velocity of the scripted motion: central difference of the path (the
   // path has no derivative API; h = 0.1 ms is far below any segment).
   constexpr double kH = 1e-4;
   const double ta = std::max(path_.start_time(), t - kH);
   const double tb = std::min(path_.end_time(), t + kH);
-  state->position = k.tip;
-  state->blade_dir = k.blade_dir;
+  state->pose = path_.Sample(t, timing_);
   state->velocity = tb > ta ? Eigen::Vector3d((path_.Sample(tb, timing_).tip - path_.Sample(ta, timing_).tip) / (tb - ta))
                             : Eigen::Vector3d::Zero();
   state->buttons = 1;
@@ -62,18 +61,19 @@ ReplayDevice::ReplayDevice(const std::filesystem::path& log, const std::string& 
       continue;
     }
     ReplaySample s;
-    s.tip = {msg.tip().x(), msg.tip().y(), msg.tip().z()};
-    s.blade_dir = msg.has_blade_dir() ? Eigen::Vector3d(msg.blade_dir().x(), msg.blade_dir().y(), msg.blade_dir().z())
-                                      : Eigen::Vector3d::UnitZ();
+    s.pose.tip = {msg.tip().x(), msg.tip().y(), msg.tip().z()};
+    s.pose.blade_dir = msg.has_blade_dir()
+                           ? Eigen::Vector3d(msg.blade_dir().x(), msg.blade_dir().y(), msg.blade_dir().z())
+                           : Eigen::Vector3d::UnitZ();
     s.velocity = {msg.velocity().x(), msg.velocity().y(), msg.velocity().z()};
     s.buttons = msg.buttons();
-    const double n = s.blade_dir.norm();
-    if (!s.tip.allFinite() || !s.velocity.allFinite() || !(n > 1e-9) || !std::isfinite(n) ||
+    const double n = s.pose.blade_dir.norm();
+    if (!s.pose.tip.allFinite() || !s.velocity.allFinite() || !(n > 1e-9) || !std::isfinite(n) ||
         (!samples_.empty() && msg.seq() <= last_seq && msg.seq() != 0)) {
       ++skipped;
       continue;
     }
-    s.blade_dir /= n;
+    s.pose.blade_dir /= n;
     if (samples_.empty()) first_us = event->timestamp_us;
     s.t = 1e-6 * static_cast<double>(event->timestamp_us - first_us);
     if (!samples_.empty() && s.t < samples_.back().t) {
@@ -99,11 +99,11 @@ void ReplayDevice::Read(int64_t now_ns, DeviceState* state) noexcept {
   if (cursor_ + 1 < samples_.size() && t > a.t) {
     const ReplaySample& b = samples_[cursor_ + 1];
     const double w = (t - a.t) / (b.t - a.t);
-    state->position = (1.0 - w) * a.tip + w * b.tip;
+    state->pose.tip = (1.0 - w) * a.pose.tip + w * b.pose.tip;
   } else {
-    state->position = a.tip;
+    state->pose.tip = a.pose.tip;
   }
-  state->blade_dir = a.blade_dir;
+  state->pose.blade_dir = a.pose.blade_dir;
   state->velocity = a.velocity;
   state->buttons = a.buttons;
   state->done = t >= samples_.back().t;

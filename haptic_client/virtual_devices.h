@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common/core/tool_pose.h"
 #include "common/haptics/tool_path.h"
 #include "haptic_client/device.h"
 
@@ -41,10 +42,9 @@ class ScriptedDevice final : public HapticDevice {
 /// One recorded tool pose.
 struct ReplaySample {
   double t = 0.0;  ///< s since the first recorded pose.
-  Eigen::Vector3d tip = Eigen::Vector3d::Zero();
-  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ();
-  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();
-  uint32_t buttons = 0;
+  ToolPose pose;
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();  ///< m/s, of the tip.
+  uint32_t buttons = 0;                                ///< bit 0: cutting enabled.
 };
 
 /// Replays the tool stream of an LCM log (`lcm-logger` or the server's

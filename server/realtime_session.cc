@@ -106,8 +106,8 @@ void WriteFileAtomically(const std::string& path, const std::string& text) {
 }
 
 /// The frame loop of a real-time session and its statistics. Lives on the
-/// physics thread; once warm a frame allocates nothing (the mesh view and
-/// frame swap buffers, the statistics rings are preallocated).
+/// physics thread; once warm a frame allocates nothing (the publisher's mesh
+/// frame is reused, the statistics rings are preallocated).
 class RealtimeLoop {
  public:
   struct Parts {
@@ -146,7 +146,6 @@ class RealtimeLoop {
   int64_t next_status_ns_;
   AppliedTool tool_;
   uint64_t last_cuts_;
-  sim::MeshView view_;
   SessionCounters counters_;
   FrameStats frame_time_{1 << 16};
   LatencyStats latency_;
@@ -203,12 +202,11 @@ std::optional<sim::ToolPose> RealtimeLoop::TakeToolPose(int64_t frame_start) {
   // The newest valid pose drives the blade (stale ones are dropped).
   const auto tool = p_.link.PollTool();
   if (!tool) return std::nullopt;
-  const sim::ToolPose pose{tool->tip, tool->blade_dir};
-  p_.simulation.SetToolPose(pose);
+  p_.simulation.SetToolPose(tool->pose);
   tool_ = {.frame_ns = frame_start, .seq = tool->seq, .stamp_ns = tool->stamp_ns,
            .receive_ns = tool->receive_ns};
   ++counters_.tool_messages;
-  return pose;
+  return tool->pose;
 }
 
 void RealtimeLoop::PublishLocalModel(bool pose_this_frame) {
@@ -248,18 +246,13 @@ void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
   // Viewers at their own rate; nothing is encoded while none is matched.
   next_viewer_ns_ += viewer_period_ns_;
   if (next_viewer_ns_ < frame_start) next_viewer_ns_ = frame_start + viewer_period_ns_;
+  // The simulation fills the publisher's reused frame in place: once warm
+  // nothing allocates, and the mesh is copied once.
   p_.publisher.PublishFrame([this](transport::MeshFrame& frame) {
-    // Swap rather than copy: `view_` and `frame` trade buffers each frame,
-    // so once warm neither allocates and the mesh is copied only once.
-    p_.simulation.FillMeshView(view_);
+    p_.simulation.FillMeshView(frame);
     frame.frame = counters_.frames;
     frame.sim_time = p_.simulation.sim_time();
     frame.topology_version = p_.simulation.topology_version();
-    frame.world.swap(view_.world);
-    frame.rest.swap(view_.rest);
-    frame.tets.swap(view_.tets);
-    frame.surface.swap(view_.surface);
-    frame.opened.swap(view_.opened);
     frame.stress.clear();
   });
   ++counters_.viewer_frames;

@@ -150,19 +150,26 @@ uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
 
 // ---- Replay ------------------------------------------------------------------------
 
-ReplayResult ReplayRecording(const std::filesystem::path& path, const std::string& scene_override) {
-  transport::LcmLogReader reader(path);
-  const std::string file = path.string();
+namespace {
+
+/// The recording's first event, its header. Throws naming the file when the
+/// log is not a recording.
+v1::RecordHeader ReadHeader(transport::LcmLogReader& reader, const std::filesystem::path& path) {
   auto first = reader.Next();
   if (!first || !EndsWith(first->channel, "_REC_HEADER")) {
-    ThrowInputError({.file = file, .line = 1},
+    ThrowInputError({.file = path.string(), .line = 1},
                     "not a cutsim recording: the first event must be on CUTSIM_<session>_REC_HEADER");
   }
-  const auto header = Parse<v1::RecordHeader>(*first, path);
-  ReplayResult result;
-  result.session = header.session();
+  return Parse<v1::RecordHeader>(*first, path);
+}
 
-  // The scene: the override, else as recorded, else next to the recording.
+/// The scene to replay: the override, else as recorded, else a file of the
+/// same name next to the recording. Throws when it is missing or is not the
+/// recorded scene; warns when this build rounds differently from the
+/// recorder's.
+std::filesystem::path ReplayScene(const v1::RecordHeader& header, const std::filesystem::path& path,
+                                  const std::string& scene_override) {
+  const std::string file = path.string();
   std::filesystem::path scene = scene_override.empty() ? header.scene() : scene_override;
   if (scene_override.empty() && !std::filesystem::exists(scene)) {
     scene = path.parent_path() / std::filesystem::path(header.scene()).filename();
@@ -171,7 +178,6 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
     ThrowInputError({.file = file, .field = "RecordHeader.scene"},
                     fmt::format("scene \"{}\" not found (give --scene)", header.scene()));
   }
-  result.scene = scene.string();
   if (FileHash(scene) != header.scene_hash()) {
     ThrowInputError({.file = file, .field = "RecordHeader.scene_hash"},
                     fmt::format("scene {} differs from the recorded one", scene.string()));
@@ -181,82 +187,136 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
                "and the replay may not match",
                file, header.build(), BuildClass());
   }
+  return scene;
+}
+
+/// Feeds a recording's frames to a simulation and compares its cut
+/// decisions and final mesh with the recorded ones. The first difference is
+/// the replay's mismatch; a malformed recording throws naming the file and
+/// event.
+class Replayer {
+ public:
+  Replayer(const std::filesystem::path& path, sim::Simulation& simulation)
+      : path_(path), simulation_(simulation), last_version_(simulation.topology_version()) {}
+
+  /// Replays one RecordFrame event; false when the replay must stop.
+  bool Frame(const transport::LcmLogEvent& e) {
+    if (ended_) ThrowInputError({.file = path_.string(), .line = e.eventnum + 1}, "frame after the end event");
+    const auto f = Parse<v1::RecordFrame>(e, path_);
+    if (f.frame() != result_.frames + 1) {
+      ThrowInputError({.file = path_.string(), .line = e.eventnum + 1, .field = "RecordFrame.frame"},
+                      fmt::format("frame {} follows frame {}: the recording is incomplete", f.frame(),
+                                  result_.frames));
+    }
+    if (f.has_tool()) {
+      simulation_.SetToolPose({{f.tip().x(), f.tip().y(), f.tip().z()},
+                               {f.blade_dir().x(), f.blade_dir().y(), f.blade_dir().z()}});
+    }
+    if (simulation_.AdvanceFrame(f.frame_time()) != sim::SimStatus::kOk) {
+      Fail(fmt::format("frame {}: the simulation stopped: {}", f.frame(), simulation_.Summary().diagnosis));
+      return false;
+    }
+    ++result_.frames;
+    return SameTopology(f);
+  }
+
+  /// Takes the RecordEnd event: the recorded frame count and final hash.
+  void End(const transport::LcmLogEvent& e) {
+    const auto end = Parse<v1::RecordEnd>(e, path_);
+    ended_ = true;
+    result_.recorded_mesh_hash = end.mesh_hash();
+    if (end.frames() != result_.frames) {
+      Fail(fmt::format("{} frames replayed, {} recorded", result_.frames, end.frames()));
+    }
+  }
+
+  /// Keeps the first mismatch.
+  void Fail(std::string what) {
+    if (result_.mismatch.empty()) result_.mismatch = std::move(what);
+  }
+
+  /// The simulation's final state against the recorded one (hashed at
+  /// `quantum`, m).
+  [[nodiscard]] ReplayResult Finish(double quantum) {
+    result_.topology_version = simulation_.topology_version();
+    result_.cuts = simulation_.has_tool() ? simulation_.Tool().cuts : 0;
+    result_.sim_time = simulation_.sim_time();
+    result_.mesh_hash = FinalMeshHash(simulation_, quantum, &view_);
+    if (result_.mismatch.empty() && result_.mesh_hash != result_.recorded_mesh_hash) {
+      Fail(fmt::format("final mesh hash {:016x}, recorded {:016x}", result_.mesh_hash,
+                       result_.recorded_mesh_hash));
+    }
+    result_.match = result_.mismatch.empty();
+    return result_;
+  }
+
+  [[nodiscard]] bool ended() const { return ended_; }
+  [[nodiscard]] bool failed() const { return !result_.mismatch.empty(); }
+  [[nodiscard]] uint64_t frames() const { return result_.frames; }
+
+ private:
+  /// The frame's topology version, and on a frame that cut its digest, as
+  /// recorded; false (a mismatch) otherwise.
+  bool SameTopology(const v1::RecordFrame& f) {
+    const uint64_t version = simulation_.topology_version();
+    if (version != f.topology_version()) {
+      Fail(fmt::format("frame {}: topology version {}, recorded {} (a cut decision differs)", f.frame(),
+                       version, f.topology_version()));
+      return false;
+    }
+    if (version == last_version_) return true;
+    ++result_.cut_frames;
+    last_version_ = version;
+    const uint64_t digest = TopologyDigest(simulation_, &view_);
+    if (f.topology_hash() != 0 && digest != f.topology_hash()) {
+      // The digest covers the tets and the surface in slot order: a build
+      // that splits the same nodes but fills other free surface slots
+      // differs too.
+      Fail(fmt::format("frame {}: topology digest {:016x}, recorded {:016x} (the cut left other tets or "
+                       "other surface slots than recorded)",
+                       f.frame(), digest, f.topology_hash()));
+      return false;
+    }
+    return true;
+  }
+
+  const std::filesystem::path& path_;
+  sim::Simulation& simulation_;
+  ReplayResult result_;
+  sim::MeshView view_;  // reused for digests
+  uint64_t last_version_;
+  bool ended_ = false;
+};
+
+}  // namespace
+
+ReplayResult ReplayRecording(const std::filesystem::path& path, const std::string& scene_override) {
+  transport::LcmLogReader reader(path);
+  const v1::RecordHeader header = ReadHeader(reader, path);
+  const std::filesystem::path scene = ReplayScene(header, path, scene_override);
   const sim::LoadedScene loaded = sim::LoadScene(scene);
   auto simulation = sim::Simulation::Create(
       loaded, {.threads = header.threads(), .precision = header.precision()});
-
-  sim::MeshView view;
-  uint64_t last_version = simulation->topology_version();
-  bool ended = false;
-  const auto fail = [&](std::string what) {
-    if (result.mismatch.empty()) result.mismatch = std::move(what);
-  };
+  Replayer replayer(path, *simulation);
   while (auto e = reader.Next()) {
     if (g_stop) {
-      fail(fmt::format("interrupted after {} frames", result.frames));
+      replayer.Fail(fmt::format("interrupted after {} frames", replayer.frames()));
       break;
     }
     if (EndsWith(e->channel, "_REC_FRAME")) {
-      if (ended) ThrowInputError({.file = file, .line = e->eventnum + 1}, "frame after the end event");
-      const auto f = Parse<v1::RecordFrame>(*e, path);
-      if (f.frame() != result.frames + 1) {
-        ThrowInputError({.file = file, .line = e->eventnum + 1, .field = "RecordFrame.frame"},
-                        fmt::format("frame {} follows frame {}: the recording is incomplete",
-                                    f.frame(), result.frames));
-      }
-      if (f.has_tool()) {
-        simulation->SetToolPose({{f.tip().x(), f.tip().y(), f.tip().z()},
-                                 {f.blade_dir().x(), f.blade_dir().y(), f.blade_dir().z()}});
-      }
-      if (simulation->AdvanceFrame(f.frame_time()) != sim::SimStatus::kOk) {
-        fail(fmt::format("frame {}: the simulation stopped: {}", f.frame(),
-                         simulation->Summary().diagnosis));
-        break;
-      }
-      ++result.frames;
-      const uint64_t version = simulation->topology_version();
-      if (version != f.topology_version()) {
-        fail(fmt::format("frame {}: topology version {}, recorded {} (a cut decision differs)",
-                         f.frame(), version, f.topology_version()));
-        break;
-      }
-      if (version != last_version) {
-        ++result.cut_frames;
-        last_version = version;
-        const uint64_t digest = TopologyDigest(*simulation, &view);
-        if (f.topology_hash() != 0 && digest != f.topology_hash()) {
-          // The digest covers the tets and the surface in slot order: a
-          // build that splits the same nodes but fills other free surface
-          // slots differs too.
-          fail(fmt::format("frame {}: topology digest {:016x}, recorded {:016x} (the cut left "
-                           "other tets or other surface slots than recorded)",
-                           f.frame(), digest, f.topology_hash()));
-          break;
-        }
-      }
+      if (!replayer.Frame(*e)) break;
     } else if (EndsWith(e->channel, "_REC_END")) {
-      const auto end = Parse<v1::RecordEnd>(*e, path);
-      ended = true;
-      result.recorded_mesh_hash = end.mesh_hash();
-      if (end.frames() != result.frames) {
-        fail(fmt::format("{} frames replayed, {} recorded", result.frames, end.frames()));
-      }
+      replayer.End(*e);
     }
     // Other channels (e.g. a tool stream logged alongside) are ignored.
   }
-  if (!ended && result.mismatch.empty() && !g_stop) {
-    ThrowInputError({.file = file, .field = "RecordEnd"},
+  if (!replayer.ended() && !replayer.failed() && !g_stop) {
+    ThrowInputError({.file = path.string(), .field = "RecordEnd"},
                     "the recording has no end event (the server did not finish it)");
   }
-  result.topology_version = simulation->topology_version();
-  result.cuts = simulation->has_tool() ? simulation->Tool().cuts : 0;
-  result.sim_time = simulation->sim_time();
-  result.mesh_hash = FinalMeshHash(*simulation, header.quantum() > 0 ? header.quantum() : kRecordQuantum, &view);
-  if (result.mismatch.empty() && result.mesh_hash != result.recorded_mesh_hash) {
-    fail(fmt::format("final mesh hash {:016x}, recorded {:016x}", result.mesh_hash,
-                     result.recorded_mesh_hash));
-  }
-  result.match = result.mismatch.empty();
+  ReplayResult result = replayer.Finish(header.quantum() > 0 ? header.quantum() : kRecordQuantum);
+  result.session = header.session();
+  result.scene = scene.string();
   return result;
 }
 

@@ -82,92 +82,107 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   return r;
 }
 
+/// The batch-run flags: scene, duration, output, threads, logging.
+void AddRunOptions(CLI::App& app, ServerOptions& o) {
+  app.add_option("--scene", o.scene,
+                 "Scene file (protobuf text format); with --replay, overrides the recorded one")
+      ->check(CLI::ExistingFile);
+  app.add_flag("--headless", o.headless,
+               "Run as fast as possible with no transport, then print a JSON summary");
+  app.add_option("--duration", o.duration, "Simulated seconds to run")
+      ->check(CLI::PositiveNumber);
+  app.add_flag("--until-rest", o.until_rest,
+               "Run until kinetic energy and residual force fall below the scene's rest tolerances");
+  app.add_option("--max-time", o.max_time, "Cap on simulated seconds for --until-rest")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--out", o.out, "Write the final state to this .vtu file");
+  app.add_option("--threads", o.threads, "Worker threads (0 = scene/all cores)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--precision", o.precision, "Override the scene's precision")
+      ->check(CLI::IsMember({"float", "double"}));
+  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off");
+  app.add_flag("!--no-progress", o.progress, "No progress bar");
+}
+
+/// The real-time session's flags: session name, LCM and DDS, rates, priority.
+void AddRealtimeOptions(CLI::App& app, ServerOptions& o) {
+  app.add_option("--session", o.session, "Session name (LCM channels, DDS key)");
+  app.add_option("--lcm-url", o.lcm_url,
+                 "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)");
+  app.add_option("--dds-domain", o.dds_domain, "DDS domain id for the viewers")
+      ->check(CLI::Range(0, 230));
+  app.add_option("--dds-config", o.dds_config,
+                 "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
+      ->check(CLI::ExistingFile);
+  app.add_flag("!--no-rt", o.realtime_priority,
+               "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
+               "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
+               "e.g. a haptic client started with --no-rt");
+  app.add_option("--viewer-fps", o.viewer_fps, "Mesh frames per second to viewers")
+      ->check(CLI::Range(0.1, 240.0));
+  app.add_option("--frame-rate", o.frame_rate,
+                 "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
+      ->check(CLI::Range(1.0, 10000.0));
+  app.add_option("--stats-json", o.stats_json, "Also write the exit statistics to this file");
+}
+
+/// Recording, replay and access control of the tool stream.
+void AddRecordAndAccessOptions(CLI::App& app, ServerOptions& o) {
+  app.add_option("--record", o.record,
+                 "Record the session's inputs (tool poses applied, frame times, cuts, final mesh "
+                 "hash) to this LCM log");
+  app.add_option("--replay", o.replay,
+                 "With --headless: re-run a recording and check its cuts and final mesh hash "
+                 "(exit 4 on a mismatch)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--key-file", o.key_file,
+                 "Session key (hex, 16-64 bytes): accept only tool messages signed with it; "
+                 "default $CUTSIM_SESSION_KEY, else an open session")
+      ->check(CLI::ExistingFile);
+  app.add_option("--auth-window", o.auth_window,
+                 "Seconds a signed tool message's timestamp may differ from this host's clock")
+      ->check(CLI::Range(0.001, 3600.0));
+}
+
+/// Checkpoints and resuming from one.
+void AddCheckpointOptions(CLI::App& app, ServerOptions& o) {
+  app.add_option("--checkpoint", o.checkpoint,
+                 "Save the tissue (every cut, positions, velocities) to this file every "
+                 "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace");
+  app.add_option("--checkpoint-every", o.checkpoint_every,
+                 "Wall seconds between checkpoints (0: only at exit)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--resume", o.resume,
+               "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an error)");
+}
+
+/// The message for flags that cannot go together, or null when they can.
+const char* OptionConflict(const ServerOptions& o) {
+  if (o.resume && o.checkpoint.empty()) return "--resume needs --checkpoint FILE";
+  if (o.scene.empty() && o.replay.empty()) return "--scene is required (unless --headless --replay FILE)";
+  if (!o.replay.empty() && !o.headless) return "--replay needs --headless";
+  if (!o.record.empty() && o.headless) return "--record records a real-time session: drop --headless";
+  if (!o.record.empty() && o.resume) {
+    return "--record cannot be combined with --resume (a replay starts from the scene)";
+  }
+  return nullptr;
+}
+
 }  // namespace
 
 int ServerApp::ParseArgs(int argc, char** argv) {
   CLI::App app{"cutsim-server: owns the tissue FEM model and every cut"};
-  app.add_option("--scene", options_.scene,
-                 "Scene file (protobuf text format); with --replay, overrides the recorded one")
-      ->check(CLI::ExistingFile);
-  app.add_flag("--headless", options_.headless,
-               "Run as fast as possible with no transport, then print a JSON summary");
-  app.add_option("--duration", options_.duration, "Simulated seconds to run")
-      ->check(CLI::PositiveNumber);
-  app.add_flag("--until-rest", options_.until_rest,
-               "Run until kinetic energy and residual force fall below the scene's rest tolerances");
-  app.add_option("--max-time", options_.max_time, "Cap on simulated seconds for --until-rest")
-      ->check(CLI::PositiveNumber);
-  app.add_option("--out", options_.out, "Write the final state to this .vtu file");
-  app.add_option("--threads", options_.threads, "Worker threads (0 = scene/all cores)")
-      ->check(CLI::NonNegativeNumber);
-  app.add_option("--precision", options_.precision, "Override the scene's precision")
-      ->check(CLI::IsMember({"float", "double"}));
-  app.add_option("--log-level", options_.log_level, "trace, debug, info, warn, error, off");
-  app.add_flag("!--no-progress", options_.progress, "No progress bar");
-  app.add_option("--session", options_.session, "Session name (LCM channels, DDS key)");
-  app.add_option("--lcm-url", options_.lcm_url,
-                 "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)");
-  app.add_option("--dds-domain", options_.dds_domain, "DDS domain id for the viewers")
-      ->check(CLI::Range(0, 230));
-  app.add_option("--dds-config", options_.dds_config,
-                 "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
-      ->check(CLI::ExistingFile);
-  app.add_flag("!--no-rt", options_.realtime_priority,
-               "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
-               "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
-               "e.g. a haptic client started with --no-rt");
-  app.add_option("--viewer-fps", options_.viewer_fps, "Mesh frames per second to viewers")
-      ->check(CLI::Range(0.1, 240.0));
-  app.add_option("--frame-rate", options_.frame_rate,
-                 "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
-      ->check(CLI::Range(1.0, 10000.0));
-  app.add_option("--stats-json", options_.stats_json, "Also write the exit statistics to this file");
-  app.add_option("--record", options_.record,
-                 "Record the session's inputs (tool poses applied, frame times, cuts, final mesh "
-                 "hash) to this LCM log");
-  app.add_option("--replay", options_.replay,
-                 "With --headless: re-run a recording and check its cuts and final mesh hash "
-                 "(exit 4 on a mismatch)")
-      ->check(CLI::ExistingFile);
-  app.add_option("--key-file", options_.key_file,
-                 "Session key (hex, 16-64 bytes): accept only tool messages signed with it; "
-                 "default $CUTSIM_SESSION_KEY, else an open session")
-      ->check(CLI::ExistingFile);
-  app.add_option("--auth-window", options_.auth_window,
-                 "Seconds a signed tool message's timestamp may differ from this host's clock")
-      ->check(CLI::Range(0.001, 3600.0));
-  app.add_option("--checkpoint", options_.checkpoint,
-                 "Save the tissue (every cut, positions, velocities) to this file every "
-                 "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace");
-  app.add_option("--checkpoint-every", options_.checkpoint_every,
-                 "Wall seconds between checkpoints (0: only at exit)")
-      ->check(CLI::NonNegativeNumber);
-  app.add_flag("--resume", options_.resume,
-               "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an error)");
+  AddRunOptions(app, options_);
+  AddRealtimeOptions(app, options_);
+  AddRecordAndAccessOptions(app, options_);
+  AddCheckpointOptions(app, options_);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  if (options_.resume && options_.checkpoint.empty()) {
-    std::fprintf(stderr, "--resume needs --checkpoint FILE\n");
-    return 2;
-  }
-  if (options_.scene.empty() && options_.replay.empty()) {
-    std::fprintf(stderr, "--scene is required (unless --headless --replay FILE)\n");
-    return 2;
-  }
-  if (!options_.replay.empty() && !options_.headless) {
-    std::fprintf(stderr, "--replay needs --headless\n");
-    return 2;
-  }
-  if (!options_.record.empty() && options_.headless) {
-    std::fprintf(stderr, "--record records a real-time session: drop --headless\n");
-    return 2;
-  }
-  if (!options_.record.empty() && options_.resume) {
-    // A replay starts from the scene, not from a checkpoint.
-    std::fprintf(stderr, "--record cannot be combined with --resume (a replay starts from the scene)\n");
+  if (const char* conflict = OptionConflict(options_)) {
+    std::fprintf(stderr, "%s\n", conflict);
     return 2;
   }
   return -1;

@@ -16,17 +16,17 @@ ToolPath::ToolPath(std::vector<ToolKeyframe> keyframes, const std::string& sourc
   for (size_t i = 0; i < keyframes_.size(); ++i) {
     auto& k = keyframes_[i];
     const std::string field = fmt::format("keyframe {}", i + 1);
-    if (!std::isfinite(k.t) || !k.tip.allFinite() || !k.blade_dir.allFinite()) {
+    if (!std::isfinite(k.t) || !k.pose.tip.allFinite() || !k.pose.blade_dir.allFinite()) {
       ThrowInputError({.file = source_name, .field = field}, "values must be finite");
     }
     if (i > 0 && !(k.t > keyframes_[i - 1].t)) {
       ThrowInputError({.file = source_name, .field = field}, "times must increase strictly");
     }
-    const double n = k.blade_dir.norm();
+    const double n = k.pose.blade_dir.norm();
     if (!(n > 1e-12)) {
       ThrowInputError({.file = source_name, .field = field}, "blade direction must be non-zero");
     }
-    k.blade_dir /= n;
+    k.pose.blade_dir /= n;
   }
 }
 
@@ -51,15 +51,15 @@ ToolPath ToolPath::Parse(const std::string& text, const std::string& source_name
                       "expected 7 numbers: t tip_x tip_y tip_z dir_x dir_y dir_z");
     }
     k.t = v[0];
-    k.tip = {v[1], v[2], v[3]};
-    k.blade_dir = {v[4], v[5], v[6]};
-    if (!std::isfinite(k.t) || !k.tip.allFinite() || !k.blade_dir.allFinite()) {
+    k.pose.tip = {v[1], v[2], v[3]};
+    k.pose.blade_dir = {v[4], v[5], v[6]};
+    if (!std::isfinite(k.t) || !k.pose.tip.allFinite() || !k.pose.blade_dir.allFinite()) {
       ThrowInputError({.file = source_name, .line = line_no}, "values must be finite");
     }
     if (!frames.empty() && !(k.t > frames.back().t)) {
       ThrowInputError({.file = source_name, .line = line_no}, "times must increase strictly");
     }
-    if (!(k.blade_dir.norm() > 1e-12)) {
+    if (!(k.pose.blade_dir.norm() > 1e-12)) {
       ThrowInputError({.file = source_name, .line = line_no}, "blade direction must be non-zero");
     }
     frames.push_back(k);
@@ -83,18 +83,19 @@ void ToolPath::Write(const std::filesystem::path& path) const {
     if (!out) ThrowFileError(tmp.string(), "cannot write tool path");
     out << "# cutsim tool path: t[s] tip_x tip_y tip_z [m] dir_x dir_y dir_z\n";
     for (const auto& k : keyframes_) {
-      out << fmt::format("{:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g}\n", k.t, k.tip.x(),
-                         k.tip.y(), k.tip.z(), k.blade_dir.x(), k.blade_dir.y(), k.blade_dir.z());
+      const ToolPose& p = k.pose;
+      out << fmt::format("{:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g} {:.9g}\n", k.t, p.tip.x(), p.tip.y(),
+                         p.tip.z(), p.blade_dir.x(), p.blade_dir.y(), p.blade_dir.z());
     }
     if (!out) ThrowFileError(tmp.string(), "write failed");
   }
   std::filesystem::rename(tmp, path);
 }
 
-ToolKeyframe ToolPath::Sample(double t, PathTiming timing) const {
+ToolPose ToolPath::Sample(double t, PathTiming timing) const {
   if (keyframes_.empty()) return {};
-  if (t <= keyframes_.front().t) return keyframes_.front();
-  if (t >= keyframes_.back().t) return keyframes_.back();
+  if (t <= keyframes_.front().t) return keyframes_.front().pose;
+  if (t >= keyframes_.back().t) return keyframes_.back().pose;
   const auto it = std::upper_bound(keyframes_.begin(), keyframes_.end(), t,
                                    [](double tt, const ToolKeyframe& k) { return tt < k.t; });
   const ToolKeyframe& b = *it;
@@ -104,12 +105,11 @@ ToolKeyframe ToolPath::Sample(double t, PathTiming timing) const {
     // s(τ) = 10τ³ − 15τ⁴ + 6τ⁵: zero velocity and acceleration at both ends.
     s = s * s * s * (10.0 + s * (-15.0 + 6.0 * s));
   }
-  ToolKeyframe out;
-  out.t = t;
-  out.tip = a.tip + s * (b.tip - a.tip);
-  Eigen::Vector3d d = a.blade_dir + s * (b.blade_dir - a.blade_dir);
+  ToolPose out;
+  out.tip = a.pose.tip + s * (b.pose.tip - a.pose.tip);
+  Eigen::Vector3d d = a.pose.blade_dir + s * (b.pose.blade_dir - a.pose.blade_dir);
   const double n = d.norm();
-  out.blade_dir = n > 1e-12 ? Eigen::Vector3d(d / n) : a.blade_dir;
+  out.blade_dir = n > 1e-12 ? Eigen::Vector3d(d / n) : a.pose.blade_dir;
   return out;
 }
 

@@ -1,6 +1,7 @@
 #pragma once
 /// @file
-/// The tool path format: keyframes of time, tip position and blade direction.
+/// The tool path format: keyframes of time and tool pose (tip position and
+/// blade direction).
 /// One format for headless scenes and for the haptic client's scripted device
 /// (documented in scenes/README.md):
 ///
@@ -20,12 +21,14 @@
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
+
 namespace cutsim::haptics {
 
+/// A keyframe of a tool path: a pose and the time the tool reaches it.
 struct ToolKeyframe {
-  double t = 0.0;                     ///< s
-  Eigen::Vector3d tip{0, 0, 0};       ///< m, world
-  Eigen::Vector3d blade_dir{0, 0, 1}; ///< unit, tip → handle
+  double t = 0.0;  ///< s
+  ToolPose pose;   ///< Blade direction normalised on load.
 };
 
 /// Timing inside a segment between two keyframes.
@@ -50,7 +53,7 @@ class ToolPath {
   [[nodiscard]] const std::vector<ToolKeyframe>& keyframes() const { return keyframes_; }
 
   /// Pose at time t (clamped to the path's ends). Does not allocate.
-  [[nodiscard]] ToolKeyframe Sample(double t, PathTiming timing = PathTiming::kLinear) const;
+  [[nodiscard]] ToolPose Sample(double t, PathTiming timing = PathTiming::kLinear) const;
 
  private:
   std::vector<ToolKeyframe> keyframes_;

@@ -57,8 +57,9 @@ void ValidateSurface(const SurfaceInput& surface, const RenderOptions& options) 
   }
   if (options.tool) {
     const ToolSegment& t = *options.tool;
-    if (!t.base.allFinite() || !t.tip.allFinite() || !std::isfinite(t.radius)) {
-      Fail("render.tool", "base, tip and radius must be finite");
+    if (!t.pose.tip.allFinite() || !t.pose.blade_dir.allFinite() || !std::isfinite(t.length) ||
+        !std::isfinite(t.radius)) {
+      Fail("render.tool", "tip, blade direction, length and radius must be finite");
     }
   }
 }
@@ -169,7 +170,9 @@ void SurfaceRenderer::BuildVertexArrays(const SurfaceInput& surface, const Rende
 }
 
 void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
-  const Eigen::Vector3d axis = tool.tip - tool.base;
+  const Eigen::Vector3d& tip = tool.pose.tip;
+  const Eigen::Vector3d base = tool.base();
+  const Eigen::Vector3d axis = tip - base;
   const double length = axis.norm();
   if (!(length > 0.0)) return;
   const double radius = tool.radius > 0.0 ? tool.radius : 0.03 * scene_radius;
@@ -188,15 +191,15 @@ void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
   for (int i = 0; i <= kToolSides; ++i) {
     const double angle = 2.0 * std::numbers::pi * i / kToolSides;
     const Eigen::Vector3d radial = std::cos(angle) * u + std::sin(angle) * w;
-    const Eigen::Vector3d p_tip = tool.tip + radius * radial;
-    const Eigen::Vector3d p_base = tool.base + radius * radial;
+    const Eigen::Vector3d p_tip = tip + radius * radial;
+    const Eigen::Vector3d p_base = base + radius * radial;
     glNormal3d(radial.x(), radial.y(), radial.z());
     glVertex3d(p_tip.x(), p_tip.y(), p_tip.z());
     glVertex3d(p_base.x(), p_base.y(), p_base.z());
   }
   glEnd();
   for (int end = 0; end < 2; ++end) {  // flat caps
-    const Eigen::Vector3d& centre = end == 0 ? tool.base : tool.tip;
+    const Eigen::Vector3d& centre = end == 0 ? base : tip;
     const Eigen::Vector3d normal = end == 0 ? Eigen::Vector3d(-a) : a;
     const double turn = end == 0 ? -1.0 : 1.0;  // counter-clockwise about `normal`
     glBegin(GL_TRIANGLE_FAN);
@@ -222,8 +225,8 @@ Image SurfaceRenderer::Render(const Camera& camera, const SurfaceInput& surface,
   // that keeps float vertex coordinates precise far from the world origin.
   Eigen::AlignedBox3d box = BoundingBox(surface.positions);
   if (options.tool) {
-    box.extend(options.tool->base);
-    box.extend(options.tool->tip);
+    box.extend(options.tool->base());
+    box.extend(options.tool->pose.tip);
   }
   const Eigen::Vector3d origin = box.isEmpty() ? camera.target : box.center();
   const double scene_radius = box.isEmpty() ? 1.0 : std::max(0.5 * box.diagonal().norm(), 1e-6);

@@ -12,6 +12,7 @@
 #include <span>
 #include <vector>
 
+#include "common/core/tool_pose.h"
 #include "common/mesh/tet_mesh.h"
 #include "common/render/camera.h"
 #include "common/render/image.h"
@@ -30,11 +31,15 @@ struct SurfaceInput {
   std::span<const double> vertex_scalar = {};
 };
 
-/// The cutting tool, drawn as a steel cylinder from `base` to `tip`.
+/// The cutting tool, drawn as a steel cylinder from the pose's tip along
+/// its blade direction (toward the handle) for `length`.
 struct ToolSegment {
-  Eigen::Vector3d base;  ///< Handle end, world frame, m.
-  Eigen::Vector3d tip;   ///< Blade tip, world frame, m.
-  double radius = 0.0;   ///< Cylinder radius, m; ≤ 0 picks 3% of the scene's bounding radius.
+  ToolPose pose;        ///< Tip and blade direction, world frame.
+  double length = 0.0;  ///< Cylinder length, m; ≤ 0 draws nothing.
+  double radius = 0.0;  ///< Cylinder radius, m; ≤ 0 picks 3% of the scene's bounding radius.
+
+  /// The handle end of the cylinder, m.
+  [[nodiscard]] Eigen::Vector3d base() const { return pose.tip + length * pose.blade_dir; }
 };
 
 /// Closed range of the scalar mapped onto the stress colour map.

@@ -28,7 +28,7 @@ haptics::ToolPath ReadPath(const LoadedScene& scene) {
   }
   if (tool.keyframes_size() == 0) return {};
   std::vector<haptics::ToolKeyframe> frames;
-  for (const auto& k : tool.keyframes()) frames.push_back({k.t(), ToEigen(k.tip()), ToEigen(k.blade_dir())});
+  for (const auto& k : tool.keyframes()) frames.push_back({k.t(), {ToEigen(k.tip()), ToEigen(k.blade_dir())}});
   return haptics::ToolPath(std::move(frames), scene.path.string() + ": tool.keyframes");
 }
 
@@ -86,8 +86,7 @@ ToolState<T>::ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, con
 template <typename T>
 ToolPose ToolState<T>::Sample(double t) const {
   if (path_.empty()) return pose_;
-  const haptics::ToolKeyframe k = path_.Sample(t);
-  return {k.tip, k.blade_dir};
+  return path_.Sample(t);
 }
 
 template <typename T>

@@ -13,7 +13,9 @@
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
 #include "common/cutting/world_access.h"
+#include "common/mesh/mesh_frame.h"
 #include "common/mesh/tet_mesh.h"
 
 namespace cutsim::sim {
@@ -66,11 +68,9 @@ struct SimulationSummary {
   double cut_wall_time = 0.0;    ///< s spent in cut steps (criterion + split + FEM update)
 };
 
-/// A tool pose: blade tip and unit direction from the tip toward the handle.
-struct ToolPose {
-  Eigen::Vector3d tip = Eigen::Vector3d::Zero();       ///< m, world
-  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< unit
-};
+/// A tool pose: blade tip and unit direction from the tip toward the handle
+/// (common/core/tool_pose.h).
+using ToolPose = ::cutsim::ToolPose;
 
 /// What the tool did in the last frame: the haptic local model's inputs.
 struct ToolReport {
@@ -104,15 +104,10 @@ struct CutStepTiming {
 };
 
 /// The observable mesh (for viewers): world positions, tets, boundary
-/// surface and which of its faces a cut opened.
-struct MeshView {
-  mesh::Positions world;      // #N×3, m
-  mesh::Positions rest;       // #N×3, m
-  mesh::Tets tets;            // #T×4
-  mesh::Triangles surface;    // #F×3
-  std::vector<uint8_t> opened;  // #F
-  std::vector<uint8_t> debris;  // #F with cutting (else empty): 1 on a facet of a debris piece (debris.h)
-};
+/// surface, which of its faces a cut opened and which belong to debris.
+/// `FillMeshView` fills the mesh fields only; the frame's identity and the
+/// stress field are the caller's.
+using MeshView = mesh::MeshFrame;
 
 /// World positions of the FEM state (float or double) for the cut code.
 template <typename T>

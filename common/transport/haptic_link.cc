@@ -53,11 +53,12 @@ bool WaitLcmOrWake(int lcm_fd, const WakeFd& wake, int timeout_ms) {
 
 /// A tool pose the server may use: finite, within any workspace, a usable blade.
 bool ValidTool(ToolSample* s) {
-  if (!s->tip.allFinite() || !s->velocity.allFinite() || !s->blade_dir.allFinite()) return false;
-  if (s->tip.norm() > kMaxToolPosition || s->velocity.norm() > kMaxToolSpeed) return false;
-  const double n = s->blade_dir.norm();
+  ToolPose& pose = s->pose;
+  if (!pose.tip.allFinite() || !s->velocity.allFinite() || !pose.blade_dir.allFinite()) return false;
+  if (pose.tip.norm() > kMaxToolPosition || s->velocity.norm() > kMaxToolSpeed) return false;
+  const double n = pose.blade_dir.norm();
   if (!(n > 1e-9)) return false;
-  s->blade_dir /= n;
+  pose.blade_dir /= n;
   return true;
 }
 
@@ -116,8 +117,8 @@ bool FromProto(const v1::HapticModel& msg, haptics::LocalModel* m) noexcept {
 void ToProto(const ToolSample& s, v1::ToolState* msg) {
   msg->set_seq(s.seq);
   msg->set_stamp_ns(s.stamp_ns);
-  SetVec3(s.tip, msg->mutable_tip());
-  SetVec3(s.blade_dir, msg->mutable_blade_dir());
+  SetVec3(s.pose.tip, msg->mutable_tip());
+  SetVec3(s.pose.blade_dir, msg->mutable_blade_dir());
   SetVec3(s.velocity, msg->mutable_velocity());
   msg->set_buttons(s.buttons);
 }
@@ -126,8 +127,8 @@ ToolSample FromProto(const v1::ToolState& msg) noexcept {
   ToolSample s;
   s.seq = msg.seq();
   s.stamp_ns = msg.stamp_ns();
-  s.tip = FromVec3(msg.tip());
-  s.blade_dir = msg.has_blade_dir() ? FromVec3(msg.blade_dir()) : Eigen::Vector3d::UnitZ();
+  s.pose.tip = FromVec3(msg.tip());
+  s.pose.blade_dir = msg.has_blade_dir() ? FromVec3(msg.blade_dir()) : Eigen::Vector3d::UnitZ();
   s.velocity = FromVec3(msg.velocity());
   s.buttons = msg.buttons();
   return s;

@@ -47,7 +47,7 @@
 /// * Both ends' LCM threads can run SCHED_FIFO below the haptic loop
 ///   (realtime_thread.h).
 ///
-/// Access control (issue 7): with a `ToolAuthenticator` (tool_auth.h) the
+/// Access control: with a `ToolAuthenticator` (tool_auth.h) the
 /// client signs every tool message and the server drops and counts unsigned,
 /// forged and replayed ones before anything else looks at them; with none
 /// configured, messages are not authenticated (an open session).
@@ -61,6 +61,7 @@
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
 #include "common/haptics/local_model.h"
 #include "common/transport/fault_injection.h"
 #include "common/transport/lcm_bus.h"
@@ -75,9 +76,8 @@ struct ToolSample {
   uint64_t seq = 0;        ///< Sender's sequence number (assigned by `HapticClientLink::PublishTool`).
   int64_t stamp_ns = 0;    ///< Sender's CLOCK_MONOTONIC when the device was read, ns.
   int64_t receive_ns = 0;  ///< Receiver's CLOCK_MONOTONIC at acceptance, ns (0 on the sending side).
-  Eigen::Vector3d tip = Eigen::Vector3d::Zero();          ///< m, world.
-  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ();   ///< unit, tip → handle.
-  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();     ///< m/s.
+  ToolPose pose;           ///< The tool in the world frame.
+  Eigen::Vector3d velocity = Eigen::Vector3d::Zero();  ///< m/s, of the tip.
   uint32_t buttons = 0;    ///< bit 0: cutting enabled.
 };
 

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common/mesh/mesh_frame.h"
 #include "common/mesh/tet_mesh.h"
 #include "common/transport/codec.h"
 #include "common/transport/dds.h"
@@ -18,19 +19,11 @@
 
 namespace cutsim::transport {
 
-/// One frame of the server's mesh, filled by the server in `PublishFrame`.
-struct MeshFrame {
-  uint64_t frame = 0;             ///< Physics frame number.
-  double sim_time = 0.0;          ///< s.
-  uint64_t topology_version = 0;  ///< Bumped by every topology change.
-  mesh::Positions world;          ///< #N×3, m.
-  mesh::Positions rest;           ///< #N×3, m.
-  mesh::Tets tets;                ///< #T×4.
-  mesh::Triangles surface;        ///< #F×3 boundary triangles.
-  std::vector<uint8_t> opened;    ///< #F, non-zero = face opened by a cut (or empty = none).
-  std::vector<double> stress;     ///< #N optional per-node scalar (e.g. von Mises, Pa), may be empty.
-};
+/// One frame of the server's mesh, filled by the server in `PublishFrame`
+/// (the same type the simulation fills; `debris` is not sent).
+using MeshFrame = mesh::MeshFrame;
 
+/// How often the publisher sends snapshots and how finely it quantises.
 struct MeshStreamOptions {
   double keyframe_interval_s = 2.0;  ///< Periodic snapshot, s (≤ 0: only on join / topology).
   double quantum_m = 1e-5;           ///< Position quantum, m.
@@ -39,6 +32,7 @@ struct MeshStreamOptions {
   std::optional<double> move_tolerance_m;
 };
 
+/// The publisher's counters (`MeshStreamPublisher::stats`).
 struct MeshStreamStats {
   uint64_t frames = 0;               ///< PublishFrame calls.
   uint64_t skipped_no_reader = 0;    ///< Frames with no matched reader: fill not called, nothing encoded.

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Access control for the tool stream (issue 7): only the haptic station
+/// Access control for the tool stream: only the haptic station
 /// holding the session's secret key may drive the tool.
 ///
 /// * Key: 16 to 64 random bytes written as hex (32 to 128 hex digits,

@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
       ++frames;
       const int64_t now = cutsim::MonotonicNs();
       const Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
-      const double height = tool->tip.z() - plane_z;
+      const double height = tool->pose.tip.z() - plane_z;
       cutsim::haptics::ContactLinearisation c;
       c.contact = height < margin;
       bool cutting = false;
@@ -111,10 +111,10 @@ int main(int argc, char** argv) {
           cutsim::Log().info("cut at t={:.3f} s (tool seq {})", 1e-9 * static_cast<double>(now - t0), tool->seq);
         }
       }
-      const double h = tool->tip.z() - plane_z;
+      const double h = tool->pose.tip.z() - plane_z;
       c.contact = h < margin;
       c.normal = n;
-      c.x0 = h < 0.0 ? tool->tip : Eigen::Vector3d(tool->tip.x(), tool->tip.y(), plane_z);
+      c.x0 = h < 0.0 ? tool->pose.tip : Eigen::Vector3d(tool->pose.tip.x(), tool->pose.tip.y(), plane_z);
       c.f0 = stiffness * std::max(0.0, -h) * n;
       c.stiffness = stiffness * n * n.transpose();
       cutsim::haptics::ModelHeader header;
@@ -123,7 +123,7 @@ int main(int argc, char** argv) {
       header.cut = {.cuts = cuts, .cutting = cutting, .decay_per_second = decay};
       header.topology_version = cuts;
       link.PublishModel(cutsim::haptics::BuildLocalModel(header, c), tool->seq);
-      max_tip = max_tip.cwiseMax(tool->tip);
+      max_tip = max_tip.cwiseMax(tool->pose.tip);
     }
     const auto s = link.stats();
     std::printf("%s\n", fmt::format(R"({{"kind":"fake_server_stats","frames":{},"contact_frames":{},"cuts":{},)"

@@ -1,10 +1,10 @@
 // The remeshing sliver guard (CutParams::keep_quality, cut_mesh.h step 5):
 // many parallel passes over one block, with the world pushed apart under
 // the blade as by the contact, keep every element at ≥ min(keep_quality,
-// uncut quality), the property behind the stable time step (issue 4: ≥ 0.5
-// of the uncut mesh's). This synthetic push costs the unguarded rule only
-// 0.76 → 0.60; the sim's contact grinds it to 0.05 (cut_bench "block",
-// bench/README.md), which is the end-to-end check.
+// uncut quality), the property the stable time step rests on (it needs
+// ≥ 0.5 of the uncut mesh's quality). This synthetic push costs the
+// unguarded rule only 0.76 → 0.60; the sim's contact grinds it to 0.05
+// (cut_bench "block", bench/README.md), which is the end-to-end check.
 #include <algorithm>
 #include <string>
 

@@ -21,7 +21,7 @@ const char* kPath = R"(# a path
 TEST(ToolPathTest, ParsesAndNormalises) {
   const ToolPath p = ToolPath::Parse(kPath, "p.path");
   ASSERT_EQ(p.keyframes().size(), 3u);
-  EXPECT_DOUBLE_EQ(p.keyframes()[0].blade_dir.norm(), 1.0);
+  EXPECT_DOUBLE_EQ(p.keyframes()[0].pose.blade_dir.norm(), 1.0);
   EXPECT_DOUBLE_EQ(p.end_time(), 2.0);
 }
 
@@ -70,8 +70,8 @@ TEST(ToolPathTest, WriteReadRoundTrip) {
   std::filesystem::remove(file);
   ASSERT_EQ(q.keyframes().size(), p.keyframes().size());
   for (size_t i = 0; i < q.keyframes().size(); ++i) {
-    EXPECT_NEAR((q.keyframes()[i].tip - p.keyframes()[i].tip).norm(), 0.0, 1e-9);
-    EXPECT_NEAR((q.keyframes()[i].blade_dir - p.keyframes()[i].blade_dir).norm(), 0.0, 1e-8);
+    EXPECT_NEAR((q.keyframes()[i].pose.tip - p.keyframes()[i].pose.tip).norm(), 0.0, 1e-9);
+    EXPECT_NEAR((q.keyframes()[i].pose.blade_dir - p.keyframes()[i].pose.blade_dir).norm(), 0.0, 1e-8);
   }
 }
 

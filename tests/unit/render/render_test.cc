@@ -161,7 +161,10 @@ TEST(PaletteTest, BaseColoursClassifyAtEveryLightLevel) {
 TEST_F(RenderTest, ToolAddsSteelPixels) {
   const Image without = RenderCube();
   RenderOptions options;
-  options.tool = ToolSegment{.base = {0.5, -0.2, 1.6}, .tip = {0.5, 0.5, 1.02}, .radius = 0.03};
+  const Eigen::Vector3d tip(0.5, 0.5, 1.02);
+  const Eigen::Vector3d handle(0.5, -0.2, 1.6);
+  options.tool = ToolSegment{
+      .pose = {tip, (handle - tip).normalized()}, .length = (handle - tip).norm(), .radius = 0.03};
   const Image with = RenderCube({}, options);
   EXPECT_GT(NonBackgroundFraction(with), NonBackgroundFraction(without));
   EXPECT_EQ(CountCutFacePixels(with), 0);

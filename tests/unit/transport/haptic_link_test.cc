@@ -87,7 +87,7 @@ TEST(HapticServerLinkTest, DropsStaleDuplicateForeignInvalidAndGarbageAndCountsT
   EXPECT_EQ(first->seq, 5U);
   EXPECT_EQ(first->stamp_ns, 5000);
   EXPECT_GT(first->receive_ns, 0);
-  EXPECT_NEAR(first->blade_dir.z(), 1.0, 1e-15);
+  EXPECT_NEAR(first->pose.blade_dir.z(), 1.0, 1e-15);
   EXPECT_EQ(first->buttons, 1U);
 
   EXPECT_FALSE(send_and_poll(Tool(session, 5, 5000)).has_value());       // duplicate
@@ -227,7 +227,7 @@ TEST(HapticClientLinkTest, HandsTheNewestModelToTheConsumerThreadAndSendsTools) 
     transport::ReceivedModel rm;
     ToolSample tool;
     while (!stop.load()) {
-      tool.tip.z() = 0.001 * static_cast<double>(taken.load());
+      tool.pose.tip.z() = 0.001 * static_cast<double>(taken.load());
       client.PublishTool(tool);
       while (client.TakeModel(&rm)) {
         if (rm.model.seq <= last_seen.load()) order_ok.store(false);
@@ -412,7 +412,7 @@ TEST(HapticServerLinkTest, ReceiveThreadHandsOverTheNewestPoseWithoutPolling) {
   auto got = link.PollTool();
   ASSERT_TRUE(got.has_value());
   EXPECT_EQ(got->seq, 5U);  // the newest, not the first since the last poll
-  EXPECT_DOUBLE_EQ(got->tip.z(), 0.005);
+  EXPECT_DOUBLE_EQ(got->pose.tip.z(), 0.005);
   EXPECT_GT(got->receive_ns, 0);
   EXPECT_FALSE(link.PollTool().has_value());
   // A stale pose is still dropped on the receive thread.

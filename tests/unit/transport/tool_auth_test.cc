@@ -245,7 +245,7 @@ TEST(HapticServerLinkAuthTest, CountsUnsignedForgedReplayedAndForeign) {
   ASSERT_EQ(bus.PublishBytes(channel, *enc.Encode(good)), PublishStatus::kOk);
   auto polled = link.PollTool();
   ASSERT_TRUE(polled.has_value());
-  EXPECT_DOUBLE_EQ(polled->tip.z(), 0.02);
+  EXPECT_DOUBLE_EQ(polled->pose.tip.z(), 0.02);
 
   send(Tool("lab", 2, 0.5));                 // unsigned
   v1::ToolState forged = Tool("lab", 3, 0.5);
@@ -256,7 +256,7 @@ TEST(HapticServerLinkAuthTest, CountsUnsignedForgedReplayedAndForeign) {
   client.Sign(&foreign);
   send(foreign);                             // foreign session
   ASSERT_TRUE(link.latest_tool().has_value());
-  EXPECT_DOUBLE_EQ(link.latest_tool()->tip.z(), 0.02);  // the attacker never moved the tool
+  EXPECT_DOUBLE_EQ(link.latest_tool()->pose.tip.z(), 0.02);  // the attacker never moved the tool
 
   const HapticServerLinkStats s = link.stats();
   EXPECT_EQ(s.accepted, 1u);
@@ -271,7 +271,7 @@ TEST(HapticServerLinkAuthTest, CountsUnsignedForgedReplayedAndForeign) {
   ASSERT_EQ(bus.PublishBytes(channel, *enc.Encode(next)), PublishStatus::kOk);
   polled = link.PollTool();
   ASSERT_TRUE(polled.has_value());
-  EXPECT_DOUBLE_EQ(polled->tip.z(), 0.03);
+  EXPECT_DOUBLE_EQ(polled->pose.tip.z(), 0.03);
 }
 
 // Signing and verifying allocate nothing through C++ (protobuf reuses the
