@@ -54,7 +54,7 @@ TEST(FemElement, SeedFormEqualsStandardStvk) {
 }
 
 TEST(FemElement, BetaGradientBlockMatchesDmInverse) {
-  // DESIGN.md: β's gradient block is [−1ᵀ·Dm⁻¹; Dm⁻¹].
+  // β's gradient block is [−1ᵀ·Dm⁻¹; Dm⁻¹]: the barycentric gradients of the tet.
   std::mt19937 rng(2);
   const Mat34<double> u = RandomTet(rng);
   const Eigen::Matrix4d beta = InverseBarycentric<double>(u);
