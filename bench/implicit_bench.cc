@@ -1,0 +1,209 @@
+// Backward Euler step time at organ scale (JSON on stdout).
+//
+// A box from mesh::MakeBox (≈22k tets, the organ's size, and ≈100k tets),
+// E = 3 kPa or 30 kPa, ν = 0.45, ρ = 1000 kg/m³, the x = 0 face clamped,
+// gravity −z, light strain-rate damping. For h = 10 ms and 20 ms, from rest:
+// the median wall time of a step, Newton and PCG iterations per step, the
+// factorisation and symbolic-analysis times, and the real-time factor
+// h / step time. Then, for 10 ms steps, a cut-like topology change (a slit:
+// the nodes on the mid plane x = L/2 below mid height are split, tets on the
+// +x side move to the copies) and the PCG iterations of each step before
+// and after it, with the DOFs the factor in use covers.
+//
+//   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
+//                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
+//                  [--refactor-iterations 12] [--verbose]
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "common/fem/implicit.h"
+#include "common/mesh/generators.h"
+
+namespace cutsim::fem {
+namespace {
+
+struct Case {
+  std::string name;
+  int nx, ny, nz;
+  double lx, ly, lz;  // m
+  double youngs;      // Pa
+};
+
+bool g_verbose = false;
+ImplicitOptions g_options;
+
+const Case kCases[] = {
+    {"organ", 28, 12, 11, 0.12, 0.05, 0.045, 3e4},
+    {"organ_soft", 28, 12, 11, 0.12, 0.05, 0.045, 3e3},
+    {"large", 48, 20, 17, 0.2, 0.08, 0.07, 3e4},
+};
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+double Mean(const std::vector<double>& v) {
+  double s = 0;
+  for (const double x : v) s += x;
+  return v.empty() ? 0 : s / static_cast<double>(v.size());
+}
+
+std::string Array(const std::vector<int>& v) {
+  std::ostringstream o;
+  o << "[";
+  for (size_t i = 0; i < v.size(); ++i) o << (i ? ", " : "") << v[i];
+  o << "]";
+  return o.str();
+}
+
+Model<double> MakeModel(const Case& c) {
+  const mesh::TetMesh mesh =
+      mesh::MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d(c.lx, c.ly, c.lz), c.nx, c.ny, c.nz);
+  const Material mat = Material::FromYoungPoisson(c.youngs, 0.45, 1000.0, 1.0, 10.0);
+  ModelOptions opt;
+  opt.gravity = Eigen::Vector3d(0, 0, -9.81);
+  opt.node_capacity = mesh.num_nodes() + (c.ny + 1) * (c.nz + 1);
+  Model<double> model(mesh, std::span(&mat, 1), opt);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    if (model.rest_position(n)(0) < 1e-9) model.SetFixed(n, true);
+  }
+  return model;
+}
+
+/// Splits every node on the plane x = lx/2 with z < lz/2: tets on its +x
+/// side move to a copy (a slit through the lower half).
+void Slit(const Case& c, Model<double>& model, State<double>& state) {
+  const double xp = 0.5 * c.lx;
+  const int32_t nn = model.num_nodes();
+  std::vector<int32_t> touched, nodes;
+  for (int32_t n = 0; n < nn; ++n) {
+    const Vec3<double> p = model.rest_position(n);
+    if (std::abs(p(0) - xp) > 1e-9 || p(2) >= 0.5 * c.lz) continue;
+    const int32_t copy = model.AddNodeCopy(n, state);
+    std::vector<int32_t> incident;
+    const int32_t one[1] = {n};
+    model.IncidentTets(one, incident);
+    for (const int32_t t : incident) {
+      Vec3<double> centroid = Vec3<double>::Zero();
+      for (int k = 0; k < 4; ++k) centroid += model.rest_position(model.tet_node(t, k)) / 4;
+      if (centroid(0) <= xp) continue;
+      for (int k = 0; k < 4; ++k) {
+        if (model.tet_node(t, k) == n) model.RetargetTet(t, k, copy);
+      }
+      touched.push_back(t);
+    }
+    nodes.push_back(n);
+    nodes.push_back(copy);
+  }
+  std::sort(touched.begin(), touched.end());
+  touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+  model.RecomputeElements(touched);
+  model.RecomputeNodeMasses(nodes);
+  model.CommitTopology();
+}
+
+struct Phase {
+  std::vector<double> seconds;
+  std::vector<double> newton, pcg;
+  int not_converged = 0;
+};
+
+Phase RunSteps(ImplicitIntegrator& integ, const Model<double>& model, State<double>& state, double h,
+               int steps, std::vector<int>* pcg_per_step, std::vector<int>* factor_dofs) {
+  Phase p;
+  for (int s = 0; s < steps; ++s) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const ImplicitResult r = integ.Step(model, state, h);
+    p.seconds.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    p.newton.push_back(r.newton_iterations);
+    p.pcg.push_back(r.pcg_iterations);
+    p.not_converged += r.ok() ? 0 : 1;
+    if (g_verbose) {
+      std::fprintf(stderr, "h %g step %d: status %d newton %d pcg %d (max %d) halvings %d clamped %d negcurv %d"
+                   " residual %.3g tol %.3g factor_dofs %d |", h, s, static_cast<int>(r.status),
+                   r.newton_iterations, r.pcg_iterations, r.max_pcg_iterations, r.line_search_halvings,
+                   r.clamped, r.negative_curvature, r.residual, r.tolerance, r.factor_dofs);
+      for (int k = 0; k < std::min(r.newton_iterations, ImplicitResult::kHistory); ++k) {
+        std::fprintf(stderr, " %.2g", r.residual_history[static_cast<size_t>(k)]);
+      }
+      std::fprintf(stderr, "\n");
+    }
+    if (pcg_per_step != nullptr) pcg_per_step->push_back(r.pcg_iterations);
+    if (factor_dofs != nullptr) factor_dofs->push_back(r.factor_dofs);
+  }
+  return p;
+}
+
+void RunCase(const Case& c, int steps, bool first) {
+  Model<double> model = MakeModel(c);
+  std::printf("%s  {\"case\": \"%s\", \"tets\": %d, \"nodes\": %d, \"youngs_pa\": %g, \"threads\": %d,\n",
+              first ? "" : ",\n", c.name.c_str(), model.num_tets(), model.num_nodes(), c.youngs, 0);
+  std::printf("   \"steps\": [");
+  for (const double h : {0.01, 0.02}) {
+    State<double> state(model);
+    ImplicitIntegrator integ(g_options);
+    const auto t0 = std::chrono::steady_clock::now();
+    const ImplicitResult first_step = integ.Step(model, state, h);  // waits for the first factor
+    const double first_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const Phase p = RunSteps(integ, model, state, h, steps, nullptr, nullptr);
+    const FactorStats fs = integ.linear_solver().stats();
+    const double med = Median(p.seconds);
+    std::printf("%s\n    {\"h_s\": %g, \"median_step_s\": %.6f, \"max_step_s\": %.6f, \"first_step_s\": %.4f,"
+                " \"first_step_ok\": %s, \"newton_mean\": %.2f, \"newton_max\": %g, \"pcg_mean\": %.2f,"
+                " \"pcg_max\": %g, \"not_converged\": %d, \"factorizations\": %lld,"
+                " \"factor_s\": %.4f, \"analyze_s\": %.4f, \"nnz\": %lld, \"realtime_factor\": %.3f}",
+                h == 0.01 ? "" : ",", h, med, *std::max_element(p.seconds.begin(), p.seconds.end()),
+                first_seconds, first_step.ok() ? "true" : "false", Mean(p.newton),
+                *std::max_element(p.newton.begin(), p.newton.end()), Mean(p.pcg),
+                *std::max_element(p.pcg.begin(), p.pcg.end()), p.not_converged,
+                static_cast<long long>(fs.completed), fs.last_seconds, fs.last_analyze_seconds,
+                static_cast<long long>(integ.system().nnz()), h / med);
+  }
+  std::printf("],\n");
+  // Topology change at 10 ms steps.
+  State<double> state(model);
+  ImplicitIntegrator integ(g_options);
+  std::vector<int> before, after, dofs_before, dofs_after;
+  RunSteps(integ, model, state, 0.01, steps / 2 + 1, &before, &dofs_before);
+  Slit(c, model, state);
+  const Phase p = RunSteps(integ, model, state, 0.01, steps, &after, &dofs_after);
+  std::printf("   \"cut\": {\"nodes_after\": %d, \"dofs_after\": %d, \"pcg_before\": %s, \"pcg_after\": %s,"
+              " \"factor_dofs_after\": %s, \"median_step_after_s\": %.6f, \"not_converged\": %d}}",
+              model.num_nodes(), 3 * model.num_nodes(), Array(before).c_str(), Array(after).c_str(),
+              Array(dofs_after).c_str(), Median(p.seconds), p.not_converged);
+  std::fflush(stdout);
+}
+
+}  // namespace
+}  // namespace cutsim::fem
+
+int main(int argc, char** argv) {
+  CLI::App app{"Implicit (backward Euler) step time at organ scale"};
+  std::string cases = "organ,organ_soft,large";
+  int steps = 20;
+  app.add_option("--cases", cases, "Comma-separated: organ, organ_soft, large");
+  app.add_option("--steps", steps, "Timed steps per step size")->check(CLI::PositiveNumber);
+  auto& o = cutsim::fem::g_options;
+  app.add_option("--relative-tolerance", o.relative_force_tolerance, "Newton force tolerance / load scale");
+  app.add_option("--linear-tolerance", o.linear_tolerance, "PCG tolerance relative to the Newton residual");
+  app.add_option("--refactor-iterations", o.refactor_pcg_iterations, "PCG iterations that trigger a refactor");
+  app.add_flag("--verbose", cutsim::fem::g_verbose, "Per-step results on stderr");
+  CLI11_PARSE(app, argc, argv);
+  std::printf("{\"bench\": \"implicit\", \"cases\": [\n");
+  bool first = true;
+  for (const auto& c : cutsim::fem::kCases) {
+    if (("," + cases + ",").find("," + c.name + ",") == std::string::npos) continue;
+    cutsim::fem::RunCase(c, steps, first);
+    first = false;
+  }
+  std::printf("\n]}\n");
+  return 0;
+}

@@ -1,0 +1,450 @@
+#include "common/fem/implicit.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "common/fem/node_sums.h"
+
+namespace cutsim::fem {
+
+namespace {
+
+/// Below this many tets the automatic thread count is one: the element
+/// pass has a barrier per colour and PCG a few per iteration, which cost
+/// more than a small mesh's work (and much more on an oversubscribed
+/// machine, where a barrier can wait for a time slice).
+constexpr int32_t kMinTetsForThreads = 4096;
+
+/// Out-of-pattern penalty couplings kept without allocation (more allocate).
+constexpr size_t kExtraBlockReserve = 64;
+/// Armijo sufficient-decrease constant of the line search.
+constexpr double kArmijo = 1e-4;
+/// Relative round-off of Φ: near the solution the decrease Φ can show is
+/// below it, so a trial within it that lowers the residual is accepted.
+constexpr double kPhiRoundOff = 1e-12;
+
+/// Calls body(t) for every tet, colour by colour, each colour split over
+/// the team (an orphaned `omp for` per colour, with its barrier): tets of
+/// one colour share no node, so their scatters never collide.
+template <typename Body>
+void ForEachTetByColor(const SparseSystem& system, Body&& body) {
+  const int32_t* cp = system.color_ptr();
+  const int32_t* tets = system.color_tets();
+  for (int32_t c = 0; c < system.num_colors(); ++c) {
+#pragma omp for schedule(static)
+    for (int32_t k = cp[c]; k < cp[c + 1]; ++k) body(tets[k]);
+  }
+}
+
+/// Adds scale·blocks of tet t into `values`; pairs with an inactive node
+/// are skipped when `active` is given (their rows and columns stay identity).
+void ScatterBlocks(const SparseSystem& system, const Model<double>& model, int32_t t,
+                   const ElementBlocks& blocks, double scale, const uint8_t* active, double* values) {
+  const int32_t* off = system.tet_blocks(t);
+  for (int i = 0; i < 4; ++i) {
+    const int32_t a = model.tet_node(t, i);
+    if (active != nullptr && active[a] == 0) continue;
+    for (int j = 0; j < 4; ++j) {
+      const int32_t b = model.tet_node(t, j);
+      if (active != nullptr && active[b] == 0) continue;
+      system.AddBlock(values, off[4 * i + j], b, scale * blocks[4 * i + j]);
+    }
+  }
+}
+
+Mat34<double> TetPositions(const Model<double>& model, const double* x, int32_t t) {
+  Mat34<double> xs;
+  for (int c = 0; c < 4; ++c) {
+    const int32_t n = model.tet_node(t, c);
+    xs.col(c) = Vec3<double>(x[3 * n], x[3 * n + 1], x[3 * n + 2]);
+  }
+  return xs;
+}
+
+/// p = Σ w_i x_i of a penalty term.
+Eigen::Vector3d PenaltyPoint(const PenaltyTerm& p, const double* x) {
+  Eigen::Vector3d s = Eigen::Vector3d::Zero();
+  for (int i = 0; i < 3; ++i) {
+    const int32_t n = p.nodes[static_cast<size_t>(i)];
+    if (n >= 0) s += p.weights[static_cast<size_t>(i)] * Eigen::Map<const Eigen::Vector3d>(x + 3 * n);
+  }
+  return s;
+}
+
+double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t nn, int nt) {
+  NodeSums<1> sums(nn);
+#pragma omp parallel num_threads(nt)
+  sums.Team([&](int32_t n, std::array<double, 1>& acc) {
+    for (int d = 0; d < 3; ++d) acc[0] += a[static_cast<size_t>(3 * n + d)] * b[static_cast<size_t>(3 * n + d)];
+  });
+  return sums.Total(0);
+}
+
+}  // namespace
+
+ImplicitIntegrator::ImplicitIntegrator(const ImplicitOptions& options)
+    : options_(options), solver_(options.asynchronous_factorization) {}
+
+int ImplicitIntegrator::NumThreads() const {
+  if (options_.num_threads > 0) return options_.num_threads;
+  return system_.num_tets() < kMinTetsForThreads ? 1 : omp_get_max_threads();
+}
+
+void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& result) {
+  if (system_.Stale(model)) {
+    system_.Build(model);
+    const auto nd = static_cast<size_t>(system_.num_dofs());
+    const auto nnz = static_cast<size_t>(system_.nnz());
+    b_values_.assign(nnz, 0.0);
+    a_values_.assign(nnz, 0.0);
+    for (auto* v : {&x0_, &v0_, &v_, &v_try_, &x_, &force_, &node_force_, &residual_, &residual_try_,
+                    &bv_, &dir_, &rhs_}) {
+      v->assign(nd, 0.0);
+    }
+    tet_energy_.assign(static_cast<size_t>(system_.num_tets()), 0.0);
+    active_.assign(static_cast<size_t>(system_.num_nodes()), 0);
+    extra_.clear();
+    extra_.reserve(kExtraBlockReserve);
+    solver_.Resize(system_);
+    have_jacobian_ = false;
+    result.pattern_rebuilt = true;
+  }
+  for (int32_t n = 0; n < system_.num_nodes(); ++n) {
+    active_[static_cast<size_t>(n)] = !model.fixed(n) && model.node_mass(n) > 0 ? 1 : 0;
+  }
+}
+
+void ImplicitIntegrator::ElementPass(const Model<double>& model, const double* x, double tangent_scale,
+                                     bool clamped, bool skip_inactive, double* values) {
+  const int nt = NumThreads();
+  const uint8_t* active = skip_inactive ? active_.data() : nullptr;
+  double* force = node_force_.data();
+  double* energy = tet_energy_.data();
+  const int32_t nd = system_.num_dofs();
+#pragma omp parallel num_threads(nt)
+  {
+#pragma omp for schedule(static)
+    for (int32_t i = 0; i < nd; ++i) force[i] = 0;
+    ForEachTetByColor(system_, [&](int32_t t) {
+      const double vol = model.rest_volume(t);
+      energy[t] = 0;
+      if (!(vol > 0)) return;  // a degenerate cut element carries no stiffness
+      const Mat3<double> dm_inv = model.DmInv(t);
+      const Mat34<double> g = ShapeGradients(dm_inv);
+      const Mat3<double> F = EdgeMatrix(TetPositions(model, x, t)) * dm_inv;
+      const double lambda = model.lambdas()[t], mu = model.mus()[t];
+      Mat3<double> S;
+      Mat34<double> fe;
+      energy[t] = StvkEnergyAndForce(F, g, vol, lambda, mu, &S, &fe);
+      for (int c = 0; c < 4; ++c) {
+        Eigen::Map<Eigen::Vector3d>(force + 3 * model.tet_node(t, c)) += fe.col(c);
+      }
+      if (tangent_scale > 0) {
+        ElementBlocks blocks;
+        ElementTangentBlocks(F, clamped ? PositivePart(S) : S, g, vol, lambda, mu, blocks);
+        ScatterBlocks(system_, model, t, blocks, tangent_scale, active, values);
+      }
+    });
+  }
+}
+
+void ImplicitIntegrator::DampingPass(const Model<double>& model, const double* x, double scale,
+                                     double mass_scale, bool skip_inactive, double* values) {
+  const int nt = NumThreads();
+  const uint8_t* active = skip_inactive ? active_.data() : nullptr;
+  const auto nnz = static_cast<size_t>(system_.nnz());
+  std::fill(values, values + nnz, 0.0);
+  for (int32_t n = 0; n < system_.num_nodes(); ++n) {
+    const bool on = active == nullptr || active[n] != 0;
+    const double d = on ? mass_scale * model.node_mass(n) : 1.0;
+    system_.AddBlock(values, system_.diagonal_block(n), n, d * Eigen::Matrix3d::Identity());
+  }
+  if (!model.damped() || scale == 0) return;
+#pragma omp parallel num_threads(nt)
+  ForEachTetByColor(system_, [&](int32_t t) {
+    const double vol = model.rest_volume(t);
+    if (!(vol > 0)) return;
+    const Mat3<double> dm_inv = model.DmInv(t);
+    const Mat3<double> F = EdgeMatrix(TetPositions(model, x, t)) * dm_inv;
+    ElementBlocks blocks;
+    ElementTangentBlocks(F, Mat3<double>::Zero(), ShapeGradients(dm_inv), vol, model.phis()[t],
+                         model.psis()[t], blocks);
+    ScatterBlocks(system_, model, t, blocks, scale, active, values);
+  });
+}
+
+void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
+                                          std::span<const PenaltyTerm> penalties, bool clamped) {
+  const int32_t nd = system_.num_dofs();
+  for (int32_t i = 0; i < nd; ++i) {
+    x_[static_cast<size_t>(i)] = x0_[static_cast<size_t>(i)] + (active_[static_cast<size_t>(i / 3)] != 0 ? h * v_[static_cast<size_t>(i)] : 0.0);
+  }
+  std::memcpy(a_values_.data(), b_values_.data(), a_values_.size() * sizeof(double));
+  extra_.clear();
+  for (const PenaltyTerm& p : penalties) {
+    const Eigen::Matrix3d ks = 0.5 * (p.stiffness + p.stiffness.transpose());
+    for (int i = 0; i < 3; ++i) {
+      const int32_t a = p.nodes[static_cast<size_t>(i)];
+      if (a < 0 || active_[static_cast<size_t>(a)] == 0) continue;
+      for (int j = 0; j < 3; ++j) {
+        const int32_t b = p.nodes[static_cast<size_t>(j)];
+        if (b < 0 || active_[static_cast<size_t>(b)] == 0) continue;
+        const double w = p.weights[static_cast<size_t>(i)] * p.weights[static_cast<size_t>(j)];
+        const int32_t off = system_.FindBlock(a, b);
+        if (off >= 0) {
+          system_.AddBlock(a_values_.data(), off, b, (h * h * w) * ks);
+        } else if (i < j) {  // outside the pattern: applied by the PCG product
+          extra_.push_back({a, b, (h * h * w) * ks});
+        }
+      }
+    }
+  }
+  ElementPass(model, x_.data(), h * h, clamped, true, a_values_.data());
+}
+
+ImplicitIntegrator::Eval ImplicitIntegrator::Evaluate(const Model<double>& model, const State<double>& state,
+                                                      double h, std::span<const PenaltyTerm> penalties,
+                                                      const double* v, double* residual) {
+  const int nt = NumThreads();
+  const int32_t nn = system_.num_nodes();
+  const uint8_t* active = active_.data();
+  for (int32_t i = 0; i < 3 * nn; ++i) x_[static_cast<size_t>(i)] = x0_[static_cast<size_t>(i)] + (active[i / 3] != 0 ? h * v[i] : 0.0);
+  ElementPass(model, x_.data(), 0, false, true, nullptr);
+  Eval e;
+  // Penalty springs: forces into node_force_, energy U_pen.
+  double u_pen = 0;
+  for (const PenaltyTerm& p : penalties) {
+    const Eigen::Vector3d d = PenaltyPoint(p, x_.data()) - PenaltyPoint(p, x0_.data());
+    const Eigen::Matrix3d ks = 0.5 * (p.stiffness + p.stiffness.transpose());
+    const Eigen::Vector3d f = p.force - ks * d;
+    u_pen += -p.force.dot(d) + 0.5 * d.dot(ks * d);
+    for (int i = 0; i < 3; ++i) {
+      const int32_t n = p.nodes[static_cast<size_t>(i)];
+      if (n >= 0) Eigen::Map<Eigen::Vector3d>(node_force_.data() + 3 * n) += p.weights[static_cast<size_t>(i)] * f;
+    }
+  }
+  const double* mass = model.node_masses();
+  const double* pf = model.prescribed_forces();
+  const double* fext = state.f_ext.data();
+  const Vec3<double> g = model.gravity();
+  NodeSums<2> sums(nn);
+#pragma omp parallel num_threads(nt)
+  {
+    system_.MultiplyTeam(b_values_.data(), v, bv_.data());
+    sums.Team([&](int32_t n, std::array<double, 2>& acc) {
+      for (int d = 0; d < 3; ++d) {
+        const int32_t i = 3 * n + d;
+        const double load = mass[n] * g(d) + pf[i] + fext[i];
+        force_[static_cast<size_t>(i)] = node_force_[static_cast<size_t>(i)] + load;
+        if (active[n] == 0) {
+          residual[i] = 0;
+          continue;
+        }
+        residual[i] = bv_[static_cast<size_t>(i)] - mass[n] * v0_[static_cast<size_t>(i)] - h * force_[static_cast<size_t>(i)];
+        acc[0] += 0.5 * v[i] * bv_[static_cast<size_t>(i)] - mass[n] * v[i] * v0_[static_cast<size_t>(i)];
+        acc[1] -= load * h * v[i];
+      }
+    });
+  }
+  double w = 0;
+  for (int32_t t = 0; t < system_.num_tets(); ++t) w += tet_energy_[static_cast<size_t>(t)];
+  e.phi = sums.Total(0) + sums.Total(1) + w + u_pen;
+  e.scale = std::abs(sums.Total(0)) + std::abs(sums.Total(1)) + std::abs(w) + std::abs(u_pen);
+  double rmax = 0;
+  for (int32_t n = 0; n < nn; ++n) {
+    rmax = std::max(rmax, Eigen::Map<const Eigen::Vector3d>(residual + 3 * n).norm());
+  }
+  e.residual = rmax / h;
+  e.finite = std::isfinite(e.phi) && std::isfinite(e.residual);
+  return e;
+}
+
+double ImplicitIntegrator::LoadScale(const Model<double>& model, const State<double>& state,
+                                     std::span<const PenaltyTerm> penalties) const {
+  double s = 0;
+  const Vec3<double> g = model.gravity();
+  for (int32_t n = 0; n < system_.num_nodes(); ++n) {
+    if (active_[static_cast<size_t>(n)] == 0) continue;
+    const Eigen::Vector3d load = model.node_mass(n) * g +
+                                 Eigen::Map<const Eigen::Vector3d>(model.prescribed_forces() + 3 * n) +
+                                 Eigen::Map<const Eigen::Vector3d>(state.f_ext.data() + 3 * n);
+    s = std::max({s, load.norm(), Eigen::Map<const Eigen::Vector3d>(force_.data() + 3 * n).norm()});
+  }
+  for (const PenaltyTerm& p : penalties) s = std::max(s, p.force.norm());
+  return s;
+}
+
+/// Backtracking on Φ along dir_ from v_; on success v_, residual_ and the
+/// cached evaluation hold the accepted point. Returns false if no step
+/// length in max_line_search_steps halvings was acceptable.
+bool ImplicitIntegrator::LineSearch(const Model<double>& model, const State<double>& state, double h,
+                                    std::span<const PenaltyTerm> penalties, Eval& current,
+                                    ImplicitResult& result) {
+  const int nt = NumThreads();
+  const int32_t nn = system_.num_nodes();
+  const double slope = Dot(residual_, dir_, nn, nt);  // ∇Φ·d
+  double alpha = 1.0;
+  for (int k = 0; k <= options_.max_line_search_steps; ++k, alpha *= 0.5) {
+    for (int32_t i = 0; i < 3 * nn; ++i) v_try_[static_cast<size_t>(i)] = v_[static_cast<size_t>(i)] + alpha * dir_[static_cast<size_t>(i)];
+    const Eval trial = Evaluate(model, state, h, penalties, v_try_.data(), residual_try_.data());
+    if (!trial.finite) continue;
+    const bool armijo = trial.phi <= current.phi + kArmijo * alpha * std::min(slope, 0.0) && slope < 0;
+    const bool within_round_off = trial.phi <= current.phi + kPhiRoundOff * current.scale &&
+                                  trial.residual < current.residual;
+    if (armijo || within_round_off) {
+      v_.swap(v_try_);
+      residual_.swap(residual_try_);
+      current = trial;
+      result.line_search_halvings += k;
+      return true;
+    }
+  }
+  result.line_search_halvings += options_.max_line_search_steps;
+  return false;
+}
+
+/// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.
+void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResult& result, bool* clamped) {
+  const int nt = NumThreads();
+  const int32_t nn = system_.num_nodes();
+  for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
+  solver_.Acquire();
+  if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
+    if (solver_.RequestFactor(system_, a_values_.data())) result.factor_requested = true;
+    if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
+  }
+  const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
+  const double lin_tol = std::max(options_.linear_tolerance * rhs_norm, 0.1 * h * tolerance);
+  const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(),
+                                     lin_tol, options_.max_pcg_iterations, NumThreads(), extra_);
+  result.pcg_iterations += pr.iterations;
+  result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
+  result.factor_dofs = solver_.factor_dofs();
+  if (pr.iterations > options_.refactor_pcg_iterations && solver_.RequestFactor(system_, a_values_.data())) {
+    result.factor_requested = true;
+  }
+  if (pr.negative_curvature) {
+    result.negative_curvature = true;
+    if (options_.tangent == TangentMode::kAuto) *clamped = true;
+  }
+}
+
+ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double>& state, double h,
+                                        std::span<const PenaltyTerm> penalties) {
+  ImplicitResult result;
+  if (!(h > 0) || !std::isfinite(h)) {
+    result.status = ImplicitStatus::kNonFinite;
+    return result;
+  }
+  Prepare(model, result);
+  const int32_t nn = system_.num_nodes();
+  for (int32_t i = 0; i < 3 * nn; ++i) {
+    const auto s = static_cast<size_t>(i);
+    x0_[s] = state.x[s];
+    v0_[s] = state.v[s];
+    v_[s] = active_[s / 3] != 0 ? state.v[s] : 0.0;
+  }
+  DampingPass(model, x0_.data(), h, 1.0 + h * options_.mass_damping, true, b_values_.data());
+  Eval current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+  result.tolerance = options_.force_tolerance > 0
+                         ? options_.force_tolerance
+                         : options_.relative_force_tolerance * LoadScale(model, state, penalties);
+  bool clamped = options_.tangent == TangentMode::kClamped;
+  for (int it = 0;; ++it) {
+    result.residual = current.residual;
+    if (it < ImplicitResult::kHistory) result.residual_history[static_cast<size_t>(it)] = current.residual;
+    if (!current.finite) {
+      result.status = ImplicitStatus::kNonFinite;
+      return result;
+    }
+    if (current.residual <= result.tolerance) break;
+    if (it >= options_.max_newton_iterations) {
+      result.status = ImplicitStatus::kCapped;
+      break;
+    }
+    result.newton_iterations = it + 1;
+    AssembleJacobian(model, h, penalties, clamped);
+    have_jacobian_ = true;
+    const bool was_clamped = clamped;
+    SolveDirection(h, result.tolerance, result, &clamped);
+    result.clamped = result.clamped || was_clamped;
+    if (!LineSearch(model, state, h, penalties, current, result)) {
+      if (clamped != was_clamped) continue;  // retry the iteration with K⁺
+      // No acceptable step: the state gets the last accepted iterate.
+      current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+      result.residual = current.residual;
+      result.status = ImplicitStatus::kCapped;
+      break;
+    }
+  }
+  for (int32_t i = 0; i < 3 * nn; ++i) {
+    const auto s = static_cast<size_t>(i);
+    if (active_[s / 3] != 0) {
+      state.x[s] = x_[s];
+      state.v[s] = v_[s];
+    }
+    state.f[s] = force_[s];
+  }
+  state.time += h;
+  ++state.step;
+  last_h_ = h;
+  return result;
+}
+
+Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(std::span<const int32_t> nodes,
+                                                       std::span<const double> weights) {
+  if (!have_jacobian_ || !(last_h_ > 0)) return Eigen::Matrix3d::Zero();
+  const int32_t nn = system_.num_nodes();
+  Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
+  bool any = false;
+  for (int c = 0; c < 3; ++c) {
+    std::fill(rhs_.begin(), rhs_.end(), 0.0);
+    for (size_t i = 0; i < nodes.size(); ++i) {
+      const int32_t n = nodes[i];
+      if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
+      rhs_[static_cast<size_t>(3 * n + c)] += weights[i];
+      any = true;
+    }
+    if (!any) return Eigen::Matrix3d::Zero();
+    const double norm = std::sqrt(Dot(rhs_, rhs_, nn, NumThreads()));
+    solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(), 1e-12 * norm,
+                  options_.max_pcg_iterations, NumThreads(), extra_);
+    for (size_t i = 0; i < nodes.size(); ++i) {
+      const int32_t n = nodes[i];
+      if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
+      compliance.col(c) += weights[i] * Eigen::Map<const Eigen::Vector3d>(v_try_.data() + 3 * n);
+    }
+  }
+  compliance *= last_h_ * last_h_;
+  const Eigen::Matrix3d sym = 0.5 * (compliance + compliance.transpose());
+  return sym.inverse();
+}
+
+void ImplicitIntegrator::AssembleStiffness(const Model<double>& model, const double* x, bool clamped,
+                                           std::vector<double>& values) {
+  ImplicitResult unused;
+  Prepare(model, unused);
+  values.assign(static_cast<size_t>(system_.nnz()), 0.0);
+  ElementPass(model, x, 1.0, clamped, false, values.data());
+}
+
+void ImplicitIntegrator::AssembleDamping(const Model<double>& model, const double* x,
+                                         std::vector<double>& values) {
+  ImplicitResult unused;
+  Prepare(model, unused);
+  values.assign(static_cast<size_t>(system_.nnz()), 0.0);
+  DampingPass(model, x, 1.0, options_.mass_damping, false, values.data());
+}
+
+void ImplicitIntegrator::InternalForce(const Model<double>& model, const double* x, double* out) {
+  ImplicitResult unused;
+  Prepare(model, unused);
+  ElementPass(model, x, 0, false, false, nullptr);
+  std::copy(node_force_.begin(), node_force_.end(), out);
+}
+
+}  // namespace cutsim::fem

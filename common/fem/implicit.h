@@ -1,0 +1,218 @@
+#pragma once
+/// @file
+/// Backward Euler for the tetrahedral StVK model (double precision), for a
+/// step of a whole physics frame that no stability limit binds.
+///
+/// Unknown: the end-of-step velocity v⁺ of the free nodes; x⁺ = x + h·v⁺.
+/// Residual (N·s):
+///   r(v⁺) = M(v⁺ − v) − h·[f_int(x⁺) − C(x)·v⁺ − α·M·v⁺ + f_load + f_pen(x⁺)],
+/// f_int the plain StVK force (element.h, StvkElementForce), C(x) the
+/// strain-rate damping operator with F taken at the start of the step (the
+/// damping force is linear in the velocity at a fixed F; freezing F over the
+/// step keeps the Jacobian exact and symmetric and gives the step a
+/// potential), α the mass-proportional damping, f_load gravity + prescribed +
+/// State::f_ext, f_pen the caller's penalty springs (PenaltyTerm). r is the
+/// gradient of the incremental potential
+///   Φ(v⁺) = ½|v⁺ − v|²_M + (h/2)·v⁺ᵀ(C + αM)v⁺ + W(x⁺) − f_load·(x⁺ − x) + U_pen(x⁺),
+/// W the StVK strain energy, so the step is min Φ.
+///
+/// Newton on r with the Jacobian A = ∂r/∂v⁺ = M + h(C + αM) + h²(K + K_pen),
+/// K = −∂f_int/∂x (tangent.h), solved by PCG (linear_solver.h), then a
+/// backtracking (Armijo) line search on Φ. Stops when the force residual
+/// max over free nodes |r_node|/h ≤ the force tolerance, or at the cap.
+///
+/// Indefinite K (StVK under compression; TangentMode): with kExact, PCG
+/// stops at negative curvature with a descent direction and the line search
+/// still decreases Φ; kClamped uses K⁺ (S replaced by its positive part in
+/// the geometric term, positive semidefinite, = K where no element is
+/// compressed); kAuto (default) uses the exact K and switches to K⁺ for the
+/// rest of the step once PCG meets negative curvature. Every mode converges
+/// to the same solution (the residual is always the exact one); the exact
+/// Jacobian gives quadratic convergence near a stable solution.
+///
+/// The implicit path uses plain StVK for every element (the explicit path
+/// switches elements with det F < 0.3 to the invertible StVK of Irving et
+/// al., which has no potential); above that threshold the forces agree.
+///
+/// Fixed nodes and nodes without mass are eliminated (identity rows and
+/// columns, zero right-hand side) and keep x and v.
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "common/fem/linear_solver.h"
+#include "common/fem/model.h"
+#include "common/fem/sparse_system.h"
+#include "common/fem/state.h"
+#include "common/fem/tangent.h"
+
+namespace cutsim::fem {
+
+enum class TangentMode : uint8_t {
+  kExact,    ///< K as is; negative curvature truncates PCG.
+  kClamped,  ///< K⁺ (positive semidefinite) throughout.
+  kAuto,     ///< K, and K⁺ for the rest of the step after negative curvature.
+};
+
+struct ImplicitOptions {
+  /// OpenMP threads; 0: one below 4096 tets, else omp_get_max_threads().
+  int num_threads = 0;
+  /// Absolute force tolerance, N: converged when every free node has
+  /// |r_node|/h ≤ it. 0: relative_force_tolerance × the load scale.
+  double force_tolerance = 0;
+  /// Relative tolerance against the load scale: the largest nodal force of
+  /// gravity + prescribed + f_ext + penalty, or of the total force at the
+  /// initial guess if larger.
+  double relative_force_tolerance = 1e-6;
+  int max_newton_iterations = 20;
+  int max_line_search_steps = 16;  ///< Halvings of the Newton step.
+  /// Inexact Newton: PCG stops at ‖rhs − A d‖₂ ≤ linear_tolerance·‖rhs‖₂
+  /// (or at a tenth of the force tolerance, whichever is larger).
+  double linear_tolerance = 1e-4;
+  int max_pcg_iterations = 300;
+  /// Ask for a new factor when a PCG solve needs more iterations than this.
+  int refactor_pcg_iterations = 12;
+  /// Factor on a worker thread (steps never wait, except for the first
+  /// factor when wait_for_first_factor); false: factor inline when asked
+  /// (bit-reproducible: the factor in use does not depend on timing).
+  bool asynchronous_factorization = true;
+  /// The very first solve waits for its factor (else block Jacobi PCG
+  /// until it lands).
+  bool wait_for_first_factor = true;
+  TangentMode tangent = TangentMode::kAuto;
+  double mass_damping = 0;  ///< α, 1/s (Rayleigh mass-proportional).
+};
+
+/// An extra spring inside the solve (tool penalty, grip): a point
+/// p = Σ w_i x_i on up to three nodes (unused: node −1) pulled with force
+/// f(p) = force − stiffness·(p − p₀), p₀ the point at the start of the step;
+/// node i gets w_i·f. Enters the residual and, as w_i w_j·stiffness, the
+/// Jacobian: in the assembled matrix where the pattern has block (i, j),
+/// else in the PCG product only (ExtraBlock).
+struct PenaltyTerm {
+  std::array<int32_t, 3> nodes{-1, -1, -1};
+  std::array<double, 3> weights{0, 0, 0};
+  Eigen::Matrix3d stiffness = Eigen::Matrix3d::Zero();  ///< N/m, symmetric ⪰ 0.
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();      ///< N, at p₀.
+};
+
+enum class ImplicitStatus : uint8_t {
+  kConverged = 0,
+  kCapped,     ///< max_newton_iterations reached; the state holds the last iterate.
+  kNonFinite,  ///< A residual or energy became NaN/Inf; the state is unchanged.
+};
+
+struct ImplicitResult {
+  static constexpr int kHistory = 32;
+  ImplicitStatus status = ImplicitStatus::kConverged;
+  int newton_iterations = 0;
+  int pcg_iterations = 0;      ///< Summed over the Newton iterations.
+  int max_pcg_iterations = 0;  ///< Largest single solve.
+  int line_search_halvings = 0;
+  double residual = 0;   ///< max over free nodes |r_node|/h at the end, N.
+  double tolerance = 0;  ///< The force tolerance used, N.
+  bool negative_curvature = false;  ///< Some PCG solve met it.
+  bool clamped = false;             ///< K⁺ was used in some iteration.
+  bool pattern_rebuilt = false;     ///< The topology changed since the last step.
+  bool factor_requested = false;    ///< A refactorisation was asked for.
+  int32_t factor_dofs = 0;          ///< DOFs covered by the factor in use.
+  /// The force residual (N) before Newton iteration k (first kHistory).
+  std::array<double, kHistory> residual_history{};
+  [[nodiscard]] bool ok() const { return status == ImplicitStatus::kConverged; }
+};
+
+/// The implicit integrator's persistent workspace: the sparse pattern, the
+/// assembled matrices, the factor and the vectors of the solve. One per
+/// model; it follows the model's topology version by itself.
+class ImplicitIntegrator {
+ public:
+  explicit ImplicitIntegrator(const ImplicitOptions& options = {});
+
+  /// One backward Euler step of size h (s). Requires !model.topology_dirty().
+  /// Never throws; allocates only when the topology changed (or on the first
+  /// step). On kConverged and kCapped the state holds x⁺, v⁺ and f (the
+  /// total force at x⁺); time and step advance.
+  ImplicitResult Step(const Model<double>& model, State<double>& state, double h,
+                      std::span<const PenaltyTerm> penalties = {});
+
+  /// The model's own stiffness at a point p = Σ w_i x_i over one step of
+  /// the last Step's size h, N/m: (h²·Wᵀ A⁻¹ W)⁻¹ with A the last assembled
+  /// Jacobian (A/h² = K + (C + αM)/h + M/h², which tends to the static
+  /// stiffness K for large h). Three PCG solves with the current factor.
+  /// Zero before the first step or if the point has no free node.
+  Eigen::Matrix3d EffectiveStiffness(std::span<const int32_t> nodes, std::span<const double> weights);
+
+  [[nodiscard]] const ImplicitOptions& options() const { return options_; }
+  ImplicitOptions& mutable_options() { return options_; }
+  [[nodiscard]] const SparseSystem& system() const { return system_; }
+  /// Values of the last assembled Jacobian A on system()'s pattern.  // #nnz
+  [[nodiscard]] std::span<const double> jacobian_values() const { return a_values_; }
+  [[nodiscard]] const LinearSolver& linear_solver() const { return solver_; }
+  LinearSolver& mutable_linear_solver() { return solver_; }
+
+  /// Stiffness K (or K⁺ when `clamped`) of the model at positions x (#N×3)
+  /// on system()'s pattern, without elimination of fixed nodes (for tests
+  /// and the haptic linearisation). Builds the pattern if stale.
+  void AssembleStiffness(const Model<double>& model, const double* x, bool clamped,
+                         std::vector<double>& values);
+  /// The damping operator C(x) + α·M on system()'s pattern, likewise.
+  void AssembleDamping(const Model<double>& model, const double* x, std::vector<double>& values);
+  /// Plain StVK internal force at x (#N×3 into `out`, N).
+  void InternalForce(const Model<double>& model, const double* x, double* out);
+
+ private:
+  struct Eval {
+    double phi = 0;       // Φ without its constant, J
+    double scale = 0;     // Σ |terms of Φ|, J: the size of its round-off
+    double residual = 0;  // max free |r_node| / h, N
+    bool finite = true;
+  };
+  void Prepare(const Model<double>& model, ImplicitResult& result);
+  [[nodiscard]] int NumThreads() const;
+  /// Element pass at positions x: internal node forces into node_force_,
+  /// energies into tet_energy_, and, when `tangent_scale` > 0,
+  /// tangent_scale·K (K⁺ when clamped) added into `values` (colour by
+  /// colour: deterministic).
+  void ElementPass(const Model<double>& model, const double* x, double tangent_scale, bool clamped,
+                   bool skip_inactive, double* values);
+  /// values = mass_scale·M (identity on inactive nodes when skip_inactive)
+  /// + scale·C(x).
+  void DampingPass(const Model<double>& model, const double* x, double scale, double mass_scale,
+                   bool skip_inactive, double* values);
+  /// a_values_ = b_values_ + h²(K(x0 + h v_) + K_pen).
+  void AssembleJacobian(const Model<double>& model, double h, std::span<const PenaltyTerm> penalties,
+                        bool clamped);
+  /// Φ, the residual (into `residual`, #N×3) and the total force (force_)
+  /// at velocity v.
+  Eval Evaluate(const Model<double>& model, const State<double>& state, double h,
+                std::span<const PenaltyTerm> penalties, const double* v, double* residual);
+  bool LineSearch(const Model<double>& model, const State<double>& state, double h,
+                  std::span<const PenaltyTerm> penalties, Eval& current, ImplicitResult& result);
+  void SolveDirection(double h, double tolerance, ImplicitResult& result, bool* clamped);
+  double LoadScale(const Model<double>& model, const State<double>& state,
+                   std::span<const PenaltyTerm> penalties) const;
+
+  ImplicitOptions options_;
+  SparseSystem system_;
+  LinearSolver solver_;
+  std::vector<uint8_t> active_;      // #N: free and with mass
+  std::vector<double> b_values_;     // M + h(C + αM) + h²K_pen  // #nnz
+  std::vector<double> a_values_;     // b_values_ + h²K          // #nnz
+  std::vector<double> x0_, v0_;      // start of step  // #N×3
+  std::vector<double> v_, v_try_;    // iterate, trial  // #N×3
+  std::vector<double> x_;            // x0 + h v  // #N×3
+  std::vector<double> force_;        // total nodal force at x_  // #N×3
+  std::vector<double> node_force_;   // internal + penalty force at x_  // #N×3
+  std::vector<double> residual_, residual_try_;  // #N×3
+  std::vector<double> bv_;           // b_values_ · v  // #N×3
+  std::vector<double> dir_;          // Newton direction  // #N×3
+  std::vector<double> tet_energy_;   // #T
+  std::vector<double> rhs_;          // #N×3
+  std::vector<ExtraBlock> extra_;    // penalty couplings outside the pattern
+  double last_h_ = 0;
+  bool have_jacobian_ = false;
+};
+
+}  // namespace cutsim::fem

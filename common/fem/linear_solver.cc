@@ -1,0 +1,427 @@
+#include "common/fem/linear_solver.h"
+
+#include <dlfcn.h>
+#include <omp.h>
+#include <suitesparse/cholmod.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+
+#include <Eigen/Core>
+#include <Eigen/LU>
+
+#include "common/fem/node_sums.h"
+
+namespace cutsim::fem {
+
+struct LinearSolver::Factor {
+  cholmod_factor* L = nullptr;
+  int32_t dofs = 0;
+  uint64_t topology_version = 0;
+  int64_t pattern_id = -1;
+};
+
+/// A copy of A for the worker and the symbolic analysis of its pattern.
+struct LinearSolver::Snapshot {
+  std::vector<int32_t> col_ptr, row_index;
+  std::vector<double> values;
+  int32_t dofs = 0;
+  uint64_t topology_version = 0;
+  int64_t pattern_id = -1;  // SparseSystem::pattern_id() of the pattern
+  bool pattern_changed = false;  // the worker drops `symbolic` and analyses anew
+  cholmod_factor* symbolic = nullptr;
+};
+
+namespace {
+
+int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
+
+cholmod_common* Common(void* p) { return static_cast<cholmod_common*>(p); }
+
+double Seconds(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+/// The BLAS under CHOLMOD is OpenBLAS here; its own thread pool would
+/// compete with the step's OpenMP team for the same cores, so the worker
+/// factors on one BLAS thread. Looked up at run time: other BLAS builds
+/// have no such function and need nothing.
+void LimitBlasThreads() {
+  using SetThreads = void (*)(int);
+  if (void* f = dlsym(RTLD_DEFAULT, "openblas_set_num_threads")) {
+    reinterpret_cast<SetThreads>(f)(1);
+  }
+}
+
+/// Deterministic sums of K per-node terms over `nn` nodes (node_sums.h).
+template <int K, typename Body>
+std::array<double, K> SumNodes(int32_t nn, int nt, Body&& body) {
+  NodeSums<K> sums(nn);
+#pragma omp parallel num_threads(nt)
+  sums.Team(body);
+  std::array<double, K> out{};
+  for (int k = 0; k < K; ++k) out[static_cast<size_t>(k)] = sums.Total(k);
+  return out;
+}
+
+}  // namespace
+
+LinearSolver::LinearSolver(bool asynchronous) : asynchronous_(asynchronous) {
+  solve_common_ = new cholmod_common;
+  worker_common_ = new cholmod_common;
+  cholmod_start(Common(solve_common_));
+  cholmod_start(Common(worker_common_));
+  Common(worker_common_)->supernodal = CHOLMOD_SUPERNODAL;
+  Common(worker_common_)->print = 0;
+  Common(solve_common_)->print = 0;
+  snapshot_ = new Snapshot;
+  LimitBlasThreads();
+  if (asynchronous_) worker_ = std::thread([this] { WorkerLoop(); });
+}
+
+LinearSolver::~LinearSolver() {
+  if (worker_.joinable()) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    worker_.join();
+  }
+  cholmod_common* cw = Common(worker_common_);
+  for (Factor* f : {front_, ready_}) {
+    if (f != nullptr) {
+      cholmod_free_factor(&f->L, cw);
+      delete f;
+    }
+  }
+  for (Factor* f : retired_) {
+    cholmod_free_factor(&f->L, cw);
+    delete f;
+  }
+  if (spare_ != nullptr) {
+    cholmod_free_factor(&spare_->L, cw);
+    delete spare_;
+  }
+  cholmod_free_factor(&snapshot_->symbolic, cw);
+  delete snapshot_;
+  cholmod_common* cs = Common(solve_common_);
+  for (void* d : {dense_x_, dense_y_, dense_e_}) {
+    auto* dd = static_cast<cholmod_dense*>(d);
+    cholmod_free_dense(&dd, cs);
+  }
+  cholmod_finish(cs);
+  cholmod_finish(cw);
+  delete cs;
+  delete cw;
+}
+
+void LinearSolver::Resize(const SparseSystem& system) {
+  const auto nd = static_cast<size_t>(system.num_dofs());
+  r_.resize(nd);
+  z_.resize(nd);
+  p_.resize(nd);
+  q_.resize(nd);
+  jacobi_.resize(3 * nd);
+}
+
+bool LinearSolver::RequestFactor(const SparseSystem& system, const double* values) {
+  if (busy()) return false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Snapshot& s = *snapshot_;
+    if (s.pattern_id != system.pattern_id() || s.dofs != system.num_dofs()) {
+      s.pattern_changed = true;
+      s.col_ptr.assign(system.col_ptr(), system.col_ptr() + system.num_dofs() + 1);
+      s.row_index.assign(system.row_index(), system.row_index() + system.nnz());
+      s.dofs = system.num_dofs();
+      s.topology_version = system.topology_version();
+      s.pattern_id = system.pattern_id();
+    }
+    s.values.resize(static_cast<size_t>(system.nnz()));
+    std::copy(values, values + system.nnz(), s.values.begin());
+    ++stats_.requested;
+    busy_.store(true, std::memory_order_release);
+    request_pending_ = true;
+  }
+  if (asynchronous_) {
+    cv_.notify_all();
+  } else {
+    Factorize(*snapshot_);
+    Acquire();
+  }
+  return true;
+}
+
+void LinearSolver::WaitForFactor() {
+  if (asynchronous_) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait(lock, [this] { return !busy_.load(std::memory_order_acquire); });
+  }
+  Acquire();
+}
+
+int32_t LinearSolver::factor_dofs() const { return front_ != nullptr ? front_->dofs : 0; }
+
+uint64_t LinearSolver::factor_topology_version() const {
+  return front_ != nullptr ? front_->topology_version : 0;
+}
+
+int64_t LinearSolver::factor_pattern_id() const {
+  return front_ != nullptr ? front_->pattern_id : -1;
+}
+
+FactorStats LinearSolver::stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+void LinearSolver::WorkerLoop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (true) {
+    cv_.wait(lock, [this] { return stop_ || request_pending_; });
+    if (stop_) return;
+    lock.unlock();
+    Factorize(*snapshot_);
+    lock.lock();
+    cv_.notify_all();  // WaitForFactor
+  }
+}
+
+/// Runs on the worker (or inline when synchronous): analyses the pattern if
+/// new, factors the snapshot (shifted if it is not positive definite) and
+/// publishes the factor as ready_. Frees retired factors.
+void LinearSolver::Factorize(Snapshot& s) {
+  cholmod_common* cw = Common(worker_common_);
+  cholmod_sparse a{};
+  a.nrow = a.ncol = static_cast<size_t>(s.dofs);
+  a.nzmax = s.values.size();
+  a.p = s.col_ptr.data();
+  a.i = s.row_index.data();
+  a.x = s.values.data();
+  a.stype = -1;  // symmetric, lower triangle used
+  a.itype = CHOLMOD_INT;
+  a.xtype = CHOLMOD_REAL;
+  a.dtype = CHOLMOD_DOUBLE;
+  a.sorted = 1;
+  a.packed = 1;
+  const auto t0 = std::chrono::steady_clock::now();
+  double analyze_seconds = -1;
+  if (s.pattern_changed) {
+    cholmod_free_factor(&s.symbolic, cw);
+    s.pattern_changed = false;
+  }
+  if (s.symbolic == nullptr) {
+    s.symbolic = cholmod_analyze(&a, cw);
+    analyze_seconds = Seconds(t0);
+  }
+  // Reuse the memory of a retired factor of this pattern (no allocation,
+  // no page faults); otherwise copy the symbolic analysis.
+  if (spare_ != nullptr && spare_->pattern_id != s.pattern_id) {
+    cholmod_free_factor(&spare_->L, cw);
+    delete spare_;
+    spare_ = nullptr;
+  }
+  Factor* f = spare_ != nullptr ? spare_ : new Factor;
+  spare_ = nullptr;
+  f->dofs = s.dofs;
+  f->topology_version = s.topology_version;
+  f->pattern_id = s.pattern_id;
+  bool ok = false, shifted = false;
+  if (s.symbolic != nullptr) {
+    double mean_diag = 0;
+    for (int32_t j = 0; j < s.dofs; ++j) {
+      for (int32_t k = s.col_ptr[static_cast<size_t>(j)]; k < s.col_ptr[static_cast<size_t>(j) + 1]; ++k) {
+        if (s.row_index[static_cast<size_t>(k)] == j) mean_diag += std::abs(s.values[static_cast<size_t>(k)]);
+      }
+    }
+    mean_diag /= std::max(1, s.dofs);
+    double shift = 0;
+    for (int attempt = 0; attempt < 6 && !ok; ++attempt) {
+      if (f->L == nullptr) f->L = cholmod_copy_factor(s.symbolic, cw);
+      double beta[2] = {shift, 0};
+      cholmod_factorize_p(&a, beta, nullptr, 0, f->L, cw);
+      ok = f->L != nullptr && cw->status == CHOLMOD_OK && f->L->minor == f->L->n;
+      if (!ok) {
+        shift = shift == 0 ? 1e-6 * mean_diag : shift * 100.0;
+        shifted = true;
+      }
+    }
+  }
+  const double seconds = Seconds(t0);
+  std::vector<Factor*> to_free;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++stats_.completed;
+    stats_.failed += ok ? 0 : 1;
+    stats_.shifted += ok && shifted ? 1 : 0;
+    stats_.last_seconds = seconds;
+    stats_.total_seconds += seconds;
+    if (analyze_seconds >= 0) stats_.last_analyze_seconds = analyze_seconds;
+    if (ok) {
+      if (ready_ != nullptr) retired_.push_back(ready_);
+      ready_ = f;
+      f = nullptr;
+    }
+    to_free.swap(retired_);
+    request_pending_ = false;
+    busy_.store(false, std::memory_order_release);
+  }
+  if (f != nullptr) {
+    cholmod_free_factor(&f->L, cw);
+    delete f;
+  }
+  for (Factor* g : to_free) {
+    if (spare_ == nullptr && g->pattern_id == s.pattern_id) {
+      spare_ = g;
+      continue;
+    }
+    cholmod_free_factor(&g->L, cw);
+    delete g;
+  }
+}
+
+/// Makes the finished factor current; the old one is retired (the next
+/// factorisation frees it or keeps it as its spare, so solves never free
+/// CHOLMOD memory).
+void LinearSolver::Acquire() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (ready_ == nullptr) return;
+  if (front_ != nullptr) retired_.push_back(front_);
+  front_ = ready_;
+  ready_ = nullptr;
+}
+
+void LinearSolver::BuildBlockJacobi(const SparseSystem& system, const double* values,
+                                    const uint8_t* active, int32_t first_node, int num_threads) {
+  const int32_t nn = system.num_nodes();
+  double* jac = jacobi_.data();
+#pragma omp parallel for schedule(static) num_threads(num_threads)
+  for (int32_t n = first_node; n < nn; ++n) {
+    Eigen::Map<Eigen::Matrix3d> out(jac + 9 * n);
+    const Eigen::Matrix3d d = system.GetBlock(values, system.diagonal_block(n), n);
+    bool invertible = false;
+    if (active[n] != 0) d.computeInverseWithCheck(out, invertible);
+    if (!invertible) out.setZero();
+  }
+}
+
+void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t* active,
+                                       const double* r, double* z, int num_threads) {
+  const int32_t nn = system.num_nodes();
+  int32_t first_node = 0;
+  if (front_ != nullptr && front_->dofs <= system.num_dofs()) {
+    cholmod_common* cs = Common(solve_common_);
+    cholmod_dense b{};
+    b.nrow = b.nzmax = b.d = static_cast<size_t>(front_->dofs);
+    b.ncol = 1;
+    b.x = const_cast<double*>(r);
+    b.xtype = CHOLMOD_REAL;
+    b.dtype = CHOLMOD_DOUBLE;
+    auto* x = static_cast<cholmod_dense*>(dense_x_);
+    auto* y = static_cast<cholmod_dense*>(dense_y_);
+    auto* e = static_cast<cholmod_dense*>(dense_e_);
+    if (cholmod_solve2(CHOLMOD_A, front_->L, &b, nullptr, &x, nullptr, &y, &e, cs) != 0) {
+      const auto* xs = static_cast<const double*>(x->x);
+      std::copy(xs, xs + front_->dofs, z);
+      first_node = front_->dofs / 3;
+    }
+    dense_x_ = x;
+    dense_y_ = y;
+    dense_e_ = e;
+  }
+  const double* jac = jacobi_.data();
+#pragma omp parallel for schedule(static) num_threads(num_threads)
+  for (int32_t n = 0; n < nn; ++n) {
+    if (active[n] == 0) {
+      z[3 * n] = z[3 * n + 1] = z[3 * n + 2] = 0;
+    } else if (n >= first_node) {
+      Eigen::Map<Eigen::Vector3d>(z + 3 * n) =
+          Eigen::Map<const Eigen::Matrix3d>(jac + 9 * n) * Eigen::Map<const Eigen::Vector3d>(r + 3 * n);
+    }
+  }
+}
+
+PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, const uint8_t* active,
+                              const double* b, double* x, double tolerance, int max_iterations,
+                              int num_threads, std::span<const ExtraBlock> extra) {
+  const int nt = Threads(num_threads);
+  const int32_t nn = system.num_nodes();
+  Acquire();
+  const int32_t covered = front_ != nullptr && front_->dofs <= system.num_dofs() ? front_->dofs / 3 : 0;
+  if (covered < nn) BuildBlockJacobi(system, values, active, covered, nt);
+  double* r = r_.data();
+  double* z = z_.data();
+  double* p = p_.data();
+  double* q = q_.data();
+  PcgResult res;
+  // x = 0, r = b (masked).
+  const auto init = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
+    for (int d = 0; d < 3; ++d) {
+      const int32_t i = 3 * n + d;
+      x[i] = 0;
+      r[i] = active[n] != 0 ? b[i] : 0.0;
+      acc[0] += r[i] * r[i];
+    }
+  });
+  res.residual = std::sqrt(init[0]);
+  if (res.residual <= tolerance) {
+    res.converged = true;
+    return res;
+  }
+  double rz_old = 0;
+  for (int it = 0; it < max_iterations; ++it) {
+    ApplyPreconditioner(system, active, r, z, nt);
+    const double rz = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
+      for (int d = 0; d < 3; ++d) acc[0] += r[3 * n + d] * z[3 * n + d];
+    })[0];
+    const double beta = it == 0 ? 0.0 : rz / rz_old;
+    rz_old = rz;
+#pragma omp parallel num_threads(nt)
+    {
+#pragma omp for schedule(static)
+      for (int32_t i = 0; i < 3 * nn; ++i) p[i] = z[i] + beta * p[i];
+      system.MultiplyTeam(values, p, q);
+    }
+    for (const ExtraBlock& e : extra) {
+      Eigen::Map<Eigen::Vector3d>(q + 3 * e.a) += e.k * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.b);
+      if (e.a != e.b) {
+        Eigen::Map<Eigen::Vector3d>(q + 3 * e.b) += e.k.transpose() * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.a);
+      }
+    }
+    const double pq = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
+      for (int d = 0; d < 3; ++d) {
+        const int32_t i = 3 * n + d;
+        if (active[n] == 0) q[i] = 0;
+        acc[0] += p[i] * q[i];
+      }
+    })[0];
+    if (!(pq > 0)) {
+      res.negative_curvature = true;
+      if (it == 0) std::copy(z, z + 3 * nn, x);  // preconditioned rhs: a descent direction
+      res.iterations = it + 1;
+      return res;
+    }
+    const double alpha = rz / pq;
+    const auto rr = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
+      for (int d = 0; d < 3; ++d) {
+        const int32_t i = 3 * n + d;
+        x[i] += alpha * p[i];
+        r[i] -= alpha * q[i];
+        acc[0] += r[i] * r[i];
+      }
+    });
+    res.iterations = it + 1;
+    res.residual = std::sqrt(rr[0]);
+    if (!std::isfinite(res.residual)) return res;
+    if (res.residual <= tolerance) {
+      res.converged = true;
+      return res;
+    }
+  }
+  return res;
+}
+
+}  // namespace cutsim::fem

@@ -1,0 +1,141 @@
+#pragma once
+/// @file
+/// The linear solver of the implicit step: preconditioned conjugate
+/// gradients on the assembled system A (sparse_system.h), preconditioned by
+/// a sparse Cholesky factor (SuiteSparse CHOLMOD, supernodal, on the BLAS
+/// that libblas.so.3 resolves to) of an earlier snapshot of A.
+///
+/// The factor may be stale: it is reused across Newton iterations, steps
+/// and frames while PCG converges in few iterations, and a new one is asked
+/// for when PCG needs more than a threshold (the caller's policy). The
+/// factorisation runs on a persistent worker thread on a copy of A, so a
+/// solve never waits for it; the newest finished factor is picked up at the
+/// start of the next solve. After a topology change (cutting appends nodes
+/// at the end and re-wires tets), a factor of the old pattern still covers
+/// the old DOFs, a prefix of the new ones: it preconditions that prefix and
+/// block Jacobi (the inverse of each remaining node's diagonal 3×3 block of
+/// the current A) the rest, until the factor of the new pattern lands. The
+/// same block Jacobi serves alone before the first factor exists.
+///
+/// A snapshot that is not positive definite (an exact, indefinite tangent)
+/// is factored with a diagonal shift A + σI, σ growing from 1e-6 of the
+/// mean diagonal: a shifted factor is still a good preconditioner.
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <mutex>
+#include <span>
+#include <thread>
+#include <vector>
+
+#include "common/fem/sparse_system.h"
+
+namespace cutsim::fem {
+
+/// What one PCG solve did.
+struct PcgResult {
+  int iterations = 0;
+  double residual = 0;  ///< Final ‖b − A x‖₂ (recursive), in the units of b.
+  bool converged = false;
+  /// pᵀAp ≤ 0 met: A is not positive definite along p. The solve stops
+  /// there with the iterate so far (a descent direction of the quadratic
+  /// model for an SPD preconditioner), or the preconditioned rhs if first.
+  bool negative_curvature = false;
+};
+
+/// A coupling outside the pattern, applied by the product only (the
+/// preconditioner does not see it): A(a, b) += k and A(b, a) += kᵀ (once,
+/// k, when a == b). Penalty springs between nodes that share no tet.
+struct ExtraBlock {
+  int32_t a = 0, b = 0;
+  Eigen::Matrix3d k = Eigen::Matrix3d::Zero();
+};
+
+/// Cumulative counters of the factorisations.
+struct FactorStats {
+  int64_t requested = 0;     ///< Snapshots handed to the worker.
+  int64_t completed = 0;     ///< Factors finished (successful or not).
+  int64_t failed = 0;        ///< Factors that failed even with the shift.
+  int64_t shifted = 0;       ///< Factors that needed a diagonal shift.
+  double last_seconds = 0;   ///< Wall time of the last factorisation, s.
+  double total_seconds = 0;  ///< Summed factorisation time, s.
+  double last_analyze_seconds = 0;  ///< Wall time of the last symbolic analysis, s.
+};
+
+class LinearSolver {
+ public:
+  /// `asynchronous`: factor on a worker thread (else inline, when asked:
+  /// deterministic, and the asking solve waits).
+  explicit LinearSolver(bool asynchronous = true);
+  ~LinearSolver();
+  LinearSolver(const LinearSolver&) = delete;
+  LinearSolver& operator=(const LinearSolver&) = delete;
+
+  /// Sizes the PCG workspace for `system` (allocates when it grew).
+  void Resize(const SparseSystem& system);
+
+  /// Hands a copy of A (`values`, #nnz of `system`'s pattern) to the worker
+  /// unless it is busy; returns whether it was taken. Synchronous mode
+  /// factors it now. The copy allocates only when the pattern changed.
+  bool RequestFactor(const SparseSystem& system, const double* values);
+  /// Blocks until the worker is idle and picks up its factor.
+  void WaitForFactor();
+  /// True while the worker factors a snapshot.
+  [[nodiscard]] bool busy() const { return busy_.load(std::memory_order_acquire); }
+  /// True once a factor is available to solves (after a solve picked it up).
+  [[nodiscard]] bool has_factor() const { return front_ != nullptr; }
+  /// DOFs the current factor covers (a prefix of the system's), 0 if none.
+  [[nodiscard]] int32_t factor_dofs() const;
+  /// Topology version of the pattern the current factor was made from.
+  [[nodiscard]] uint64_t factor_topology_version() const;
+  /// SparseSystem::pattern_id() of that pattern (−1: no factor).
+  [[nodiscard]] int64_t factor_pattern_id() const;
+  /// Makes the newest finished factor current (never waits).
+  void Acquire();
+  [[nodiscard]] FactorStats stats() const;
+
+  /// Solves A x = b on the DOFs with active[dof/3] != 0 (others stay 0) by
+  /// PCG from x = 0, until ‖r‖₂ ≤ tolerance or max_iterations. Picks up the
+  /// newest finished factor first. Block Jacobi blocks come from `values`.
+  /// Allocates nothing once Resize ran and a factor of this size was used.
+  PcgResult Solve(const SparseSystem& system, const double* values, const uint8_t* active,
+                  const double* b, double* x, double tolerance, int max_iterations,
+                  int num_threads, std::span<const ExtraBlock> extra = {});
+
+ private:
+  struct Factor;
+  struct Snapshot;
+  void WorkerLoop();
+  void Factorize(Snapshot& s);
+  void BuildBlockJacobi(const SparseSystem& system, const double* values, const uint8_t* active,
+                        int32_t first_node, int num_threads);
+  void ApplyPreconditioner(const SparseSystem& system, const uint8_t* active, const double* r,
+                           double* z, int num_threads);
+
+  bool asynchronous_;
+  void* solve_common_ = nullptr;   // cholmod_common of the solving thread
+  void* worker_common_ = nullptr;  // cholmod_common of the factorising thread
+  // Factor slots: front_ is used by solves; ready_ is finished and waits to
+  // be picked up; retired_ waits for the worker to free it.
+  Factor* front_ = nullptr;
+  Factor* ready_ = nullptr;
+  std::vector<Factor*> retired_;
+  Factor* spare_ = nullptr;  // a retired factor of the current pattern, owned by the worker
+  Snapshot* snapshot_ = nullptr;
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  std::atomic<bool> busy_{false};
+  bool request_pending_ = false;
+  bool stop_ = false;
+  FactorStats stats_;
+  std::thread worker_;
+  // Solve workspace.  // #3N each
+  std::vector<double> r_, z_, p_, q_;
+  std::vector<double> jacobi_;  // #N×9: inverse diagonal blocks, column-major
+  void* dense_x_ = nullptr;     // cholmod_dense results and workspace, reused
+  void* dense_y_ = nullptr;
+  void* dense_e_ = nullptr;
+};
+
+}  // namespace cutsim::fem

@@ -1,0 +1,46 @@
+#pragma once
+/// @file
+/// Shared set-ups of the implicit-step tests: a cantilever box clamped at
+/// x = 0 and deformed states of it.
+
+#include <cmath>
+#include <vector>
+
+#include "common/fem/model.h"
+#include "common/fem/state.h"
+#include "tests/unit/fem/test_meshes.h"
+
+namespace cutsim::fem::testing {
+
+/// nx×2×2 cells over lx × 0.02 × 0.02 m, E (Pa), ν = 0.45, ρ = 1000,
+/// the x = 0 face fixed, gravity −z unless `gravity` is false.
+inline Model<double> MakeCantilever(int nx, double lx, double youngs, bool gravity = true,
+                                    double psi = 0, double phi = 0, int extra_nodes = 0) {
+  const mesh::TetMesh mesh = MakeBoxMesh(nx, 2, 2, lx, 0.02, 0.02);
+  const Material mat = Material::FromYoungPoisson(youngs, 0.45, 1000.0, psi, phi);
+  ModelOptions opt;
+  opt.node_capacity = mesh.num_nodes() + extra_nodes;
+  if (gravity) opt.gravity = Eigen::Vector3d(0, 0, -9.81);
+  Model<double> model(mesh, std::span(&mat, 1), opt);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    if (model.rest_position(n)(0) < 1e-9) model.SetFixed(n, true);
+  }
+  return model;
+}
+
+/// Rest positions with free nodes moved by a smooth pseudo-random field of
+/// amplitude `amp` (m) and the whole body scaled along x by `sx` about x = 0.
+inline std::vector<double> DeformedPositions(const Model<double>& model, double amp, double sx,
+                                             double seed = 1.0) {
+  std::vector<double> x(static_cast<size_t>(3 * model.node_capacity()), 0.0);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    const Vec3<double> p = model.rest_position(n);
+    for (int d = 0; d < 3; ++d) {
+      const double r = std::sin(seed * (1.3 + d) * (3 * n + d) + 0.7 * seed);
+      x[static_cast<size_t>(3 * n + d)] = p(d) * (d == 0 ? sx : 1.0) + (model.fixed(n) ? 0.0 : amp * r);
+    }
+  }
+  return x;
+}
+
+}  // namespace cutsim::fem::testing
