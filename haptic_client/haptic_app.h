@@ -21,7 +21,9 @@
 ///   than one tick of hold).
 /// * Memory: mlockall(MCL_CURRENT|MCL_FUTURE) and prefaulted buffers when
 ///   permitted; with neither CAP_SYS_NICE nor an rtprio limit the loop runs
-///   SCHED_OTHER and says so in a warning and in the JSON summary.
+///   SCHED_OTHER and says so in a warning and in the JSON summary
+///   (common/transport/realtime_thread.h does the set-up; servo_loop.h is
+///   the loop).
 /// * Threads are started before the loop raises its own priority, so the
 ///   LCM and CSV threads stay SCHED_OTHER.
 
@@ -29,6 +31,7 @@
 #include <string>
 
 #include "common/transport/fault_injection.h"
+#include "common/transport/realtime_thread.h"
 
 namespace cutsim::haptic_client {
 
@@ -52,7 +55,7 @@ struct HapticAppOptions {
   transport::FaultConfig faults;      ///< --fault-*
   std::string fault_direction = "both";  ///< both | tool | model
   bool realtime = true;               ///< --no-rt: do not try SCHED_FIFO / mlockall
-  int rt_priority = 80;
+  int rt_priority = transport::kHapticLoopPriority;  ///< --rt-priority, SCHED_FIFO 1..99
   std::string key_file;               ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else unsigned
 };
 
@@ -63,15 +66,5 @@ void ValidateOptions(const HapticAppOptions& options);
 /// SIGINT/SIGTERM. Logs the stats and prints one JSON line on stdout.
 /// Returns the process exit code (0 on a normal end).
 int RunHapticApp(const HapticAppOptions& options);
-
-/// Result of `TryEnableRealtime`.
-struct RealtimeStatus {
-  bool fifo = false;
-  bool mlocked = false;
-};
-
-/// Locks memory and switches the calling thread to SCHED_FIFO `priority`,
-/// each when permitted; logs a clear warning for what was not.
-RealtimeStatus TryEnableRealtime(int priority);
 
 }  // namespace cutsim::haptic_client

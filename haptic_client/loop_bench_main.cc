@@ -11,11 +11,12 @@
 #include <thread>
 
 #include <CLI/CLI.hpp>
-#include <fmt/format.h>
 
 #include "common/core/clock.h"
 #include "common/core/log.h"
-#include "haptic_client/haptic_app.h"
+#include "common/transport/realtime_thread.h"
+#include "common/transport/report_json.h"
+#include "cutsim/v1/report.pb.h"
 #include "haptic_client/loop_stats.h"
 
 int main(int argc, char** argv) {
@@ -40,8 +41,8 @@ int main(int argc, char** argv) {
       while (!stop.load(std::memory_order_relaxed)) x = std::sqrt(x + 1.0);
     });
   }
-  cutsim::haptic_client::RealtimeStatus rt;
-  if (!no_rt) rt = cutsim::haptic_client::TryEnableRealtime(80);
+  cutsim::transport::RealtimeStatus rt;
+  if (!no_rt) rt = cutsim::transport::TryEnableRealtime(cutsim::transport::kHapticLoopPriority, "bare loop");
 
   Histogram period_us(1.0, 20000), jitter_us(1.0, 20000), lateness_us(1.0, 20000);
   const int64_t period_ns = std::llround(1e9 / rate);
@@ -72,14 +73,18 @@ int main(int argc, char** argv) {
   }
   stop.store(true);
   if (hog_thread.joinable()) hog_thread.join();
-  auto q = [](const Histogram& h) {
-    return fmt::format(R"({{"p50":{:.3f},"p99":{:.3f},"max":{:.3f},"mean":{:.3f},"n":{}}})", h.Quantile(0.5),
-                       h.Quantile(0.99), h.max(), h.mean(), h.count());
-  };
-  std::printf("%s\n", fmt::format(R"({{"kind":"bare_loop_stats","ticks":{},"missed_deadlines":{},"sched_fifo":{},)"
-                                  R"("mlocked":{},"hog":{},"period_us":{},"jitter_us":{},"lateness_us":{}}})",
-                                  ticks, missed, rt.fifo, rt.mlocked, hog, q(period_us), q(jitter_us),
-                                  q(lateness_us))
-                          .c_str());
+  using cutsim::haptic_client::QuantilesReport;
+  using cutsim::transport::ReportCount;
+  cutsim::v1::BareLoopStats report;
+  report.set_kind("bare_loop_stats");
+  report.set_ticks(ReportCount(ticks));
+  report.set_missed_deadlines(ReportCount(missed));
+  report.set_sched_fifo(rt.fifo);
+  report.set_mlocked(rt.mlocked);
+  report.set_hog(hog);
+  *report.mutable_period_us() = QuantilesReport(period_us);
+  *report.mutable_jitter_us() = QuantilesReport(jitter_us);
+  *report.mutable_lateness_us() = QuantilesReport(lateness_us);
+  std::printf("%s\n", cutsim::transport::ReportJson(report).c_str());
   return 0;
 }

@@ -8,6 +8,9 @@
 #include <cstdint>
 #include <vector>
 
+#include "common/transport/report_json.h"
+#include "cutsim/v1/report.pb.h"
+
 namespace cutsim::haptic_client {
 
 class Histogram {
@@ -49,5 +52,16 @@ class Histogram {
   double max_ = 0.0;
   double sum_ = 0.0;
 };
+
+/// The histogram's quantiles as the report message both loop programs print.
+inline v1::Quantiles QuantilesReport(const Histogram& h) {
+  v1::Quantiles q;
+  q.set_p50(h.Quantile(0.5));
+  q.set_p99(h.Quantile(0.99));
+  q.set_max(h.max());
+  q.set_mean(h.mean());
+  q.set_n(transport::ReportCount(h.count()));
+  return q;
+}
 
 }  // namespace cutsim::haptic_client

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Session recording and deterministic replay (issue 7).
+/// Session recording and deterministic replay.
 ///
 /// The real-time server (`--record FILE`) writes the session's *inputs* to an
 /// LCM log (the format `lcm-logger` writes and `lcm-logplayer` reads; one

@@ -8,7 +8,6 @@
 #include <csignal>
 
 #include <CLI/CLI.hpp>
-#include <fmt/format.h>
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
@@ -16,6 +15,8 @@
 #include "common/sim/checkpoint.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
+#include "common/transport/report_json.h"
+#include "cutsim/v1/report.pb.h"
 #include "server/recorder.h"
 
 namespace cutsim::server {
@@ -27,23 +28,58 @@ namespace {
 void OnSignal(int) { g_stop = 1; }
 void OnStatsSignal(int) { g_print_stats = 1; }
 
-std::string SummaryJson(const sim::SimulationSummary& s) {
-  return fmt::format(
-      "{{\"scene\": \"{}\", \"precision\": \"{}\", \"nodes\": {}, \"tets\": {}, "
-      "\"free_nodes\": {}, \"threads\": {}, \"steps\": {}, \"frames\": {}, \"dt\": {:.9g}, "
-      "\"stable_dt\": {:.9g}, \"sim_time\": {:.9g}, \"wall_time\": {:.6g}, "
-      "\"tet_steps_per_s\": {:.6g}, \"realtime_factor\": {:.6g}, \"kinetic_energy\": {:.9g}, "
-      "\"strain_energy\": {:.9g}, \"residual_force\": {:.9g}, \"max_displacement\": {:.9g}, "
-      "\"at_rest\": {}, \"status\": \"{}\", \"diagnosis\": \"{}\", \"cuts\": {}, "
-      "\"cut_attempts\": {}, \"cuts_rejected\": {}, \"topology_version\": {}, \"components\": {}, "
-      "\"opened_faces\": {}, \"min_rest_volume\": {:.9g}, \"total_mass\": {:.12g}, "
-      "\"cut_wall_time\": {:.6g}}}",
-      s.scene, s.precision, s.num_nodes, s.num_tets, s.num_free_nodes, s.threads, s.steps,
-      s.frames, s.dt, s.stable_dt, s.sim_time, s.wall_time, s.tet_steps_per_s, s.realtime_factor,
-      s.kinetic_energy, s.strain_energy, s.residual_force, s.max_displacement,
-      s.at_rest ? "true" : "false", s.status, s.diagnosis, s.cuts, s.cut_attempts, s.cuts_rejected,
-      s.topology_version, s.components, s.opened_faces, s.min_rest_volume, s.total_mass,
-      s.cut_wall_time);
+v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s) {
+  using transport::ReportCount;
+  v1::HeadlessSummary r;
+  r.set_scene(s.scene);
+  r.set_precision(s.precision);
+  r.set_nodes(ReportCount(s.num_nodes));
+  r.set_tets(ReportCount(s.num_tets));
+  r.set_free_nodes(ReportCount(s.num_free_nodes));
+  r.set_threads(ReportCount(s.threads));
+  r.set_steps(ReportCount(s.steps));
+  r.set_frames(ReportCount(s.frames));
+  r.set_dt(s.dt);
+  r.set_stable_dt(s.stable_dt);
+  r.set_sim_time(s.sim_time);
+  r.set_wall_time(s.wall_time);
+  r.set_tet_steps_per_s(s.tet_steps_per_s);
+  r.set_realtime_factor(s.realtime_factor);
+  r.set_kinetic_energy(s.kinetic_energy);
+  r.set_strain_energy(s.strain_energy);
+  r.set_residual_force(s.residual_force);
+  r.set_max_displacement(s.max_displacement);
+  r.set_at_rest(s.at_rest);
+  r.set_status(s.status);
+  r.set_diagnosis(s.diagnosis);
+  r.set_cuts(ReportCount(s.cuts));
+  r.set_cut_attempts(ReportCount(s.cut_attempts));
+  r.set_cuts_rejected(ReportCount(s.cuts_rejected));
+  r.set_topology_version(ReportCount(s.topology_version));
+  r.set_components(ReportCount(s.components));
+  r.set_opened_faces(ReportCount(s.opened_faces));
+  r.set_min_rest_volume(s.min_rest_volume);
+  r.set_total_mass(s.total_mass);
+  r.set_cut_wall_time(s.cut_wall_time);
+  return r;
+}
+
+v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& result) {
+  using transport::ReportCount;
+  v1::ReplayReport r;
+  r.set_replay(path);
+  r.set_session(result.session);
+  r.set_scene(result.scene);
+  r.set_match(result.match);
+  r.set_frames(ReportCount(result.frames));
+  r.set_cut_frames(ReportCount(result.cut_frames));
+  r.set_cuts(ReportCount(result.cuts));
+  r.set_topology_version(ReportCount(result.topology_version));
+  r.set_sim_time(result.sim_time);
+  r.set_mesh_hash(transport::HexHash(result.mesh_hash));
+  r.set_recorded_mesh_hash(transport::HexHash(result.recorded_mesh_hash));
+  r.set_build(BuildClass());
+  return r;
 }
 
 }  // namespace
@@ -163,12 +199,7 @@ std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const Se
 
 int ServerApp::RunReplay() {
   const ReplayResult r = ReplayRecording(options_.replay, options_.scene);
-  const std::string json = fmt::format(
-      "{{\"replay\": \"{}\", \"session\": \"{}\", \"scene\": \"{}\", \"match\": {}, \"frames\": {}, "
-      "\"cut_frames\": {}, \"cuts\": {}, \"topology_version\": {}, \"sim_time\": {:.9g}, "
-      "\"mesh_hash\": \"{:016x}\", \"recorded_mesh_hash\": \"{:016x}\", \"build\": \"{}\"}}",
-      options_.replay, r.session, r.scene, r.match ? "true" : "false", r.frames, r.cut_frames, r.cuts,
-      r.topology_version, r.sim_time, r.mesh_hash, r.recorded_mesh_hash, BuildClass());
+  const std::string json = transport::ReportJson(MakeReplayReport(options_.replay, r));
   std::printf("%s\n", json.c_str());
   if (!r.match) {
     Log().error("replay of {} does NOT match the recording: {}", options_.replay, r.mismatch);
@@ -183,7 +214,7 @@ int ServerApp::RunHeadless() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision});
-  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);  // checkpoints
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
   if (options_.resume) (void)checkpointer.Resume(*simulation);
   // The run ends at --duration, else when the tool path ends, else (with
   // --until-rest) at rest or --max-time.
@@ -236,7 +267,7 @@ int ServerApp::RunHeadless() {
     simulation->WriteVtu(options_.out);
     Log().info("wrote {}", options_.out);
   }
-  std::printf("%s\n", SummaryJson(simulation->Summary()).c_str());
+  std::printf("%s\n", transport::ReportJson(HeadlessReport(simulation->Summary())).c_str());
   return exit_code;
 }
 

@@ -32,12 +32,12 @@ struct ServerOptions {
   double frame_rate = 0.0;         ///< physics frames per second; 0: the scene's frame_dt
   double client_timeout = 1.0;     ///< s without tool poses: the haptic client is gone
   std::string stats_json;          ///< write the exit statistics here too
-  // Record, replay and access control (issue 7).
+  // Record, replay and access control.
   std::string record;              ///< --record: LCM log of the session's inputs (real-time mode)
   std::string replay;              ///< --replay: with --headless, re-run a recording and check it
   std::string key_file;            ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else open
   double auth_window = 2.0;        ///< s, accepted |clock difference| of signed tool messages
-  // Checkpoints (issue 7; common/sim/checkpoint.h).
+  // Checkpoints (common/sim/checkpoint.h).
   std::string checkpoint;          ///< --checkpoint: file saved periodically and at a clean exit
   double checkpoint_every = 5.0;   ///< s of wall time between saves; 0: only at exit
   bool resume = false;             ///< --resume: restore --checkpoint at start if it exists

@@ -22,6 +22,8 @@
 #include "common/transport/channels.h"
 #include "common/transport/dds.h"
 #include "common/transport/mesh_stream.h"
+#include "common/transport/report_json.h"
+#include "cutsim/v1/report.pb.h"
 
 namespace cutsim::viewer {
 namespace {
@@ -66,25 +68,148 @@ struct RunSummary {
   std::string exit_reason = "signal";
 };
 
-std::string SummaryJson(const ViewerOptions& o, const RunSummary& r,
-                        const transport::MeshStreamSubscriberStats& s) {
-  return fmt::format(
-      "{{\"session\": \"{}\", \"frames\": {}, \"verified_frames\": {}, \"frames_skipped\": {}, "
-      "\"resyncs\": {}, \"gaps\": {}, \"hash_checks\": {}, \"hash_mismatches\": {}, "
-      "\"bytes_received\": {}, \"samples\": {}, \"snapshots\": {}, \"deltas\": {}, "
-      "\"stale_snapshots\": {}, \"malformed\": {}, \"oversized\": {}, \"foreign_session\": {}, "
-      "\"unknown_topology\": {}, \"ignored\": {}, \"status_messages\": {}, "
-      "\"join_latency_s\": {:.6f}, \"render_ms_mean\": {:.4f}, \"first_seq\": {}, "
-      "\"first_hash\": \"{:016x}\", \"first_sim_time\": {:.9g}, \"first_frame_mono_ns\": {}, "
-      "\"last_seq\": {}, \"last_hash\": \"{:016x}\", \"width\": {}, \"height\": {}, "
-      "\"exit_reason\": \"{}\"}}",
-      o.session, r.frames, r.frames, r.frames_skipped, s.resyncs, s.gaps, s.hash_checks,
-      s.hash_mismatches + static_cast<uint64_t>(r.local_hash_mismatches), s.bytes_received,
-      s.samples, s.snapshots, s.deltas, s.stale_snapshots, s.malformed, s.oversized,
-      s.foreign_session, s.unknown_topology, s.ignored, s.status, r.join_latency_s,
-      r.frames > 0 ? 1e-6 * static_cast<double>(r.render_ns) / static_cast<double>(r.frames) : 0.0,
-      r.first_seq, r.first_hash, r.first_sim_time, r.first_frame_mono_ns, r.last_seq, r.last_hash,
-      o.width, o.height, r.exit_reason);
+v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
+                                const transport::MeshStreamSubscriberStats& s) {
+  using transport::ReportCount;
+  v1::ViewerSummary v;
+  v.set_session(o.session);
+  v.set_frames(ReportCount(r.frames));
+  v.set_verified_frames(ReportCount(r.frames));
+  v.set_frames_skipped(ReportCount(r.frames_skipped));
+  v.set_resyncs(ReportCount(s.resyncs));
+  v.set_gaps(ReportCount(s.gaps));
+  v.set_hash_checks(ReportCount(s.hash_checks));
+  v.set_hash_mismatches(ReportCount(s.hash_mismatches + static_cast<uint64_t>(r.local_hash_mismatches)));
+  v.set_bytes_received(static_cast<double>(s.bytes_received));
+  v.set_samples(ReportCount(s.samples));
+  v.set_snapshots(ReportCount(s.snapshots));
+  v.set_deltas(ReportCount(s.deltas));
+  v.set_stale_snapshots(ReportCount(s.stale_snapshots));
+  v.set_malformed(ReportCount(s.malformed));
+  v.set_oversized(ReportCount(s.oversized));
+  v.set_foreign_session(ReportCount(s.foreign_session));
+  v.set_unknown_topology(ReportCount(s.unknown_topology));
+  v.set_ignored(ReportCount(s.ignored));
+  v.set_status_messages(ReportCount(s.status));
+  v.set_join_latency_s(r.join_latency_s);
+  v.set_render_ms_mean(r.frames > 0 ? 1e-6 * static_cast<double>(r.render_ns) / static_cast<double>(r.frames)
+                                    : 0.0);
+  v.set_first_seq(static_cast<double>(r.first_seq));
+  v.set_first_hash(transport::HexHash(r.first_hash));
+  v.set_first_sim_time(r.first_sim_time);
+  v.set_first_frame_mono_ns(static_cast<double>(r.first_frame_mono_ns));
+  v.set_last_seq(static_cast<double>(r.last_seq));
+  v.set_last_hash(transport::HexHash(r.last_hash));
+  v.set_width(ReportCount(o.width));
+  v.set_height(ReportCount(o.height));
+  v.set_exit_reason(r.exit_reason);
+  return v;
+}
+
+/// Draws verified meshes and writes them out: PNG frames, a video, a frame
+/// log. The camera frames the first mesh unless --eye/--target set it.
+class FrameSink {
+ public:
+  /// Checks the camera, creates the frame directory and opens the frame log.
+  explicit FrameSink(const ViewerOptions& o) : o_(o) {
+    if (o.eye) {
+      camera_ = render::Camera{.eye = *o.eye, .target = *o.target, .width = o.width, .height = o.height};
+      render::ValidateCamera(*camera_);
+    }
+    if (!o.frames_dir.empty()) std::filesystem::create_directories(o.frames_dir);
+    if (!o.frame_log.empty()) {
+      frame_log_.open(o.frame_log, std::ios::trunc);
+      if (!frame_log_) ThrowFileError(o.frame_log, "cannot open for writing");
+    }
+  }
+
+  /// Starts ffmpeg when a video is asked for.
+  void StartVideo() {
+    if (!o_.video.empty()) {
+      video_ = std::make_unique<render::FfmpegVideoWriter>(o_.video, o_.width, o_.height, o_.fps);
+    }
+  }
+
+  /// Renders frame `index` of `mesh` and writes it everywhere asked; adds the
+  /// render and read-back time to `*render_ns`. Returns when it was done
+  /// (monotonic ns).
+  int64_t Draw(const transport::MeshReplica& mesh, int64_t index, int64_t* render_ns) {
+    if (!camera_) camera_ = render::FrameBoundingBox(render::BoundingBox(mesh.world()), o_.width, o_.height);
+    const int64_t t0 = MonotonicNs();
+    render::RenderOptions ropts;
+    ropts.colour_by_scalar = o_.stress;
+    const render::Image image = renderer_.Render(
+        *camera_, {.positions = mesh.world(),
+                   .triangles = mesh.surface(),
+                   .opened = mesh.opened(),
+                   .vertex_scalar = o_.stress ? std::span<const double>(mesh.stress())
+                                              : std::span<const double>()},
+        ropts);
+    *render_ns += MonotonicNs() - t0;
+    if (!o_.frames_dir.empty()) {
+      render::WritePng(std::filesystem::path(o_.frames_dir) / fmt::format("frame_{:06d}.png", index), image);
+    }
+    if (video_) video_->WriteFrame(image);
+    const int64_t done_ns = MonotonicNs();
+    if (frame_log_) {
+      frame_log_ << index << ' ' << mesh.seq() << ' ' << fmt::format("{:016x}", mesh.hash()) << ' '
+                 << fmt::format("{:.9g}", mesh.sim_time()) << ' ' << done_ns << '\n';
+      frame_log_.flush();
+    }
+    return done_ns;
+  }
+
+  void Close() {
+    if (video_) video_->Close();
+  }
+
+ private:
+  const ViewerOptions& o_;
+  render::SurfaceRenderer renderer_;
+  std::optional<render::Camera> camera_;
+  std::unique_ptr<render::FfmpegVideoWriter> video_;
+  std::ofstream frame_log_;
+};
+
+/// "file://<absolute path>", or "" (Cyclone's default) for no file.
+std::string DdsConfigUri(const std::string& file) {
+  return file.empty() ? std::string() : "file://" + std::filesystem::absolute(file).string();
+}
+
+/// Why the run ends now (--duration, --exit-when-idle), or null to go on.
+const char* LimitReached(const ViewerOptions& o, const transport::MeshStreamSubscriber& sub,
+                         int64_t start_ns, int64_t now) {
+  if (o.duration && now - start_ns >= static_cast<int64_t>(*o.duration * 1e9)) return "duration";
+  if (o.exit_when_idle && sub.last_sample_ns() > 0 &&
+      now - sub.last_sample_ns() >= static_cast<int64_t>(*o.exit_when_idle * 1e9)) {
+    return "idle";
+  }
+  return nullptr;
+}
+
+/// The replica verified the publisher's hash when it applied the last
+/// snapshot or delta; this rechecks the state about to be drawn against it.
+bool HeldMeshVerified(const transport::MeshReplica& mesh, RunSummary& r) {
+  if (mesh.ComputeHash() == mesh.hash()) return true;
+  ++r.local_hash_mismatches;
+  Log().error("held mesh no longer matches its hash (seq {}); not rendered", mesh.seq());
+  return false;
+}
+
+/// Counts a rendered frame; the first one also gives the join latency.
+void NoteFrame(const transport::MeshReplica& mesh, int64_t start_ns, int64_t done_ns, RunSummary& r) {
+  if (r.frames == 0) {
+    r.first_seq = mesh.seq();
+    r.first_hash = mesh.hash();
+    r.first_sim_time = mesh.sim_time();
+    r.first_frame_mono_ns = done_ns;
+    r.join_latency_s = 1e-9 * static_cast<double>(done_ns - start_ns);
+    Log().info("first verified frame: seq {} hash {:016x} after {:.3f} s", mesh.seq(), mesh.hash(),
+               r.join_latency_s);
+  }
+  r.last_seq = mesh.seq();
+  r.last_hash = mesh.hash();
+  ++r.frames;
 }
 
 }  // namespace
@@ -149,42 +274,19 @@ int ViewerApp::Run() {
   std::signal(SIGTERM, OnSignal);
   const ViewerOptions& o = options_;
   const int64_t start_ns = MonotonicNs();
-
-  if (!o.frames_dir.empty()) std::filesystem::create_directories(o.frames_dir);
-  std::ofstream frame_log;
-  if (!o.frame_log.empty()) {
-    frame_log.open(o.frame_log, std::ios::trunc);
-    if (!frame_log) ThrowFileError(o.frame_log, "cannot open for writing");
-  }
-  std::string config;
-  if (!o.dds_config.empty()) config = "file://" + std::filesystem::absolute(o.dds_config).string();
-  transport::DdsParticipant participant(o.dds_domain, config);
+  FrameSink sink(o);
+  transport::DdsParticipant participant(o.dds_domain, DdsConfigUri(o.dds_config));
   transport::MeshStreamSubscriber sub(participant, o.session);
   Log().info("watching session '{}' on DDS domain {} at {} fps", o.session, o.dds_domain, o.fps);
-
-  render::SurfaceRenderer renderer;
-  std::optional<render::Camera> camera;
-  if (o.eye) {
-    camera = render::Camera{.eye = *o.eye, .target = *o.target, .width = o.width, .height = o.height};
-    render::ValidateCamera(*camera);
-  }
-  std::unique_ptr<render::FfmpegVideoWriter> video;
-  if (!o.video.empty()) {
-    video = std::make_unique<render::FfmpegVideoWriter>(o.video, o.width, o.height, o.fps);
-  }
+  sink.StartVideo();
 
   RunSummary r;
   const auto period_ns = static_cast<int64_t>(1e9 / o.fps);
   int64_t next_tick = start_ns + period_ns;
   while (!g_stop) {
     const int64_t now = MonotonicNs();
-    if (o.duration && now - start_ns >= static_cast<int64_t>(*o.duration * 1e9)) {
-      r.exit_reason = "duration";
-      break;
-    }
-    if (o.exit_when_idle && sub.last_sample_ns() > 0 &&
-        now - sub.last_sample_ns() >= static_cast<int64_t>(*o.exit_when_idle * 1e9)) {
-      r.exit_reason = "idle";
+    if (const char* reason = LimitReached(o, sub, start_ns, now)) {
+      r.exit_reason = reason;
       break;
     }
     if (now < next_tick) {
@@ -195,63 +297,20 @@ int ViewerApp::Run() {
     }
     next_tick += period_ns;
     if (next_tick < now) next_tick = now + period_ns;  // fell behind: skip ticks, do not burst
-    if (!sub.current()) {
-      ++r.frames_skipped;
-      continue;
-    }
     const transport::MeshReplica& mesh = sub.replica();
-    // The replica verified the publisher's hash when it applied the last
-    // snapshot/delta; recheck the state we are about to draw against it.
-    if (mesh.ComputeHash() != mesh.hash()) {
-      ++r.local_hash_mismatches;
+    if (!sub.current() || !HeldMeshVerified(mesh, r)) {
       ++r.frames_skipped;
-      Log().error("held mesh no longer matches its hash (seq {}); not rendered", mesh.seq());
       continue;
     }
-    if (!camera) {
-      camera = render::FrameBoundingBox(render::BoundingBox(mesh.world()), o.width, o.height);
-    }
-    const int64_t t0 = MonotonicNs();
-    render::RenderOptions ropts;
-    ropts.colour_by_scalar = o.stress;
-    const render::Image image = renderer.Render(
-        *camera, {.positions = mesh.world(),
-                  .triangles = mesh.surface(),
-                  .opened = mesh.opened(),
-                  .vertex_scalar = o.stress ? std::span<const double>(mesh.stress())
-                                            : std::span<const double>()},
-        ropts);
-    r.render_ns += MonotonicNs() - t0;
-    if (!o.frames_dir.empty()) {
-      render::WritePng(std::filesystem::path(o.frames_dir) / fmt::format("frame_{:06d}.png", r.frames),
-                       image);
-    }
-    if (video) video->WriteFrame(image);
-    const int64_t done_ns = MonotonicNs();
-    if (r.frames == 0) {
-      r.first_seq = mesh.seq();
-      r.first_hash = mesh.hash();
-      r.first_sim_time = mesh.sim_time();
-      r.first_frame_mono_ns = done_ns;
-      r.join_latency_s = 1e-9 * static_cast<double>(done_ns - start_ns);
-      Log().info("first verified frame: seq {} hash {:016x} after {:.3f} s", mesh.seq(), mesh.hash(),
-                 r.join_latency_s);
-    }
-    if (frame_log) {
-      frame_log << r.frames << ' ' << mesh.seq() << ' ' << fmt::format("{:016x}", mesh.hash()) << ' '
-                << fmt::format("{:.9g}", mesh.sim_time()) << ' ' << done_ns << '\n';
-      frame_log.flush();
-    }
-    r.last_seq = mesh.seq();
-    r.last_hash = mesh.hash();
-    ++r.frames;
+    const int64_t done_ns = sink.Draw(mesh, r.frames, &r.render_ns);
+    NoteFrame(mesh, start_ns, done_ns, r);
     if (o.max_frames && r.frames >= *o.max_frames) {
       r.exit_reason = "max_frames";
       break;
     }
   }
-  if (video) video->Close();
-  const std::string json = SummaryJson(o, r, sub.stats());
+  sink.Close();
+  const std::string json = transport::ReportJson(SummaryReport(o, r, sub.stats()));
   // Always on stderr, whatever the log level (stdout stays free).
   std::fprintf(stderr, "cutsim-viewer: summary: %s\n", json.c_str());
   if (!o.summary.empty()) WriteFileAtomically(o.summary, json);

@@ -51,16 +51,6 @@ bool WaitLcmOrWake(int lcm_fd, const WakeFd& wake, int timeout_ms) {
   return (fds[0].revents & (POLLIN | POLLERR | POLLHUP)) != 0;
 }
 
-void RaiseLcmThread(int rt_priority, const char* which) {
-  if (rt_priority <= 0) return;
-  const int rc = SetCurrentThreadFifo(rt_priority);
-  if (rc != 0) {
-    Log().warn("SCHED_FIFO priority {} not permitted for the {} ({}): it runs as a normal thread and "
-               "other load can delay poses and models (grant CAP_SYS_NICE or an rtprio limit)",
-               rt_priority, which, std::strerror(rc));
-  }
-}
-
 /// A tool pose the server may use: finite, within any workspace, a usable blade.
 bool ValidTool(ToolSample* s) {
   if (!s->tip.allFinite() || !s->velocity.allFinite() || !s->blade_dir.allFinite()) return false;
@@ -187,7 +177,7 @@ void HapticServerLink::StartReceiving(int rt_priority) {
   if (receive_running_.exchange(true)) return;
   receive_thread_ = std::thread([this, rt_priority] {
     pthread_setname_np(pthread_self(), "cutsim-lcm-rx");
-    RaiseLcmThread(rt_priority, "server's LCM receive thread");
+    (void)RaiseCurrentThread(rt_priority, "server's LCM receive thread", "poses and models");
     constexpr int kIdleWaitMs = 100;  // only bounds how long Stop waits
     try {
       const int lcm_fd = bus_.fileno();
@@ -359,7 +349,7 @@ void HapticClientLink::Start(int wait_ms, int rt_priority) {
   if (running_.exchange(true)) return;
   thread_ = std::thread([this, wait_ms, rt_priority] {
     pthread_setname_np(pthread_self(), "cutsim-lcm");
-    RaiseLcmThread(rt_priority, "haptic client's LCM thread");
+    (void)RaiseCurrentThread(rt_priority, "haptic client's LCM thread", "poses and models");
     try {
       while (running_.load(std::memory_order_relaxed)) RunOnce(wait_ms);
     } catch (const std::exception& e) {

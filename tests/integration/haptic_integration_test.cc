@@ -45,12 +45,7 @@ std::string WritePath(const TempDir& dir, const std::string& keyframes) {
 }
 
 /// A number after "key": in one-line JSON (first match).
-double Json(const std::string& json, const std::string& key) {
-  const std::string needle = "\"" + key + "\":";
-  const auto at = json.find(needle);
-  if (at == std::string::npos) return NAN;
-  return std::stod(json.substr(at + needle.size()));
-}
+double Json(const std::string& json, const std::string& key) { return testing::JsonNumber(json, key); }
 /// The value of key inside the object of `outer` (e.g. "period_us" → "p99").
 double Json(const std::string& json, const std::string& outer, const std::string& key) {
   const auto at = json.find("\"" + outer + "\":");
@@ -63,7 +58,7 @@ std::string JsonLine(const std::string& out, const std::string& kind) {
   std::string line;
   std::string found;
   while (std::getline(lines, line)) {
-    if (line.find("\"kind\":\"" + kind + "\"") != std::string::npos) found = line;
+    if (testing::JsonString(line, "kind") == kind) found = line;
   }
   return found;
 }
@@ -380,7 +375,7 @@ TEST(HapticIntegrationTest, ReplayDeviceReplaysAnLcmLog) {
   const auto r = RunProcess(Client("memq://", session, csv, {"--device", "replay", "--log", log}), 30s);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::string stats = JsonLine(r.out, "haptic_stats");
-  EXPECT_NE(stats.find("\"end\":\"device done\""), std::string::npos) << stats;
+  EXPECT_EQ(testing::JsonString(stats, "end"), "device done") << stats;
   // The loop ran on its 1 ms deadlines for the recorded 0.5 s: ticks plus
   // the deadlines a loaded machine made it skip (a --no-rt client on a
   // 2-core box running other tests misses some).

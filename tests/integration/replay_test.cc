@@ -27,22 +27,15 @@ namespace cutsim {
 namespace {
 
 using testing::BinPath;
+using testing::JsonBool;
 using testing::JsonNumber;
+using testing::JsonString;
 using testing::RunProcess;
 using testing::Subprocess;
 using testing::TempDir;
 using namespace std::chrono_literals;
 
 const std::string kRecording = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament-cut.lcm";
-
-/// The string value of "key" in one-line JSON.
-std::string JsonString(const std::string& json, const std::string& key) {
-  const std::string needle = "\"" + key + "\": \"";
-  const auto at = json.find(needle);
-  if (at == std::string::npos) return "";
-  const auto start = at + needle.size();
-  return json.substr(start, json.find('"', start) - start);
-}
 
 std::vector<transport::LcmLogEvent> ReadAll(const std::string& path) {
   transport::LcmLogReader reader(path);
@@ -109,11 +102,11 @@ TEST(ReplayTest, ShippedRecordingReplaysToTheRecordedHashTwice) {
   for (int run = 0; run < 2; ++run) {
     const auto r = Replay(kRecording);
     ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
-    EXPECT_NE(r.out.find("\"match\": true"), std::string::npos) << r.out;
-    EXPECT_EQ(JsonString(r.out, "mesh_hash"), recorded) << r.out;
+    EXPECT_EQ(JsonBool(r.out, "match"), true) << r.out;
+    EXPECT_EQ(JsonString(r.out, "mesh_hash"), std::string(recorded)) << r.out;
     EXPECT_EQ(JsonNumber(r.out, "cut_frames"), static_cast<double>(cut_frames)) << r.out;
     EXPECT_EQ(JsonNumber(r.out, "topology_version"), static_cast<double>(end.topology_version()));
-    if (run == 0) first_hash = JsonString(r.out, "mesh_hash");
+    if (run == 0) first_hash = JsonString(r.out, "mesh_hash").value_or("");
     EXPECT_EQ(JsonString(r.out, "mesh_hash"), first_hash) << "replay is not deterministic run to run";
   }
 }
@@ -133,7 +126,7 @@ TEST(ReplayTest, TamperedRecordingsAreReportedAsMismatches) {
   auto r = Replay(bad_hash);
   EXPECT_EQ(r.exit_code, 4) << r.out << r.err;
   EXPECT_NE(r.err.find("final mesh hash"), std::string::npos) << r.err;
-  EXPECT_NE(r.out.find("\"match\": false"), std::string::npos) << r.out;
+  EXPECT_EQ(JsonBool(r.out, "match"), false) << r.out;
 
   // (b) The tool kept 5 mm higher: it no longer cuts where the recording did.
   const std::string lifted = dir.path() + "/lifted.lcm";

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cctype>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -119,17 +120,45 @@ TempDir::~TempDir() {
   std::filesystem::remove_all(path_, ec);
 }
 
-double JsonNumber(const std::string& json, const std::string& key) {
+namespace {
+
+/// Index of the first character of the value of `"key":` after optional
+/// whitespace, or npos.
+size_t JsonValueAt(const std::string& json, const std::string& key) {
   const std::string needle = "\"" + key + "\":";
   auto at = json.find(needle);
-  if (at == std::string::npos) return NAN;
+  if (at == std::string::npos) return std::string::npos;
   at += needle.size();
-  while (at < json.size() && json[at] == ' ') ++at;
+  while (at < json.size() && std::isspace(static_cast<unsigned char>(json[at])) != 0) ++at;
+  return at;
+}
+
+}  // namespace
+
+double JsonNumber(const std::string& json, const std::string& key) {
+  const size_t at = JsonValueAt(json, key);
+  if (at == std::string::npos) return NAN;
   try {
     return std::stod(json.substr(at));
   } catch (const std::exception&) {
     return NAN;
   }
+}
+
+std::optional<std::string> JsonString(const std::string& json, const std::string& key) {
+  const size_t at = JsonValueAt(json, key);
+  if (at == std::string::npos || at >= json.size() || json[at] != '"') return std::nullopt;
+  const size_t end = json.find('"', at + 1);
+  if (end == std::string::npos) return std::nullopt;
+  return json.substr(at + 1, end - at - 1);
+}
+
+std::optional<bool> JsonBool(const std::string& json, const std::string& key) {
+  const size_t at = JsonValueAt(json, key);
+  if (at == std::string::npos) return std::nullopt;
+  if (json.compare(at, 4, "true") == 0) return true;
+  if (json.compare(at, 5, "false") == 0) return false;
+  return std::nullopt;
 }
 
 std::string ReadTextFile(const std::string& path) { return ReadFile(path); }

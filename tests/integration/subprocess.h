@@ -72,9 +72,18 @@ class TempDir {
 /// A number unique to this test process for DDS domain ids / LCM ports.
 int UniqueTestIndex();
 
-/// The number after `"key": ` in a flat JSON text (NaN if absent): enough
-/// for the one-line summaries the apps print.
+/// The number after `"key":` (optional whitespace between) in a flat JSON
+/// text (NaN if absent or not a number): enough for the one-line summaries
+/// the apps print. The first occurrence of the key wins.
 double JsonNumber(const std::string& json, const std::string& key);
+
+/// The string after `"key":` (optional whitespace), without its quotes and
+/// with no unescaping; nullopt if absent or not a string.
+std::optional<std::string> JsonString(const std::string& json, const std::string& key);
+
+/// The `true`/`false` after `"key":` (optional whitespace); nullopt if absent
+/// or not a boolean.
+std::optional<bool> JsonBool(const std::string& json, const std::string& key);
 
 /// The whole text of a file ("" if missing).
 std::string ReadTextFile(const std::string& path);

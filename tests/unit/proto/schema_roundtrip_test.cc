@@ -181,6 +181,19 @@ TEST(ProtoSchemaTest, DifferencerSeesAChangedField) {
   EXPECT_FALSE(MessageDifferencer::Equals(a, b));
 }
 
+TEST(ProtoSchemaTest, RemovedDeltaEventsStayReserved) {
+  // A retired field number or name must never be reused with another meaning:
+  // old peers would misread it.
+  const Descriptor* d = v1::MeshDelta::descriptor();
+  EXPECT_EQ(d->FindFieldByNumber(7), nullptr);
+  EXPECT_TRUE(d->IsReservedNumber(7));
+  EXPECT_TRUE(d->IsReservedName("events"));
+  const FileDescriptor* wire = d->file();
+  for (const char* name : {"CutEvent", "VertexSplit", "NodeMove"}) {
+    EXPECT_EQ(wire->FindMessageTypeByName(name), nullptr) << name;
+  }
+}
+
 TEST(ProtoSchemaTest, WirePackageAndTypeNamesAreStable) {
   // Type names appear in error messages and logs; the package is part of the wire contract.
   EXPECT_EQ(v1::ToolState::descriptor()->full_name(), "cutsim.v1.ToolState");

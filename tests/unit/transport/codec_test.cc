@@ -171,11 +171,13 @@ TEST(CodecTest, MutatedValidPayloadsNeverCrash) {
   v1::MeshDelta delta;
   delta.set_session("s");
   delta.set_seq(5);
-  auto* ev = delta.add_events();
-  ev->set_topology_version(2);
-  auto* split = ev->add_splits();
-  split->set_node(3);
-  split->add_tets(7);
+  delta.set_topology_version(2);
+  delta.set_num_nodes(9);
+  delta.add_changed_tets(3);
+  for (uint32_t v : {1U, 4U, 7U, 8U}) delta.add_changed_tet_nodes(v);
+  delta.set_surface_changed(true);
+  for (uint32_t v : {0U, 1U, 2U}) delta.add_surface(v);
+  delta.add_opened(true);
   for (int i = 0; i < 12; ++i) delta.add_moved_dq(i - 6);
   const std::vector<uint8_t> good = Bytes(delta);
   std::mt19937_64 rng(7);

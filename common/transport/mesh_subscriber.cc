@@ -1,0 +1,268 @@
+#include "common/transport/mesh_subscriber.h"
+
+#include <stdexcept>
+#include <utility>
+
+#include <dds/dds.h>
+
+#include "common/core/clock.h"
+#include "common/core/log.h"
+#include "common/transport/channels.h"
+#include "common/transport/codec.h"
+
+namespace cutsim::transport {
+namespace {
+
+const std::string& ValidatedSession(const std::string& s) {
+  ValidateSessionName(s, "--session");
+  return s;
+}
+
+}  // namespace
+
+struct MeshStreamSubscriber::WaitSet {
+  dds_entity_t waitset = 0;
+  WaitSet(DdsEntity participant, std::initializer_list<DdsEntity> readers) {
+    waitset = dds_create_waitset(participant);
+    if (waitset < 0) throw std::runtime_error("dds_create_waitset failed");
+    for (const DdsEntity r : readers) {
+      const dds_entity_t cond = dds_create_readcondition(r, DDS_ANY_STATE);
+      if (cond < 0 || dds_waitset_attach(waitset, cond, 0) != DDS_RETCODE_OK) {
+        dds_delete(waitset);
+        throw std::runtime_error("dds_create_readcondition / dds_waitset_attach failed");
+      }
+    }
+  }
+  ~WaitSet() { dds_delete(waitset); }  // read conditions go with their readers
+  WaitSet(const WaitSet&) = delete;
+  WaitSet& operator=(const WaitSet&) = delete;
+};
+
+MeshStreamSubscriber::MeshStreamSubscriber(DdsParticipant& participant, std::string session)
+    : session_(ValidatedSession(session)),
+      snapshot_topic_(participant, EnvelopeKind::kSnapshot),
+      delta_topic_(participant, EnvelopeKind::kDelta),
+      status_topic_(participant, EnvelopeKind::kStatus),
+      snapshot_reader_(snapshot_topic_, session_),
+      delta_reader_(delta_topic_, session_),
+      status_reader_(status_topic_, session_),
+      waitset_(std::make_unique<WaitSet>(
+          participant.handle(),
+          std::initializer_list<DdsEntity>{snapshot_reader_.handle(), delta_reader_.handle(),
+                                           status_reader_.handle()})) {}
+
+MeshStreamSubscriber::~MeshStreamSubscriber() = default;
+
+size_t MeshStreamSubscriber::Poll(std::chrono::nanoseconds timeout) {
+  if (timeout.count() > 0) {
+    dds_waitset_wait(waitset_->waitset, nullptr, 0, static_cast<dds_duration_t>(timeout.count()));
+  }
+  size_t n = 0;
+  auto on = [this](const EnvelopeView& e) { Process(e.kind, e.session, e.seq, e.payload); };
+  // Snapshots before deltas: a delta that follows a snapshot of the same
+  // batch then applies at once (the pending buffer covers other orders).
+  n += snapshot_reader_.Take(std::chrono::nanoseconds{0}, on);
+  n += delta_reader_.Take(std::chrono::nanoseconds{0}, on);
+  n += status_reader_.Take(std::chrono::nanoseconds{0}, on);
+  reader_foreign_ = snapshot_reader_.stats().foreign_session + delta_reader_.stats().foreign_session +
+                    status_reader_.stats().foreign_session;
+  stats_.foreign_session = process_foreign_ + reader_foreign_;
+  return n;
+}
+
+bool MeshStreamSubscriber::current() const {
+  if (!replica_.synced()) return false;
+  if (confirmed_) return true;
+  return MonotonicNs() - snapshot_applied_ns_ >=
+         std::chrono::duration_cast<std::chrono::nanoseconds>(confirm_timeout_).count();
+}
+
+bool MeshStreamSubscriber::Decodable(std::span<const uint8_t> payload,
+                                     google::protobuf::MessageLite& msg, EnvelopeKind kind) {
+  DecodeError err;
+  bool ok = false;
+  const std::string_view topic = TopicSpecFor(kind).name;
+  switch (kind) {
+    case EnvelopeKind::kSnapshot:
+      ok = DecodeInto(payload, static_cast<v1::MeshSnapshot&>(msg), topic, &err);
+      break;
+    case EnvelopeKind::kDelta:
+      ok = DecodeInto(payload, static_cast<v1::MeshDelta&>(msg), topic, &err);
+      break;
+    case EnvelopeKind::kStatus:
+      ok = DecodeInto(payload, static_cast<v1::SessionStatus&>(msg), topic, &err);
+      break;
+  }
+  if (!ok) {
+    if (err.status == DecodeStatus::kTooLarge) {
+      ++stats_.oversized;
+    } else {
+      ++stats_.malformed;
+    }
+    Log().debug("{}", err.Message());
+  }
+  return ok;
+}
+
+void MeshStreamSubscriber::Process(EnvelopeKind kind, std::string_view session, uint64_t seq,
+                                   std::span<const uint8_t> payload) {
+  if (session != session_) {
+    CountForeign();
+    return;
+  }
+  ++stats_.samples;
+  stats_.bytes_received += payload.size();
+  last_sample_ns_ = MonotonicNs();
+  switch (kind) {
+    case EnvelopeKind::kSnapshot:
+      OnSnapshot(payload, seq);
+      break;
+    case EnvelopeKind::kDelta:
+      OnDelta(payload, seq);
+      break;
+    case EnvelopeKind::kStatus:
+      OnStatus(payload);
+      break;
+  }
+}
+
+void MeshStreamSubscriber::CountForeign() {
+  ++process_foreign_;
+  stats_.foreign_session = process_foreign_ + reader_foreign_;
+}
+
+void MeshStreamSubscriber::LoseSync() {
+  replica_.Desync();
+  confirmed_ = false;
+}
+
+void MeshStreamSubscriber::OnSnapshot(std::span<const uint8_t> payload, uint64_t seq) {
+  if (!Decodable(payload, snapshot_msg_, EnvelopeKind::kSnapshot)) return;
+  if (snapshot_msg_.session() != session_) {
+    CountForeign();
+    return;
+  }
+  if (snapshot_msg_.seq() != seq) {
+    ++stats_.malformed;
+    return;
+  }
+  if (replica_.synced() && (seq < replica_.seq() ||
+                            (seq == replica_.seq() && snapshot_msg_.hash() == replica_.hash()))) {
+    ++stats_.ignored;  // we are already there or past it
+    return;
+  }
+  const bool keep_confirmed = replica_.synced() && confirmed_;
+  if (replica_.synced() && !confirmed_) ++stats_.stale_snapshots;
+  switch (replica_.ApplySnapshot(snapshot_msg_)) {
+    case MeshReplica::SnapshotResult::kApplied:
+      ++stats_.snapshots;
+      ++stats_.hash_checks;
+      ++state_version_;
+      confirmed_ = keep_confirmed;
+      snapshot_applied_ns_ = MonotonicNs();
+      ApplyPending();
+      break;
+    case MeshReplica::SnapshotResult::kHashMismatch:
+      ++stats_.hash_checks;
+      ++stats_.hash_mismatches;
+      break;
+    case MeshReplica::SnapshotResult::kMalformed:
+      ++stats_.malformed;
+      break;
+  }
+}
+
+void MeshStreamSubscriber::Stash(const v1::MeshDelta& delta) {
+  if (pending_.size() >= kMaxPending) pending_.erase(pending_.begin());
+  pending_[delta.seq()] = delta;
+}
+
+void MeshStreamSubscriber::HandleDelta(const v1::MeshDelta& delta) {
+  if (!replica_.synced()) {
+    Stash(delta);  // may follow a snapshot still on its way
+    return;
+  }
+  switch (replica_.ApplyDelta(delta)) {
+    case MeshReplica::DeltaResult::kApplied:
+      ++stats_.deltas;
+      ++stats_.hash_checks;
+      ++state_version_;
+      confirmed_ = true;
+      break;
+    case MeshReplica::DeltaResult::kStale:
+      // The delta of the frame our snapshot came from proves the snapshot
+      // is current (not an old keyframe replayed on joining).
+      if (delta.seq() == replica_.seq() && delta.hash() == replica_.hash()) confirmed_ = true;
+      ++stats_.ignored;
+      break;
+    case MeshReplica::DeltaResult::kNotSynced:
+      ++stats_.ignored;
+      break;
+    case MeshReplica::DeltaResult::kGap:
+      if (confirmed_) {
+        ++stats_.gaps;
+        ++stats_.resyncs;
+        Log().warn("mesh stream {}: gap at seq {}, waiting for the next snapshot", session_,
+                   delta.seq());
+      } else {
+        ++stats_.stale_snapshots;  // the snapshot we held was an old keyframe
+      }
+      LoseSync();
+      Stash(delta);
+      break;
+    case MeshReplica::DeltaResult::kHashMismatch:
+      ++stats_.hash_checks;
+      ++stats_.hash_mismatches;
+      ++stats_.resyncs;
+      Log().warn("mesh stream {}: hash mismatch at seq {}, waiting for the next snapshot",
+                 session_, delta.seq());
+      LoseSync();
+      break;
+    case MeshReplica::DeltaResult::kUnknownTopology:
+      ++stats_.unknown_topology;
+      break;
+    case MeshReplica::DeltaResult::kMalformed:
+      ++stats_.malformed;
+      break;
+  }
+}
+
+void MeshStreamSubscriber::OnDelta(std::span<const uint8_t> payload, uint64_t seq) {
+  if (!Decodable(payload, delta_msg_, EnvelopeKind::kDelta)) return;
+  if (delta_msg_.session() != session_) {
+    CountForeign();
+    return;
+  }
+  if (delta_msg_.seq() != seq) {
+    ++stats_.malformed;
+    return;
+  }
+  HandleDelta(delta_msg_);
+}
+
+void MeshStreamSubscriber::ApplyPending() {
+  while (!pending_.empty() && replica_.synced()) {
+    auto it = pending_.begin();
+    if (it->first <= replica_.seq()) {
+      pending_.erase(it);
+      continue;
+    }
+    if (it->first != replica_.seq() + 1) break;  // a hole: the live stream will tell
+    const v1::MeshDelta delta = std::move(it->second);
+    pending_.erase(it);
+    HandleDelta(delta);
+  }
+}
+
+void MeshStreamSubscriber::OnStatus(std::span<const uint8_t> payload) {
+  v1::SessionStatus msg;
+  if (!Decodable(payload, msg, EnvelopeKind::kStatus)) return;
+  if (msg.session() != session_) {
+    CountForeign();
+    return;
+  }
+  ++stats_.status;
+  status_ = std::move(msg);
+}
+
+}  // namespace cutsim::transport
