@@ -333,21 +333,40 @@ void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResu
   }
 }
 
-ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double>& state, double h,
+/// Sets the start of the step: x0_, v0_ (backward Euler: the state; BDF2:
+/// (4·xₙ − xₙ₋₁)/3 and (4·vₙ − vₙ₋₁)/3), the initial guess v_ = vₙ, and the
+/// history for the next BDF2 step. Returns the effective step: h, or 2h/3
+/// for BDF2, which then is backward Euler from (x0_, v0_).
+double ImplicitIntegrator::StartStep(const State<double>& state, double step_size, bool pattern_rebuilt) {
+  const int32_t nd = system_.num_dofs();
+  const bool bdf2 = options_.bdf2 && !pattern_rebuilt && history_step_ == state.step &&
+                    history_h_ == step_size && static_cast<int32_t>(x_prev_.size()) == nd;
+  for (int32_t i = 0; i < nd; ++i) {
+    const auto s = static_cast<size_t>(i);
+    x0_[s] = bdf2 ? (4.0 * state.x[s] - x_prev_[s]) / 3.0 : state.x[s];
+    v0_[s] = bdf2 ? (4.0 * state.v[s] - v_prev_[s]) / 3.0 : state.v[s];
+    v_[s] = active_[s / 3] != 0 ? state.v[s] : 0.0;
+  }
+  if (options_.bdf2) {
+    x_prev_.assign(state.x.begin(), state.x.begin() + nd);
+    v_prev_.assign(state.v.begin(), state.v.begin() + nd);
+    history_step_ = state.step + 1;
+    history_h_ = step_size;
+  }
+  return bdf2 ? 2.0 * step_size / 3.0 : step_size;
+}
+
+ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double>& state, double step_size,
                                         std::span<const PenaltyTerm> penalties) {
   ImplicitResult result;
-  if (!(h > 0) || !std::isfinite(h)) {
+  if (!(step_size > 0) || !std::isfinite(step_size)) {
     result.status = ImplicitStatus::kNonFinite;
     return result;
   }
   Prepare(model, result);
   const int32_t nn = system_.num_nodes();
-  for (int32_t i = 0; i < 3 * nn; ++i) {
-    const auto s = static_cast<size_t>(i);
-    x0_[s] = state.x[s];
-    v0_[s] = state.v[s];
-    v_[s] = active_[s / 3] != 0 ? state.v[s] : 0.0;
-  }
+  const double h = StartStep(state, step_size, result.pattern_rebuilt);
+  result.bdf2 = h != step_size;
   DampingPass(model, x0_.data(), h, 1.0 + h * options_.mass_damping, true, b_values_.data());
   Eval current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
   result.tolerance = options_.force_tolerance > 0
@@ -389,7 +408,7 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     }
     state.f[s] = force_[s];
   }
-  state.time += h;
+  state.time += step_size;
   ++state.step;
   last_h_ = h;
   return result;

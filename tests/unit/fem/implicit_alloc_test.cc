@@ -46,7 +46,7 @@ int posix_memalign(void** out, size_t a, size_t n) {
 namespace cutsim::fem {
 namespace {
 
-TEST(ImplicitAlloc, SteadyStateStepDoesNotAllocate) {
+void ExpectNoAllocation(bool bdf2) {
 #ifdef CUTSIM_COUNT_MALLOC
   const Model<double> model = testing::MakeCantilever(4, 0.04, 3e4, true, 5.0, 20.0);
   State<double> state(model);
@@ -55,6 +55,7 @@ TEST(ImplicitAlloc, SteadyStateStepDoesNotAllocate) {
   opt.asynchronous_factorization = false;
   opt.refactor_pcg_iterations = 1 << 30;  // keep the first factor: no CHOLMOD work
   opt.mass_damping = 1.0;
+  opt.bdf2 = bdf2;
   ImplicitIntegrator integ(opt);
   PenaltyTerm pen;
   pen.nodes = {model.num_nodes() - 1, -1, -1};
@@ -69,11 +70,16 @@ TEST(ImplicitAlloc, SteadyStateStepDoesNotAllocate) {
   g_counting = false;
   ASSERT_TRUE(r.ok());
   EXPECT_GT(r.newton_iterations, 0);
+  EXPECT_EQ(r.bdf2, bdf2);
   EXPECT_EQ(g_allocations.load(), 0);
 #else
+  (void)bdf2;
   GTEST_SKIP() << "malloc interposition unavailable (sanitizer build)";
 #endif
 }
+
+TEST(ImplicitAlloc, SteadyStateBackwardEulerStepDoesNotAllocate) { ExpectNoAllocation(false); }
+TEST(ImplicitAlloc, SteadyStateBdf2StepDoesNotAllocate) { ExpectNoAllocation(true); }
 
 }  // namespace
 }  // namespace cutsim::fem

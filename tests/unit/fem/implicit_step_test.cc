@@ -316,6 +316,40 @@ TEST(ImplicitStep, EffectiveStiffnessPredictsTheResponse) {
   EXPECT_LT((dx - predicted).norm(), 1e-2 * predicted.norm());
 }
 
+// BDF2 converges at second order in h, backward Euler at first: halving h
+// divides the error at a fixed time by about 4 and 2 respectively.
+TEST(ImplicitStep, Bdf2IsSecondOrderAndBackwardEulerFirst) {
+  const Model<double> model = testing::MakeCantilever(4, 0.04, 3e4);
+  const double t_end = 0.04;
+  const auto run = [&](bool bdf2, int steps) {
+    State<double> state(model);
+    ImplicitOptions o = Tight(1e-11);
+    o.bdf2 = bdf2;
+    ImplicitIntegrator integ(o);
+    for (int k = 0; k < steps; ++k) {
+      const ImplicitResult r = integ.Step(model, state, t_end / steps);
+      EXPECT_TRUE(r.ok());
+      EXPECT_EQ(r.bdf2, bdf2 && k > 0);
+    }
+    return state.x;
+  };
+  const std::vector<double> reference = run(true, 128);
+  const auto error = [&](const std::vector<double>& x) {
+    double e = 0;
+    for (int32_t i = 0; i < 3 * model.num_nodes(); ++i) {
+      e += (x[static_cast<size_t>(i)] - reference[static_cast<size_t>(i)]) *
+           (x[static_cast<size_t>(i)] - reference[static_cast<size_t>(i)]);
+    }
+    return std::sqrt(e);
+  };
+  const double bdf2_coarse = error(run(true, 8)), bdf2_fine = error(run(true, 16));
+  const double be_coarse = error(run(false, 8)), be_fine = error(run(false, 16));
+  EXPECT_GT(bdf2_coarse / bdf2_fine, 3.0) << bdf2_coarse << " " << bdf2_fine;
+  EXPECT_LT(be_coarse / be_fine, 2.6) << be_coarse << " " << be_fine;
+  EXPECT_GT(be_coarse / be_fine, 1.5);
+  EXPECT_LT(bdf2_fine, be_fine);
+}
+
 TEST(ImplicitStep, BadTimeStepIsReportedNotThrown) {
   const Model<double> model = testing::MakeCantilever(2, 0.02, 3e4);
   State<double> state(model);
