@@ -1,4 +1,4 @@
-// Run time against error (issue #8): a Pareto study over mesh resolution,
+// Run time against error: a Pareto study over mesh resolution,
 // time-step fraction of the stable limit, float vs double and the viscous
 // treatment, on three problems:
 //
@@ -23,7 +23,9 @@
 //
 // Every run is single-threaded and deterministic; only the wall times are
 // noisy. --repeats N reruns each configuration N times and keeps the median
-// wall time. Output: one JSON document (stdout or --out).
+// wall time. Output: one JSON document (stdout or --out). Every run states
+// whether it ran to its end ("ok" of a beam run, "status" of a cut run); the
+// exit code is 1 when one did not.
 //
 //   accuracy_bench [--out accuracy.json] [--repeats 1] [--max-level 8]
 //                  [--parts static,dynamic,cut] [--scene scenes/block.pbtxt]
@@ -39,6 +41,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "bench/json_text.h"
 #include "bench/surface_distance.h"
 #include "common/core/clock.h"
 #include "common/core/log.h"
@@ -407,12 +410,12 @@ CutResult RunCut(const sim::LoadedScene& base, const CutConfig& cfg, int repeats
 }
 
 // ---- JSON ------------------------------------------------------------------
-void PrintBeam(std::FILE* out, const BeamResult& r, const Extrapolation& tip_ref, const Extrapolation& f_ref,
+void PrintBeam(std::string& out, const BeamResult& r, const Extrapolation& tip_ref, const Extrapolation& f_ref,
                const Extrapolation& d_ref, bool last) {
   const auto rel = [](double v, const Extrapolation& ref) {
     return ref.value != 0 ? std::abs(v - ref.value) / std::abs(ref.value) : 0.0;
   };
-  std::fprintf(out,
+  Appendf(out,
                "    {\"tag\": \"%s\", \"level\": %d, \"tets\": %d, \"nodes\": %d, \"safety\": %.3g, "
                "\"precision\": \"%s\", \"viscous\": \"%s\", \"ok\": %s, \"failure\": \"%s\",\n"
                "     \"tip_m\": %.9g, \"tip_last_change\": %.3g, \"static_wall_s\": %.6g, \"static_steps\": %lld, "
@@ -422,15 +425,15 @@ void PrintBeam(std::FILE* out, const BeamResult& r, const Extrapolation& tip_ref
                "\"frequency_rel_error\": %.6g, \"decay_rel_error\": %.6g}%s\n",
                r.config.tag.c_str(), r.config.level, r.tets, r.nodes, r.config.safety,
                r.config.use_float ? "float" : "double", r.config.implicit_viscous ? "implicit" : "explicit",
-               r.ok ? "true" : "false", r.failure.c_str(), r.tip, r.tip_last_change, r.static_wall,
+               r.ok ? "true" : "false", JsonEscape(r.failure).c_str(), r.tip, r.tip_last_change, r.static_wall,
                static_cast<long long>(r.static_steps), r.mean_dt_static, rel(r.tip, tip_ref), r.frequency,
                r.decay_rate, r.decay_rate_peaks, r.crossings, r.peaks, r.dynamic_wall, static_cast<long long>(r.dynamic_steps),
                r.mean_dt_dynamic, rel(r.frequency, f_ref), rel(r.decay_rate, d_ref), last ? "" : ",");
 }
 
-void PrintExtrapolation(std::FILE* out, const char* name, const Extrapolation& e, const Extrapolation& coarse,
+void PrintExtrapolation(std::string& out, const char* name, const Extrapolation& e, const Extrapolation& coarse,
                         bool last) {
-  std::fprintf(out,
+  Appendf(out,
                "    \"%s\": {\"value\": %.9g, \"observed_order\": %.4g, \"valid\": %s, "
                "\"coarse_triple_value\": %.9g, \"coarse_triple_order\": %.4g, \"coarse_triple_valid\": %s}%s\n",
                name, e.value, e.order, e.valid ? "true" : "false", coarse.value, coarse.order,
@@ -441,7 +444,7 @@ int Main(int argc, char** argv) {
   std::string out_path, parts = "static,dynamic,cut", scene_path = "scenes/block.pbtxt";
   int repeats = 1, max_level = 8, cut_ref_threads = 2;
   double cut_ref_scale = 2.0;
-  CLI::App app{"run time against error: cantilever statics and dynamics, cutting (issue #8)"};
+  CLI::App app{"run time against error: cantilever statics and dynamics, cutting"};
   app.add_option("--out", out_path, "JSON output file (default stdout)");
   app.add_option("--repeats", repeats, "Runs per configuration; the median wall time is kept")->check(CLI::Range(1, 20));
   app.add_option("--max-level", max_level, "Finest beam level (cells across the section), one of 4, 6, 8")
@@ -502,42 +505,39 @@ int Main(int argc, char** argv) {
   // Written after the beam part and again after the cutting part, so a
   // cutting failure leaves the beam results on disk.
   const auto write_json = [&]() -> bool {
-    std::FILE* out = out_path.empty() ? stdout : std::fopen(out_path.c_str(), "w");
-    if (!out) {
-      std::fprintf(stderr, "accuracy_bench: cannot write %s\n", out_path.c_str());
-      return false;
-    }
-    std::fprintf(out, "{\n  \"beam\": {\n");
-    std::fprintf(out,
+    std::string out;
+    Appendf(out, "{\n  \"beam\": {\n");
+    Appendf(out,
                  "   \"geometry\": {\"length_m\": %g, \"section_m\": %g, \"young_pa\": %g, \"poisson\": %g, "
                  "\"density\": %g, \"psi_dynamic\": %g, \"static_mass_damping\": %g},\n",
                  kLength, kHeight, kYoung, kPoisson, kDensity, kDynamicPsi, kStaticMassDamping);
-    std::fprintf(out,
+    Appendf(out,
                  "   \"theory\": {\"euler_bernoulli_tip_m\": %.9g, \"timoshenko_tip_m\": %.9g, "
                  "\"euler_bernoulli_f1_hz\": %.9g},\n",
                  eb_tip, timoshenko_tip, eb_f1);
-    std::fprintf(out, "   \"reference\": {\n");
+    Appendf(out, "   \"reference\": {\n");
     PrintExtrapolation(out, "tip_m", tip_ref, tip_chk, false);
     PrintExtrapolation(out, "frequency_hz", f_ref, f_chk, false);
     PrintExtrapolation(out, "decay_rate_per_s", d_ref, d_chk, true);
-    std::fprintf(out, "   },\n   \"runs\": [\n");
+    Appendf(out, "   },\n   \"runs\": [\n");
     for (size_t i = 0; i < beam.size(); ++i) PrintBeam(out, beam[i], tip_ref, f_ref, d_ref, i + 1 == beam.size());
-    std::fprintf(out, "   ]\n  },\n  \"cut\": {\n   \"block_length_m\": 0.04, \"compare_time_s\": %g, \"runs\": [\n",
+    Appendf(out, "   ]\n  },\n  \"cut\": {\n   \"block_length_m\": 0.04, \"compare_time_s\": %g, \"runs\": [\n",
                  kCutEndTime);
     for (size_t i = 0; i < cuts.size(); ++i) {
       const CutResult& c = cuts[i];
-      std::fprintf(out,
+      Appendf(out,
                    "    {\"tag\": \"%s\", \"scale\": %g, \"tets\": %d, \"safety\": %g, \"precision\": \"%s\", "
                    "\"threads\": %d, \"status\": \"%s\", \"wall_s\": %.6g, \"steps\": %lld, \"cuts\": %llu, "
                    "\"rejected\": %llu, \"components\": %d, \"hausdorff_m\": %.6g, \"mean_distance_m\": %.6g}%s\n",
                    c.config.tag.c_str(), c.config.scale, c.tets, c.config.safety, c.config.use_float ? "float" : "double",
-                   c.config.threads, c.status.c_str(), c.wall, static_cast<long long>(c.steps),
+                   c.config.threads, JsonEscape(c.status).c_str(), c.wall, static_cast<long long>(c.steps),
                    static_cast<unsigned long long>(c.cuts), static_cast<unsigned long long>(c.rejected), c.components,
                    c.hausdorff, c.mean_distance, i + 1 == cuts.size() ? "" : ",");
     }
-    std::fprintf(out, "   ]\n  }\n}\n");
-    if (out != stdout) std::fclose(out);
-    return true;
+    Appendf(out, "   ]\n  }\n}\n");
+    out = NullNonFinite(out);
+    if (out_path.empty()) return std::fputs(out.c_str(), stdout) >= 0;
+    return WriteTextFile("accuracy_bench", out_path, out);
   };
   if (!write_json()) return 1;
   // ---- cutting ---------------------------------------------------------------
@@ -559,7 +559,16 @@ int Main(int argc, char** argv) {
   }
 
   if (do_cut && !write_json()) return 1;
-  return 0;
+  // Every run states whether it ran to its end ("ok" / "status"): a run
+  // stopped by a step guard is a miss.
+  std::vector<std::string> missed;
+  for (const BeamResult& r : beam) {
+    if (!r.ok) missed.push_back("beam " + r.config.tag + " level " + std::to_string(r.config.level) + ": " + r.failure);
+  }
+  for (const CutResult& c : cuts) {
+    if (!c.ok) missed.push_back("cut " + c.config.tag + " scale " + std::to_string(c.config.scale) + ": status " + c.status);
+  }
+  return ExitCodeForTargets("accuracy_bench", missed);
 }
 
 }  // namespace

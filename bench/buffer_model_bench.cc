@@ -14,6 +14,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "bench/json_text.h"
 #include "common/core/log.h"
 #include "common/haptics/force_shaping.h"
 #include "common/haptics/local_model.h"
@@ -105,10 +106,12 @@ int main(int argc, char** argv) {
     }
     const double rms_buffer = std::sqrt(err_buffer / ticks) / std::max(peak, 1e-12);
     const double rms_hold = std::sqrt(err_hold / ticks) / std::max(peak, 1e-12);
-    std::printf(
-        "{\"frame_rate_hz\": %.0f, \"peak_force_n\": %.6g, \"rms_error_buffer_model\": %.6g, "
+    std::string line;
+    cutsim::bench::Appendf(
+        line, "{\"frame_rate_hz\": %.0f, \"peak_force_n\": %.6g, \"rms_error_buffer_model\": %.6g, "
         "\"rms_error_zero_order_hold\": %.6g}\n",
         rate, peak, rms_buffer, rms_hold);
+    std::fputs(cutsim::bench::NullNonFinite(line).c_str(), stdout);
   }
   return 0;
 }

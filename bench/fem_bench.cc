@@ -128,7 +128,7 @@ void BM_Step(benchmark::State& st) {
       benchmark::Counter(tets * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
 }
 
-// The skip table of issue 3/8 at ~100k tets, 1 thread: each skip against
+// The skip table at ~100k tets, 1 thread: each skip against
 // the same scene with the work forced on.
 //   case 0: damping (ψ = φ = 0): force pass kElastic (skipped) vs kElasticDamped
 //           evaluated with zero coefficients (forced on).

@@ -25,7 +25,15 @@ PY
 "$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 1e6 \
   --stats-json "$out/haptic_server.json" >/dev/null 2>"$out/haptic_server.log" &
 server=$!
-sleep 0.5
+# The client starts once the server's session is up (its start-up log line).
+deadline=$((SECONDS + 60))
+until grep -q "session '.*': physics" "$out/haptic_server.log" 2>/dev/null; do
+  if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$server" 2>/dev/null; then
+    echo "haptic_session: the server did not come up (see $out/haptic_server.log)" >&2
+    exit 1
+  fi
+  sleep 0.05
+done
 "$bin/cutsim-haptic" --device scripted --path "$out/strokes.path" --csv "$out/haptic.csv" \
   >"$out/haptic_loop.json" 2>"$out/haptic_loop.log"
 kill -TERM "$server"; wait "$server" || true

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/json_text.h"
 #include "common/fem/model.h"
 #include "common/fem/stable_dt.h"
 #include "common/fem/state.h"
@@ -19,6 +20,7 @@
 #include "common/mesh/quality.h"
 
 using namespace cutsim;
+using cutsim::bench::Appendf;
 
 namespace {
 
@@ -27,7 +29,7 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-void Report(const char* name, const mesh::TetMesh& m, double seconds, double E, double nu, const mesh::CleanupReport* r,
+void Report(std::string& json, const char* name, const mesh::TetMesh& m, double seconds, double E, double nu, const mesh::CleanupReport* r,
             bool last) {
   const mesh::TetQuality q = mesh::ComputeTetQuality(m);
   const double min_q = *std::min_element(q.mean_ratio.begin(), q.mean_ratio.end());
@@ -42,16 +44,16 @@ void Report(const char* name, const mesh::TetMesh& m, double seconds, double E, 
   const double dt = fem::StableStepBound(state);
   double vol = 0;
   for (int32_t t = 0; t < m.num_tets(); ++t) vol += mesh::SignedVolume(m, t);
-  std::printf(
+  Appendf(json,
       "  \"%s\": {\"tets\": %d, \"nodes\": %d, \"seconds\": %.3f, \"volume_m3\": %.6g, \"min_mean_ratio\": %.4f, "
       "\"tets_below_0_3\": %d, \"min_altitude_m\": %.4g, \"median_altitude_m\": %.4g, \"altitude_ratio\": %.2f, "
       "\"stable_dt_bound_s\": %.4g",
       name, m.num_tets(), m.num_nodes(), seconds, vol, min_q, below, min_alt, med_alt, med_alt / min_alt, dt);
   if (r != nullptr) {
-    std::printf(", \"removed_tets\": %d, \"removed_nodes\": %d, \"moved_nodes\": %d, \"removed_volume_m3\": %.4g",
+    Appendf(json, ", \"removed_tets\": %d, \"removed_nodes\": %d, \"moved_nodes\": %d, \"removed_volume_m3\": %.4g",
                 r->removed_tets, r->removed_nodes, r->moved_nodes, r->removed_volume);
   }
-  std::printf("}%s\n", last ? "" : ",");
+  Appendf(json, "}%s\n", last ? "" : ",");
 }
 
 }  // namespace
@@ -69,21 +71,23 @@ int main(int argc, char** argv) {
     if (k == "--gmsh-opt") o.fill.gmsh_optimize_threshold = std::atof(argv[i + 1]);
     if (k == "--axes") std::sscanf(argv[i + 1], "%lf,%lf,%lf", &o.semi_axes.x(), &o.semi_axes.y(), &o.semi_axes.z());
   }
-  std::printf("{\n  \"edge_length\": %g, \"semi_axes\": [%g, %g, %g], \"E\": %g, \"nu\": %g,\n", o.edge_length,
+  std::string json;
+  Appendf(json, "{\n  \"edge_length\": %g, \"semi_axes\": [%g, %g, %g], \"E\": %g, \"nu\": %g,\n", o.edge_length,
               o.semi_axes.x(), o.semi_axes.y(), o.semi_axes.z(), E, nu);
   using Clock = std::chrono::steady_clock;
   o.fill.cleanup = false;
   auto t0 = Clock::now();
   const mesh::TetMesh raw = mesh::MakeOrgan(o);
   const double s_raw = std::chrono::duration<double>(Clock::now() - t0).count();
-  Report("gmsh", raw, s_raw, E, nu, nullptr, false);
+  Report(json, "gmsh", raw, s_raw, E, nu, nullptr, false);
   mesh::CleanupReport rep;
   o.fill.cleanup = true;
   o.fill.report = &rep;
   t0 = Clock::now();
   const mesh::TetMesh clean = mesh::MakeOrgan(o);
   const double s_clean = std::chrono::duration<double>(Clock::now() - t0).count();
-  Report("cleaned", clean, s_clean, E, nu, &rep, true);
-  std::printf("}\n");
+  Report(json, "cleaned", clean, s_clean, E, nu, &rep, true);
+  Appendf(json, "}\n");
+  std::fputs(bench::NullNonFinite(json).c_str(), stdout);
   return 0;
 }

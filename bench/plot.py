@@ -147,7 +147,7 @@ def pareto_front(points):
 
 
 def plot_accuracy(folder):
-    """accuracy_bench (issue #8): error vs wall time with the Pareto frontier,
+    """accuracy_bench: error vs wall time with the Pareto frontier,
     the beam convergence against beam theory, the buffer-model rate panel, and
     the recommended settings per target error (appended to summary.md)."""
     path = os.path.join(folder, "accuracy.json")

@@ -1,4 +1,4 @@
-// Skip table, session level (issue 8): what each piece of work a scene or a
+// Skip table, session level: what each piece of work a scene or a
 // session may not need costs per physics frame, each measured against the
 // same scene with that work forced on, in the same process, in alternating
 // rounds (the machine is noisy: ratios from one run, medians of rounds).
@@ -25,6 +25,11 @@
 // these scenes step on one thread below 20k tets), and the substeps per
 // frame are reported beside them because a variant can change the step.
 //
+// Each forced-on variant states the state it measures ("tool_touching",
+// "viewer_frames_received"): a pressing tool that does not touch, a hovering
+// one that does, or a viewer row whose viewer received nothing makes the
+// row's numbers meaningless, and the exit code 1.
+//
 //   skip_bench [--scene-dir scenes] [--rounds 7] [--frames 100] [--filter TEXT] [--json FILE]
 #include <time.h>
 #include <unistd.h>
@@ -32,7 +37,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
-#include <fstream>
 #include <functional>
 #include <memory>
 #include <string>
@@ -41,6 +45,7 @@
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "bench/json_text.h"
 #include "common/core/clock.h"
 #include "common/core/log.h"
 #include "common/haptics/local_model.h"
@@ -209,7 +214,7 @@ struct Row {
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"skip table at the session level: each skip against the same scene with the work forced on (issue 8)"};
+  CLI::App app{"skip table at the session level: each skip against the same scene with the work forced on"};
   std::string scene_dir = "scenes";
   std::string json_path;
   int rounds = 7;
@@ -249,6 +254,7 @@ int main(int argc, char** argv) {
     }
     std::erase_if(rows, [&](const Row& row) { return (row.skip + "/" + row.scene).find(filter) == std::string::npos; });
 
+    std::vector<std::string> missed;
     std::string out = "{\n  \"rows\": [\n";
     for (size_t r = 0; r < rows.size(); ++r) {
       const Row& row = rows[r];
@@ -274,6 +280,10 @@ int main(int argc, char** argv) {
                    row.forced.tool == ToolUse::kPress && !touching   ? " (tool NOT touching!)"
                    : row.forced.tool == ToolUse::kHover && touching ? " (hovering tool TOUCHES!)"
                                                                     : "");
+      const std::string what = row.skip + "/" + row.scene + ", " + row.forced_label;
+      if (row.forced.tool == ToolUse::kPress && !touching) missed.push_back(what + ": tool not touching");
+      if (row.forced.tool == ToolUse::kHover && touching) missed.push_back(what + ": hovering tool touches");
+      if (row.forced.viewer && forced.viewer_frames() == 0) missed.push_back(what + ": viewer received no frame");
       out += fmt::format(
           "    {{\"skip\": \"{}\", \"scene\": \"{}\", \"skipped\": \"{}\", \"forced_on\": \"{}\", "
           "\"skipped_us_per_frame\": {:.2f}, \"forced_on_us_per_frame\": {:.2f}, \"saving\": {:.4f}, "
@@ -283,11 +293,12 @@ int main(int argc, char** argv) {
           skipped.steps_per_frame(), forced.steps_per_frame(), touching ? "true" : "false", forced.viewer_frames(), r + 1 < rows.size() ? "," : "");
     }
     out += fmt::format("  ],\n  \"rounds\": {}, \"frames_per_round\": {}\n}}\n", rounds, frames);
+    out = cutsim::bench::NullNonFinite(out);
     std::fputs(out.c_str(), stdout);
-    if (!json_path.empty()) std::ofstream(json_path) << out;
+    if (!json_path.empty() && !cutsim::bench::WriteTextFile("skip_bench", json_path, out)) return 1;
+    return cutsim::bench::ExitCodeForTargets("skip_bench", missed);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "skip_bench: %s\n", e.what());
     return 1;
   }
-  return 0;
 }

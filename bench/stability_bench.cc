@@ -1,33 +1,59 @@
-// The numerical stability stress suite of issue #8 (cases in
-// bench/stability_cases.h; a short version runs as tests/unit/fem/
+// The numerical stability stress suite (cases in
+// tests/support/stability_cases.h; a short version runs as tests/unit/sim/
 // stability_test.cc). Prints a Markdown table on stdout and writes JSON.
+// Each case states what it expects (holds, or is stopped cleanly by a
+// guard); the exit code is 1 when a case is not as expected.
 //
 //   stability_bench [--out stability.json] [--long-steps 1000000] [--strokes 300] [--only TEXT]
 //                   [--scene scenes/block.pbtxt]
 #include <cstdio>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
-#include "bench/stability_cases.h"
+#include "bench/json_text.h"
 #include "common/core/log.h"
+#include "tests/support/stability_cases.h"
 
-namespace cutsim::bench::stability {
+namespace cutsim::support::stability {
 namespace {
 
-std::string Escape(const std::string& s) {
-  std::string out;
-  for (const char c : s) {
-    if (c == '"' || c == '\\') out += '\\';
-    out += c;
+using bench::Appendf;
+using bench::ExitCodeForTargets;
+using bench::JsonEscape;
+using bench::NullNonFinite;
+using bench::WriteTextFile;
+
+/// The results as one JSON document ({"cases": [...]}); non-finite numbers
+/// are written as null.
+std::string ResultsJson(const std::vector<Result>& results) {
+  std::string json = "{\"cases\": [\n";
+  for (size_t i = 0; i < results.size(); ++i) {
+    const Result& r = results[i];
+    Appendf(json,
+            "  {\"name\": \"%s\", \"expectation\": \"%s\", \"holds\": %s, \"physical\": %s, \"expected_ok\": %s, "
+            "\"reason\": \"%s\", \"tets\": %d, \"steps\": %lld, \"sim_time_s\": %.6g, \"wall_s\": %.6g, "
+            "\"finite\": %s, \"mass_rel_change\": %.3g, \"max_inverted\": %d, \"final_inverted\": %d, \"min_det_f\": %.6g, "
+            "\"spectral_refreshes\": %lld, \"transient_fraction\": %.4g, \"min_dt_s\": %.6g, "
+            "\"max_dt_s\": %.6g, \"step_status\": \"%s\", \"energy_drift\": %.6g, \"cuts\": %llu, "
+            "\"rejected_cuts\": %llu}%s\n",
+            JsonEscape(r.name).c_str(), JsonEscape(r.expectation).c_str(), r.holds ? "true" : "false",
+            r.physical ? "true" : "false", r.expected_ok ? "true" : "false", JsonEscape(r.reason).c_str(), r.tets,
+            static_cast<long long>(r.steps), r.sim_time, r.wall, r.finite ? "true" : "false", r.mass_rel_change,
+            r.max_inverted, r.final_inverted, r.min_det_f, static_cast<long long>(r.spectral_refreshes),
+            r.transient_fraction, r.min_dt, r.max_dt, JsonEscape(r.step_status).c_str(), r.energy_drift,
+            static_cast<unsigned long long>(r.cuts), static_cast<unsigned long long>(r.rejected_cuts),
+            i + 1 == results.size() ? "" : ",");
   }
-  return out;
+  json += "]}\n";
+  return NullNonFinite(json);
 }
 
 int Main(int argc, char** argv) {
   std::string out_path, scene_path = "scenes/block.pbtxt";
   Size size = Size::Bench();
-  CLI::App app{"numerical stability stress suite (issue #8)"};
+  CLI::App app{"numerical stability stress suite"};
   app.add_option("--out", out_path, "JSON output file");
   app.add_option("--scene", scene_path, "The block scene (cutting and tool cases)");
   app.add_option("--long-steps", size.long_steps, "Steps of the long run");
@@ -73,40 +99,16 @@ int Main(int argc, char** argv) {
   } else {
     results = RunAll(size, scene_path, print_row, only);
   }
-  if (!out_path.empty()) {
-    std::FILE* out = std::fopen(out_path.c_str(), "w");
-    if (!out) {
-      std::fprintf(stderr, "stability_bench: cannot write %s\n", out_path.c_str());
-      return 1;
-    }
-    std::fprintf(out, "{\"cases\": [\n");
-    for (size_t i = 0; i < results.size(); ++i) {
-      const Result& r = results[i];
-      std::fprintf(out,
-                   "  {\"name\": \"%s\", \"expectation\": \"%s\", \"holds\": %s, \"physical\": %s, \"expected_ok\": %s, "
-                   "\"reason\": \"%s\", \"tets\": %d, \"steps\": %lld, \"sim_time_s\": %.6g, \"wall_s\": %.6g, "
-                   "\"finite\": %s, \"mass_rel_change\": %.3g, \"max_inverted\": %d, \"final_inverted\": %d, \"min_det_f\": %.6g, "
-                   "\"spectral_refreshes\": %lld, \"transient_fraction\": %.4g, \"min_dt_s\": %.6g, "
-                   "\"max_dt_s\": %.6g, \"step_status\": \"%s\", \"energy_drift\": %.6g, \"cuts\": %llu, "
-                   "\"rejected_cuts\": %llu}%s\n",
-                   Escape(r.name).c_str(), Escape(r.expectation).c_str(), r.holds ? "true" : "false", r.physical ? "true" : "false",
-                   r.expected_ok ? "true" : "false", Escape(r.reason).c_str(), r.tets,
-                   static_cast<long long>(r.steps), r.sim_time, r.wall, r.finite ? "true" : "false",
-                   r.mass_rel_change, r.max_inverted, r.final_inverted, r.min_det_f, static_cast<long long>(r.spectral_refreshes),
-                   r.transient_fraction, r.min_dt, r.max_dt, Escape(r.step_status).c_str(), r.energy_drift,
-                   static_cast<unsigned long long>(r.cuts), static_cast<unsigned long long>(r.rejected_cuts),
-                   i + 1 == results.size() ? "" : ",");
-    }
-    std::fprintf(out, "]}\n");
-    std::fclose(out);
+  if (!out_path.empty() && !WriteTextFile("stability_bench", out_path, ResultsJson(results))) return 1;
+  std::vector<std::string> missed;
+  for (const Result& r : results) {
+    if (!r.expected_ok) missed.push_back(r.name + ": " + r.reason);
   }
-  int unexpected = 0;
-  for (const Result& r : results) unexpected += r.expected_ok ? 0 : 1;
-  std::fprintf(stderr, "stability_bench: %zu cases, %d not as expected\n", results.size(), unexpected);
-  return 0;
+  std::fprintf(stderr, "stability_bench: %zu cases, %zu not as expected\n", results.size(), missed.size());
+  return ExitCodeForTargets("stability_bench", missed);
 }
 
 }  // namespace
-}  // namespace cutsim::bench::stability
+}  // namespace cutsim::support::stability
 
-int main(int argc, char** argv) { return cutsim::bench::stability::Main(argc, argv); }
+int main(int argc, char** argv) { return cutsim::support::stability::Main(argc, argv); }

@@ -1,4 +1,4 @@
-// Cost of authenticating tool messages (issue 7): HMAC-SHA256 sign (haptic
+// Cost of authenticating tool messages: HMAC-SHA256 sign (haptic
 // station's LCM thread) and verify (server's physics thread) of one
 // ToolState, beside the protobuf decode the server does anyway. Run e.g.
 //   <build>/bin/tool_auth_bench --benchmark_format=json --benchmark_min_time=0.2

@@ -6,7 +6,7 @@
 /// formulas on blocks of elements for SIMD, and the tests hold both to
 /// round-off agreement.
 ///
-/// Conventions (DESIGN.md, physics): rest positions u, world positions x,
+/// Conventions (docs/DESIGN.md, physics): rest positions u, world positions x,
 /// Dm = [u₁−u₀ u₂−u₀ u₃−u₀], Ds = [x₁−x₀ x₂−x₀ x₃−x₀], F = Ds·Dm⁻¹.
 /// Node indices here are 0-based (the seed counts 1..4).
 
@@ -41,7 +41,7 @@ Mat3<T> EdgeMatrix(const Mat34<T>& x) {
   return d;
 }
 
-/// Green strain E = ½(FᵀF − I): the seed's eq. (1) halved (DESIGN.md).
+/// Green strain E = ½(FᵀF − I): the seed's eq. (1) halved (docs/DESIGN.md).
 template <typename T>
 Mat3<T> GreenStrain(const Mat3<T>& F) {
   return T(0.5) * (F.transpose() * F - Mat3<T>::Identity());

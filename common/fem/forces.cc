@@ -14,7 +14,7 @@ constexpr int kW = Model<double>::kBlock;
 
 int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
-/// One SIMD block of kW elements starting at t0 (StVK per DESIGN.md):
+/// One SIMD block of kW elements starting at t0 (StVK per docs/DESIGN.md):
 /// F = Ds·Dm⁻¹, E = ½(FᵀF − I), S = λ tr(E) I + 2μE [+ φ tr(Ė) I + 2ψĖ],
 /// P = F S, H = −vol·P·Dm⁻ᵀ, node 0 gets −ΣH. Straight-line code over the
 /// lanes of a `omp simd` loop so GCC vectorises across elements; the
@@ -216,7 +216,7 @@ void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T
   const T* mass = model.node_masses();
   const T* pf = model.prescribed_forces();
   const Vec3<T> g = model.gravity();
-  // Skip the gravity work when gravity is off (issue 3's skip list).
+  // Skip the gravity work when gravity is off.
   const bool gravity = add_loads && g.squaredNorm() > T(0);
   const int32_t n_nodes = model.num_nodes();
 #pragma omp for schedule(static)

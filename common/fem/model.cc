@@ -129,7 +129,7 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
       ThrowInputError({.file = src, .line = t + 1, .field = "tets"},
                       "tetrahedron has non-positive volume (inverted or degenerate)");
     }
-    // Mass frozen at load: ρ·vol (DESIGN.md), computed in double.
+    // Mass frozen at load: ρ·vol (docs/DESIGN.md), computed in double.
     element_mass_[t] = static_cast<T>(mat.density * mesh::SignedVolume(mesh, t));
   }
   RebuildIncidence();

@@ -4,7 +4,7 @@
 /// structure-of-arrays form (MuJoCo's mjModel role). Positions, velocities,
 /// forces and scratch live in `fem::State<T>` (state.h).
 ///
-/// Mass (DESIGN.md): each element's mass ρ·vol is frozen at load; a node's
+/// Mass (docs/DESIGN.md): each element's mass ρ·vol is frozen at load; a node's
 /// mass is the sum of a quarter of each incident element's mass. Cutting moves
 /// rest coordinates and recomputes Dm⁻¹ and volume (stiffness) but never mass,
 /// and split nodes share their elements' masses, so total mass is exact.

@@ -62,7 +62,7 @@ struct BoundedModel {
 /// Sign: the wire defines K = −∂f/∂x (symmetric PSD, like a spring
 /// constant), so the first-order model is f0 + (∂f/∂x)(x − x0) =
 /// f0 − K (x − x0): pushing into the tissue raises the outward force.
-/// (DESIGN.md's "f0 + K(x − x0)" reads K as ∂f/∂x.)
+/// (Written "f0 + K(x − x0)" when K denotes ∂f/∂x, the same model.)
 [[nodiscard]] Eigen::Vector3d EvaluateBufferModel(const BoundedModel& model, const Eigen::Vector3d& x,
                                                   const Eigen::Vector3d& v, double max_force,
                                                   double tangential_ratio) noexcept;

@@ -32,7 +32,7 @@ bool IsExecutableIn(std::string_view dir) {
 }
 
 /// libx264 when this ffmpeg was built with it, else the always-present mpeg4.
-/// Asked once per process (`ffmpeg -encoders` takes ~50 ms).
+/// Asked once per process (`ffmpeg -encoders` starts a process).
 const std::string& ChooseCodec() {
   static const std::string codec = [] {
     std::FILE* pipe = ::popen("ffmpeg -hide_banner -encoders 2>/dev/null", "r");

@@ -1,4 +1,4 @@
-// Access control with real processes (issue 7): a keyed cutsim-server on the
+// Access control with real processes: a keyed cutsim-server on the
 // ligament, this test as both the genuine haptic station (signed idle poses
 // above the tissue) and an attacker publishing cutting poses unsigned, signed
 // with a guessed key, and replayed (genuinely signed, old). The attack must

@@ -1,4 +1,4 @@
-// The block cut end to end (issue 4's "done when"): the real server follows
+// The block cut end to end: the real server follows
 // a scripted scalpel straight across a coarser copy of scenes/block.pbtxt
 // and must leave exactly two face-connected parts, no inverted or
 // zero-volume tet, the mass unchanged, nothing flying away, and the opened

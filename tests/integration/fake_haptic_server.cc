@@ -64,12 +64,15 @@ int main(int argc, char** argv) {
     cutsim::transport::HapticLinkOptions options;
     options.publish_faults = faults;
     cutsim::transport::HapticServerLink link(bus, session, options);
+    // Readiness line the tests wait for: the link is subscribed from here on.
+    cutsim::Log().info("ready: session {} on {}", session, url);
     const int64_t period = std::llround(1e9 / rate);
     const int64_t t0 = cutsim::MonotonicNs();
     const int64_t end = duration > 0.0 ? t0 + std::llround(duration * 1e9) : INT64_MAX;
     double plane_z = 0.0;
     uint64_t cuts = 0;
     int64_t contact_since = 0;
+    bool reported_contact = false;
     uint64_t frames = 0;
     uint64_t contact_frames = 0;
     int64_t deadline = t0;
@@ -95,6 +98,11 @@ int main(int argc, char** argv) {
       if (c.contact) {
         ++contact_frames;
         if (height < 0.0 && contact_since == 0) contact_since = now;
+        // Once, so a test can act on a client that has been pushing for a while.
+        if (!reported_contact && contact_since != 0 && now - contact_since >= 500'000'000) {
+          cutsim::Log().info("in contact for 0.5 s");
+          reported_contact = true;
+        }
         if (cut_after > 0.0 && cuts == 0 && contact_since != 0 &&
             1e-9 * static_cast<double>(now - contact_since) >= cut_after) {
           ++cuts;

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A session across "machines" on one host (issue 7): the server, the haptic
+# A session across "machines" on one host: the server, the haptic
 # station and a viewer each in their own network namespace, joined by veth
 # pairs to a bridge that lives in a fourth namespace (nothing touches the
 # host's interfaces). LCM uses multicast with ttl=1 routed over the veths,
@@ -87,12 +87,21 @@ run() {  # run NS LOG CMD...: in the background inside namespace NS
 }
 
 run srv server "$bin/cutsim-server" --scene "$src/scenes/ligament.pbtxt" --duration 5 --session "$session" \
-    --lcm-url "$lcm" --stats-json "$work/server.json" --log-level warn --no-rt
+    --lcm-url "$lcm" --stats-json "$work/server.json" --log-level info --no-rt
 srv_pid="${pids[-1]}"
 run view viewer "$bin/cutsim-viewer" --session "$session" --frames "$work/frames" --fps 5 \
     --exit-when-idle 4 --summary "$work/viewer.json" --log-level warn
 view_pid="${pids[-1]}"
-sleep 1
+# The haptic station starts once the server's session is up (its start-up
+# log line), polling with a deadline rather than sleeping a fixed time.
+deadline=$((SECONDS + 60))
+until grep -q "session '$session': physics" "$work/server.log" 2>/dev/null; do
+  if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$srv_pid" 2>/dev/null; then
+    echo "lan_test: the server did not come up" >&2
+    exit 1
+  fi
+  sleep 0.05
+done
 run hap haptic "$bin/cutsim-haptic" --device scripted --path "$src/scenes/ligament-cut.path" --session "$session" \
     --lcm-url "$lcm" --csv "$work/haptic.csv" --no-rt --fault-delay-ms 2 --fault-jitter-ms 1
 hap_pid="${pids[-1]}"

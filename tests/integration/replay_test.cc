@@ -1,4 +1,4 @@
-// Record and replay (issue 7). The shipped recording scenes/ligament-cut.lcm
+// Record and replay. The shipped recording scenes/ligament-cut.lcm
 // (a real-time session: scripted haptic client cutting the ligament over LCM)
 // replays to the recorded cuts and final mesh hash, twice; a tampered
 // recording is reported as a mismatch; and LCM's own tools read and write the
@@ -13,12 +13,12 @@
 #include <filesystem>
 #include <optional>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
 
 #include "common/transport/codec.h"
+#include "common/transport/lcm_bus.h"
 #include "common/transport/lcm_log.h"
 #include "cutsim/v1/wire.pb.h"
 #include "tests/integration/subprocess.h"
@@ -32,7 +32,10 @@ using testing::JsonNumber;
 using testing::JsonString;
 using testing::RunProcess;
 using testing::Subprocess;
+using testing::MulticastGroupJoined;
 using testing::TempDir;
+using testing::UdpPortBound;
+using testing::WaitUntil;
 using namespace std::chrono_literals;
 
 const std::string kRecording = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament-cut.lcm";
@@ -161,20 +164,45 @@ TEST(ReplayTest, LcmLoggerAndLogplayerReadAndWriteTheFormat) {
     GTEST_SKIP() << "lcm-logger/lcm-logplayer not installed (Debian package liblcm-bin)";
   }
   TempDir dir("cutsim-replay-lcm");
-  const std::string url = "udpm://239.255.76.67:" + std::to_string(7990 + testing::UniqueTestIndex() % 9) +
-                          "?ttl=0";
+  const int port = 7990 + testing::UniqueTestIndex() % 9;
+  const std::string url = "udpm://239.255.76.67:" + std::to_string(port) + "?ttl=0";
   const std::string copy = dir.path() + "/copy.lcm";
+  // Inside the test's private network namespace only the logger binds the
+  // port and joins the group: once it has both, it receives what the player
+  // sends.
+  ASSERT_FALSE(UdpPortBound(port)) << "port " << port << " already in use";
   Subprocess logger({"/usr/bin/lcm-logger", "--lcm-url=" + url, "-q", "-f", "--flush-interval=10", copy});
-  std::this_thread::sleep_for(500ms);  // subscribed before the player starts
+  ASSERT_TRUE(WaitUntil([&] { return UdpPortBound(port) && MulticastGroupJoined("239.255.76.67"); }, 30s))
+      << logger.Stderr();
   const auto played =
       RunProcess({"/usr/bin/lcm-logplayer", "--lcm-url=" + url, "--speed=4", kRecording}, 60s);
   ASSERT_EQ(played.exit_code, 0) << played.err;
-  std::this_thread::sleep_for(500ms);  // flushed
+  // Until every event is on disk: the logger flushes when it writes an event
+  // after its flush interval, so a marker on a channel of its own, sent every
+  // 20 ms, pushes the tail of the recording out (the replay ignores it).
+  const auto original = ReadAll(kRecording);
+  const std::string marker = "REPLAY_TEST_MARKER";
+  const auto recorded = [&] {
+    std::vector<transport::LcmLogEvent> events;
+    if (!std::filesystem::exists(copy)) return events;
+    for (auto& e : ReadAll(copy)) {
+      if (e.channel != marker) events.push_back(std::move(e));
+    }
+    return events;
+  };
+  transport::LcmBus bus(url);
+  const std::vector<uint8_t> nothing = {0};
+  ASSERT_TRUE(WaitUntil(
+      [&] {
+        bus.PublishBytes(marker, nothing);
+        return recorded().size() >= original.size();
+      },
+      30s, 20ms))
+      << recorded().size() << " of " << original.size() << " events recorded; logger: " << logger.Stderr();
   logger.Signal(SIGINT);
   ASSERT_TRUE(logger.Wait(10s).has_value());
 
-  const auto original = ReadAll(kRecording);
-  const auto copied = ReadAll(copy);
+  const auto copied = recorded();
   ASSERT_EQ(copied.size(), original.size()) << "events lost on loopback";
   for (size_t i = 0; i < original.size(); ++i) {
     EXPECT_EQ(copied[i].channel, original[i].channel) << "event " << i;

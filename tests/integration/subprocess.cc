@@ -5,9 +5,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -105,6 +107,52 @@ RunResult RunProcess(std::vector<std::string> argv, std::chrono::milliseconds ti
   r.out = p.Stdout();
   r.err = p.Stderr();
   return r;
+}
+
+bool WaitUntil(const std::function<bool()>& condition, std::chrono::milliseconds timeout,
+               std::chrono::milliseconds poll) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (condition()) return true;
+    std::this_thread::sleep_for(poll);
+  }
+  return condition();
+}
+
+bool WaitForStderr(Subprocess& process, const std::string& text, std::chrono::milliseconds timeout) {
+  const auto written = [&] { return process.Stderr().find(text) != std::string::npos; };
+  (void)WaitUntil([&] { return written() || !process.running(); }, timeout);
+  return written();
+}
+
+size_t CountLines(const std::string& path) {
+  const std::string text = ReadFile(path);
+  return static_cast<size_t>(std::count(text.begin(), text.end(), '\n'));
+}
+
+bool UdpPortBound(int port) {
+  char hex[8];
+  std::snprintf(hex, sizeof hex, ":%04X", port);
+  for (const char* table : {"/proc/net/udp", "/proc/net/udp6"}) {
+    std::ifstream in(table);
+    std::string line;
+    std::getline(in, line);  // header
+    while (std::getline(in, line)) {
+      std::istringstream fields(line);
+      std::string slot, local;
+      fields >> slot >> local;  // local address:port, hex
+      if (local.size() >= 5 && local.compare(local.size() - 5, 5, hex) == 0) return true;
+    }
+  }
+  return false;
+}
+
+bool MulticastGroupJoined(const std::string& address) {
+  unsigned a = 0, b = 0, c = 0, d = 0;
+  if (std::sscanf(address.c_str(), "%u.%u.%u.%u", &a, &b, &c, &d) != 4) return false;
+  char hex[9];
+  std::snprintf(hex, sizeof hex, "%02X%02X%02X%02X", d & 0xff, c & 0xff, b & 0xff, a & 0xff);  // as the kernel prints it
+  return ReadFile("/proc/net/igmp").find(hex) != std::string::npos;
 }
 
 std::string BinPath(const std::string& name) {

@@ -8,6 +8,7 @@
 #include <sys/types.h>
 
 #include <chrono>
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -52,6 +53,32 @@ struct RunResult {
 };
 RunResult RunProcess(std::vector<std::string> argv, std::chrono::milliseconds timeout,
               std::map<std::string, std::string> env = {});
+
+/// Readiness waits: poll a condition with a deadline instead of sleeping a
+/// fixed time, so a test neither races a slow start on a loaded machine nor
+/// waits longer than it must on a quiet one.
+///
+/// Polls `condition` every `poll` until it holds (true) or `timeout` passes
+/// (false; the condition is checked once more at the deadline).
+bool WaitUntil(const std::function<bool()>& condition, std::chrono::milliseconds timeout,
+               std::chrono::milliseconds poll = std::chrono::milliseconds(10));
+
+/// Waits until `process`'s stderr contains `text` (a log line it writes when
+/// ready); false on timeout or when the process exits without writing it.
+bool WaitForStderr(Subprocess& process, const std::string& text, std::chrono::milliseconds timeout);
+
+/// Number of complete lines in a file (0 if missing); for logs written a line
+/// at a time (e.g. the viewer's --frame-log).
+size_t CountLines(const std::string& path);
+
+/// Whether a UDP socket of this network namespace is bound to `port`
+/// (/proc/net/udp and udp6): a subscriber has opened its receive socket.
+bool UdpPortBound(int port);
+
+/// Whether a socket of this network namespace has joined the IPv4 multicast
+/// group `address` (dotted quad) on some interface (/proc/net/igmp): a udpm
+/// subscriber receives the group's datagrams from then on.
+bool MulticastGroupJoined(const std::string& address);
 
 /// Path to an executable in <build>/bin.
 std::string BinPath(const std::string& name);

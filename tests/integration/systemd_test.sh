@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The shipped systemd units and example environment file (issue 7), exercised:
+# The shipped systemd units and example environment file, exercised:
 #  1. `systemd-analyze verify` on both units (binaries pointed at BIN_DIR);
 #  2. their ExecStart lines, expanded the way systemd does (${VAR} one word,
 #     $VAR split on whitespace) from deploy/systemd/cutsim.env.example plus a
@@ -23,10 +23,18 @@ if [ "${1:-}" = "--inside" ]; then
   while IFS='=' read -r key value; do export "$key=$value"; done < "$work/env"
   "${server[@]}" > "$work/server.out" 2> "$work/server.log" &
   spid=$!
-  sleep 1
+  # The client starts once the server's session is up (its start-up log
+  # line), polling with a deadline rather than sleeping a fixed time.
+  deadline=$((SECONDS + 60))
+  until grep -q "session '.*': physics" "$work/server.log" 2>/dev/null; do
+    if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$spid" 2>/dev/null; then
+      echo "systemd_test: the server did not come up" >&2
+      exit 1
+    fi
+    sleep 0.05
+  done
   timeout 60 "${haptic[@]}" > "$work/haptic.out" 2> "$work/haptic.log"
   hrc=$?
-  sleep 0.5
   kill -TERM "$spid"
   wait "$spid"
   src_rc=$?

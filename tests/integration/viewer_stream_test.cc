@@ -81,6 +81,12 @@ std::vector<RenderedFrame> ReadFrameLog(const std::string& path) {
   return out;
 }
 
+/// Simulated time of the latest frame in a viewer's frame log (-1 if none).
+double LatestSimTime(const std::string& path) {
+  const std::vector<RenderedFrame> frames = ReadFrameLog(path);
+  return frames.empty() ? -1.0 : frames.back().sim_time;
+}
+
 std::string FramePath(const std::string& dir, int index) {
   char name[32];
   std::snprintf(name, sizeof name, "frame_%06d.png", index);
@@ -115,7 +121,10 @@ TEST(ViewerStreamTest, TwoViewersOneLateSeeTheServersMeshAndTheCut) {
                      "--duration", "9", "--cut-at", std::to_string(cut_at), "--rate", "20",
                      "--hash-log", dir.path() + "/pub.log", "--log-level", "warn"});
   Subprocess early(ViewerArgs(session, domain, dir.path(), "early"));
-  std::this_thread::sleep_for(2s);  // the late viewer joins ~2 s later
+  // The late viewer joins once the early one has rendered 2 s of the stream
+  // (the publisher's keyframe is then older than its current mesh).
+  ASSERT_TRUE(WaitUntil([&] { return LatestSimTime(dir.path() + "/early.log") >= 2.0; }, 60s))
+      << early.Stderr() << server.Stderr();
   const int64_t late_start_ns = MonotonicNs();
   Subprocess late(ViewerArgs(session, domain, dir.path(), "late"));
 
@@ -129,7 +138,7 @@ TEST(ViewerStreamTest, TwoViewersOneLateSeeTheServersMeshAndTheCut) {
     SCOPED_TRACE(tag);
     const std::string json = ReadFile(dir.path() + "/" + tag + ".json");
     ASSERT_FALSE(json.empty()) << "no summary";
-    std::printf("[bench] %s viewer summary: %s\n", tag.c_str(), json.c_str());
+    std::printf("viewer_stream_test: %s viewer summary: %s\n", tag.c_str(), json.c_str());
     EXPECT_EQ(JsonNumber(json, "hash_mismatches"), 0);
     EXPECT_EQ(JsonNumber(json, "resyncs"), 0);
     EXPECT_GE(JsonNumber(json, "frames"), tag == std::string("early") ? 50 : 35);
@@ -149,7 +158,7 @@ TEST(ViewerStreamTest, TwoViewersOneLateSeeTheServersMeshAndTheCut) {
   }
   EXPECT_GE(late_frames.front().seq, current_at_join);
   const double join_s = 1e-9 * static_cast<double>(late_frames.front().mono_ns - late_start_ns);
-  std::printf("[bench] late join: first verified frame %.3f s after the viewer process started\n", join_s);
+  std::printf("viewer_stream_test: late join: first verified frame %.3f s after the viewer process started\n", join_s);
   EXPECT_LT(join_s, 3.0);  // process start-up + discovery + first tick (target 0.5 s in release)
 
   // Pixels: the object covers ≥ 5 %; cut colour only after the cut; frames
@@ -187,11 +196,13 @@ TEST(ViewerStreamTest, KilledViewerRejoinsAndSigtermWritesTheSummary) {
                      "--log-level", "warn"});
   {
     Subprocess first(ViewerArgs(session, domain, dir.path(), "first"));
-    std::this_thread::sleep_for(2s);
+    // Killed while watching: after it has rendered a few frames.
+    ASSERT_TRUE(WaitUntil([&] { return CountLines(dir.path() + "/first.log") >= 3; }, 60s)) << first.Stderr();
     first.Kill();  // SIGKILL: no goodbye to DDS
   }
   Subprocess again(ViewerArgs(session, domain, dir.path(), "again"));
-  std::this_thread::sleep_for(3s);
+  // Stopped once it has rendered the frames the check below needs.
+  ASSERT_TRUE(WaitUntil([&] { return CountLines(dir.path() + "/again.log") >= 15; }, 60s)) << again.Stderr();
   again.Signal(SIGTERM);
   EXPECT_EQ(again.Wait(20s), 0) << again.Stderr();
   EXPECT_EQ(server.Wait(30s), 0) << server.Stderr();
@@ -262,9 +273,11 @@ TEST(ViewerStreamTest, DefaultConfigKeepsEveryPacketOnLoopback) {
   const std::string session = "lo_" + std::to_string(getpid());
   Subprocess server({BinPath("cutsim-fake-mesh-server"), "--session", session, "--dds-domain", domain,
                      "--duration", "4", "--log-level", "warn"});
+  TempDir dir("viewer_it");
   Subprocess viewer({BinPath("cutsim-viewer"), "--session", session, "--dds-domain", domain,
-                     "--duration", "3", "--log-level", "warn"});
-  std::this_thread::sleep_for(1500ms);
+                     "--duration", "3", "--frame-log", dir.path() + "/lo.log", "--log-level", "warn"});
+  // Discovery is done (every socket open) once the viewer has rendered a frame.
+  ASSERT_TRUE(WaitUntil([&] { return CountLines(dir.path() + "/lo.log") >= 1; }, 60s)) << viewer.Stderr();
   for (const pid_t pid : {server.pid(), viewer.pid()}) {
     const auto addrs = UdpLocalAddresses(pid);
     EXPECT_FALSE(addrs.empty());

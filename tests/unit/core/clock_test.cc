@@ -20,9 +20,18 @@ TEST(ClockTest, SleepUntilReachesDeadline) {
   EXPECT_GE(MonotonicNs(), deadline);  // never early; lateness is a benchmark matter
 }
 
-TEST(ClockTest, SleepUntilPastDeadlineReturns) {
-  SleepUntilNs(MonotonicNs() - 1'000'000);
-  SUCCEED();
+// A deadline already past returns without sleeping. The bound is loose (a
+// loaded machine may deschedule the thread), yet far below the 1 s a sleep
+// for the deadline's distance would take.
+TEST(ClockTest, SleepUntilPastDeadlineReturnsPromptly) {
+  for (const int64_t past_ns : {int64_t{1'000'000}, int64_t{1'000'000'000}}) {
+    const int64_t start = MonotonicNs();
+    SleepUntilNs(start - past_ns);
+    EXPECT_LT(MonotonicNs() - start, 250'000'000) << past_ns;
+  }
+  const int64_t start = MonotonicNs();
+  SleepUntilNs(0);  // the clock's origin
+  EXPECT_LT(MonotonicNs() - start, 250'000'000);
 }
 
 }  // namespace

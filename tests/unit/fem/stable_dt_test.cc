@@ -130,8 +130,7 @@ TEST(FemLanczos, DampingOperatorMatchesExact) {
 
 /// Runs Advance for `steps` steps at `safety`, from a deformed start; true if
 /// it failed or the energy grew past 2× (+ a small floor) of the start.
-int g_refresh = 10;
-bool Unstable(const Case& c, double safety, int steps, double* ratio_out, int spectral = 30) {
+bool Unstable(const Case& c, double safety, int steps, double* ratio_out) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.01, 0.01, 0.01);
   Model<double> model(mesh, std::span(&kTissue, 1));
   if (c.fixed_bottom) {
@@ -153,8 +152,7 @@ bool Unstable(const Case& c, double safety, int steps, double* ratio_out, int sp
   opt.num_threads = 1;
   opt.safety_factor = safety;
   opt.spectral_refresh_interval = 200;
-  opt.spectral_iterations = spectral;
-  opt.dt_refresh_interval = g_refresh;
+    opt.dt_refresh_interval = 10;
   const double e0 = TotalEnergy(model, state);
   (void)CurrentTimeStep(model, state, opt);
   if (ratio_out != nullptr) *ratio_out = state.dt_ratio;
@@ -181,30 +179,9 @@ TEST(FemLanczos, StableUnderLargeDeformationAtAndAboveTheChosenFactor) {
                         {"random fixed", 1.0, 1.5e-3, true}};
   for (const Case& c : cases) {
     double ratio = 0;
-    // (DISABLED_Scan compares factors 0.5–1.0 with and without Lanczos.)
     EXPECT_FALSE(Unstable(c, StepOptions{}.safety_factor, 1200, &ratio)) << c.name;
     std::printf("[lanczos] %-20s Lanczos/bound ratio at start %.3f\n", c.name, ratio);
   }
-}
-
-TEST(FemLanczos, DISABLED_Scan) {
-  const Case cases[] = {{"stretch x3", 3.0, 0, false},
-                        {"stretch x3 fixed", 3.0, 1e-4, true},
-                        {"compress to 10% vol", 0.465, 1e-4, false},
-                        {"random", 1.0, 1.5e-3, false},
-                        {"random fixed", 1.0, 1.5e-3, true}};
-  for (int spectral : {0, 30}) {
-    for (int refresh : {10}) {
-      for (const Case& c : cases) {
-        for (double f : {0.5, 0.6, 0.7, 0.85, 1.0}) {
-          g_refresh = refresh;
-          const bool bad = Unstable(c, f, 4000, nullptr, spectral);
-          std::printf("SCAN spectral %d refresh %d %-20s factor %.2f %s\n", spectral, refresh, c.name, f, bad ? "UNSTABLE" : "ok");
-        }
-      }
-    }
-  }
-  g_refresh = 10;
 }
 
 TEST(FemLanczos, UnstableWellAboveTheTrueLimit) {

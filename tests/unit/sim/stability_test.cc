@@ -1,5 +1,5 @@
 // Short version of the stability stress suite (bench/stability_bench.cc,
-// cases in bench/stability_cases.h): the same cases on a 3×3×3-cell cube,
+// cases in tests/support/stability_cases.h): the same cases on a 3×3×3-cell cube,
 // 10⁴ steps for the long run, a handful of random cuts. Each case must end
 // with a finite state and unchanged mass, without a guard stop where the
 // bench holds, and past the stable limit the guard must stop the run before
@@ -11,9 +11,9 @@
 
 #include <gtest/gtest.h>
 
-#include "bench/stability_cases.h"
+#include "tests/support/stability_cases.h"
 
-namespace cutsim::bench::stability {
+namespace cutsim::support::stability {
 namespace {
 
 const std::string kBlock = std::string(CUTSIM_SOURCE_DIR) + "/scenes/block.pbtxt";
@@ -156,4 +156,4 @@ TEST(Stability, IdleToolWithoutPathDoesNotTouch) {
 }
 
 }  // namespace
-}  // namespace cutsim::bench::stability
+}  // namespace cutsim::support::stability

@@ -39,7 +39,7 @@
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 
-namespace cutsim::bench::stability {
+namespace cutsim::support::stability {
 
 /// How big each case is: the bench runs the full size, the unit test the short one.
 struct Size {
@@ -593,8 +593,8 @@ inline Result ToolDrawnThrough(const Size& size, const std::string& scene_path) 
 }
 
 /// The blade held pointing +z along the block's corner edge, its tip at
-/// height `tip_z` on the edge. At the origin (where a tool without a path
-/// used to sit) the blade stands along the whole edge: it is inside the
+/// height `tip_z` on the edge. At the origin (the worst place a tool could
+/// rest) the blade stands along the whole edge: it is inside the
 /// tissue and its edge grip holds it (tool_contact.h). At 0.5 mm under the
 /// top (under the indentation limit) the tip presses the top corner: the
 /// penalty acts on a vertex and the edges shared by the top and side facets.
@@ -667,4 +667,4 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
   return out;
 }
 
-}  // namespace cutsim::bench::stability
+}  // namespace cutsim::support::stability
