@@ -26,9 +26,10 @@
 /// still decreases Φ; kClamped uses K⁺ (S replaced by its positive part in
 /// the geometric term, positive semidefinite, = K where no element is
 /// compressed); kAuto (default) uses the exact K and switches to K⁺ for the
-/// rest of the step once PCG meets negative curvature. Every mode converges
-/// to the same solution (the residual is always the exact one); the exact
-/// Jacobian gives quadratic convergence near a stable solution.
+/// rest of the step once PCG meets negative curvature. Every mode solves
+/// the same equations (the residual is always the exact one) and stops on
+/// the same rule; the exact Jacobian gives quadratic convergence near a
+/// stable solution, K⁺ linear convergence where elements are compressed.
 ///
 /// The implicit path uses plain StVK for every element (the explicit path
 /// switches elements with det F < 0.3 to the invertible StVK of Irving et
@@ -36,6 +37,14 @@
 ///
 /// Fixed nodes and nodes without mass are eliminated (identity rows and
 /// columns, zero right-hand side) and keep x and v.
+///
+/// Linear solves (linear_solver.h): PCG preconditioned by a CHOLMOD factor
+/// of an earlier A. A factor is asked for when there is none (the first
+/// solve waits for it unless wait_for_first_factor is off), when the
+/// pattern changed (a cut: until the new factor lands, the old one serves
+/// the old DOFs and block Jacobi the new ones), and when a solve needed more
+/// than refactor_pcg_iterations. With asynchronous_factorization the worker
+/// factors a copy of A while steps go on with the factor they have.
 
 #include <array>
 #include <cstdint>

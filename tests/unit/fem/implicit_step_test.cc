@@ -241,7 +241,7 @@ TEST(ImplicitStep, CompressedBlockConvergesWithEveryTangentMode) {
     ASSERT_TRUE(r.ok()) << "mode " << static_cast<int>(mode) << " residual " << r.residual;
     EXPECT_EQ(r.clamped, mode == TangentMode::kClamped);
     solutions.push_back(state.x);
-    // About 4.5% axial shortening.
+    // The loaded face moves in visibly.
     EXPECT_LT(state.x[static_cast<size_t>(3 * TipNode(model))], 0.02 * 0.97);
   }
   EXPECT_LT(RelativeDisplacementError(model, solutions[0], solutions[1]), 1e-7);
