@@ -31,7 +31,7 @@ if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
   cmake --preset release >/dev/null
   cmake --build --preset release -j "$(nproc)" --target cutsim-server cutsim-haptic cutsim-viewer
 fi
-bin="$root/build/release/bin"
+bin="${CUTSIM_BIN:-$root/build/release/bin}"  # CUTSIM_BIN: binaries of another build
 
 out="$root/out"
 rm -rf "$out/frames" "$out/frames-late" "$out/organ-frames"

@@ -147,11 +147,11 @@ TEST(Stability, ToolOnTheCornerEdgeImplicit) {
 }
 
 // Backward Euler with a step far beyond the explicit limit: converges
-// every step and only loses energy.
+// every step and only loses energy (`holds` requires both).
 TEST(Stability, ImplicitStepBeyondTheExplicitLimitHolds) {
   const Result r = ImplicitLargeStep("implicit large", Size::Test().cells, 100, 20.0);
   ExpectHolds(r);
-  EXPECT_LT(r.energy_drift, 1.0);
+  EXPECT_GT(r.energy_drift, 0.0) << r.reason;  // it dissipates
 }
 
 // Drawn back and forth through tissue it may not cut: the edge grip drags
