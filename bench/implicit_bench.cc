@@ -14,7 +14,7 @@
 //
 //   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
 //                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
-//                  [--refactor-iterations 12] [--tangent 0|1|2] [--no-async]
+//                  [--refactor-iterations 12] [--tangent 0|1|2] [--no-async] [--bdf2]
 //                  [--verbose]
 #include <algorithm>
 #include <chrono>
@@ -207,6 +207,7 @@ int main(int argc, char** argv) {
   int tangent = static_cast<int>(o.tangent);
   app.add_option("--tangent", tangent, "0 exact, 1 clamped, 2 auto");
   app.add_flag("!--no-async", o.asynchronous_factorization, "Factor inline (reproducible)");
+  app.add_flag("--bdf2", o.bdf2, "BDF2 instead of backward Euler");
   CLI11_PARSE(app, argc, argv);
   o.tangent = static_cast<cutsim::fem::TangentMode>(tangent);
   std::printf("{\"bench\": \"implicit\", \"cases\": [\n");

@@ -27,16 +27,19 @@ constexpr double kArmijo = 1e-4;
 /// below it, so a trial within it that lowers the residual is accepted.
 constexpr double kPhiRoundOff = 1e-12;
 
-/// Calls body(t) for every tet, colour by colour, each colour split over
-/// the team (an orphaned `omp for` per colour, with its barrier): tets of
-/// one colour share no node, so their scatters never collide.
+/// Calls body(t) for every tet, colour by colour (sparse_system.h), each
+/// colour's chunks split over the team (an orphaned `omp for` per colour,
+/// with its barrier) and each chunk's tets in order: chunks of one colour
+/// share no node, so their scatters never collide.
 template <typename Body>
 void ForEachTetByColor(const SparseSystem& system, Body&& body) {
   const int32_t* cp = system.color_ptr();
-  const int32_t* tets = system.color_tets();
+  const int32_t* chunks = system.color_chunks();
   for (int32_t c = 0; c < system.num_colors(); ++c) {
-#pragma omp for schedule(static)
-    for (int32_t k = cp[c]; k < cp[c + 1]; ++k) body(tets[k]);
+#pragma omp for schedule(dynamic, 1)
+    for (int32_t k = cp[c]; k < cp[c + 1]; ++k) {
+      for (int32_t t = system.chunk_begin(chunks[k]); t < system.chunk_end(chunks[k]); ++t) body(t);
+    }
   }
 }
 

@@ -163,6 +163,8 @@ class ImplicitIntegrator {
   Eigen::Matrix3d EffectiveStiffness(std::span<const int32_t> nodes, std::span<const double> weights);
 
   [[nodiscard]] const ImplicitOptions& options() const { return options_; }
+  /// Options for the next steps (asynchronous_factorization is read only
+  /// at construction).
   ImplicitOptions& mutable_options() { return options_; }
   [[nodiscard]] const SparseSystem& system() const { return system_; }
   /// Values of the last assembled Jacobian A on system()'s pattern.  // #nnz

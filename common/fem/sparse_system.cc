@@ -10,26 +10,33 @@ namespace {
 
 std::atomic<int64_t> g_next_pattern_id{0};
 
-/// Greedy colouring: each tet takes the smallest colour none of its nodes
-/// has yet, in tet order (deterministic). Returns per-tet colours.
-std::vector<int32_t> ColorTets(const Model<double>& model, int32_t* num_colors) {
+/// Greedy colouring of the chunks: each takes the smallest colour none of
+/// its nodes has yet, in chunk order (deterministic). Returns per-chunk
+/// colours.
+std::vector<int32_t> ColorChunks(const Model<double>& model, int32_t chunk, int32_t* num_colors) {
   const int32_t nt = model.num_tets();
+  const int32_t num_chunks = (nt + chunk - 1) / chunk;
   std::vector<std::vector<int32_t>> node_colors(static_cast<size_t>(model.num_nodes()));
-  std::vector<int32_t> color(static_cast<size_t>(nt), 0);
+  std::vector<int32_t> color(static_cast<size_t>(num_chunks), 0);
   std::vector<uint8_t> taken;
+  std::vector<int32_t> nodes;
   *num_colors = 0;
-  for (int32_t t = 0; t < nt; ++t) {
-    taken.assign(static_cast<size_t>(*num_colors) + 1, 0);
-    for (int c = 0; c < 4; ++c) {
-      for (const int32_t k : node_colors[static_cast<size_t>(model.tet_node(t, c))]) {
-        taken[static_cast<size_t>(k)] = 1;
-      }
+  for (int32_t k = 0; k < num_chunks; ++k) {
+    nodes.clear();
+    for (int32_t t = k * chunk; t < std::min(nt, (k + 1) * chunk); ++t) {
+      for (int c = 0; c < 4; ++c) nodes.push_back(model.tet_node(t, c));
     }
-    int32_t k = 0;
-    while (taken[static_cast<size_t>(k)] != 0) ++k;
-    color[static_cast<size_t>(t)] = k;
-    *num_colors = std::max(*num_colors, k + 1);
-    for (int c = 0; c < 4; ++c) node_colors[static_cast<size_t>(model.tet_node(t, c))].push_back(k);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    taken.assign(static_cast<size_t>(*num_colors) + 1, 0);
+    for (const int32_t n : nodes) {
+      for (const int32_t c : node_colors[static_cast<size_t>(n)]) taken[static_cast<size_t>(c)] = 1;
+    }
+    int32_t c = 0;
+    while (taken[static_cast<size_t>(c)] != 0) ++c;
+    color[static_cast<size_t>(k)] = c;
+    *num_colors = std::max(*num_colors, c + 1);
+    for (const int32_t n : nodes) node_colors[static_cast<size_t>(n)].push_back(c);
   }
   return color;
 }
@@ -90,13 +97,15 @@ void SparseSystem::Build(const Model<double>& model) {
   }
 
   int32_t num_colors = 0;
-  const std::vector<int32_t> color = ColorTets(model, &num_colors);
+  const std::vector<int32_t> color = ColorChunks(model, kChunk, &num_colors);
   color_ptr_.assign(static_cast<size_t>(num_colors) + 1, 0);
-  for (const int32_t k : color) ++color_ptr_[static_cast<size_t>(k) + 1];
-  for (int32_t k = 0; k < num_colors; ++k) color_ptr_[static_cast<size_t>(k) + 1] += color_ptr_[static_cast<size_t>(k)];
-  color_tets_.resize(static_cast<size_t>(nt));
+  for (const int32_t c : color) ++color_ptr_[static_cast<size_t>(c) + 1];
+  for (int32_t c = 0; c < num_colors; ++c) color_ptr_[static_cast<size_t>(c) + 1] += color_ptr_[static_cast<size_t>(c)];
+  color_chunks_.resize(color.size());
   std::vector<int32_t> fill(color_ptr_.begin(), color_ptr_.end() - 1);
-  for (int32_t t = 0; t < nt; ++t) color_tets_[static_cast<size_t>(fill[static_cast<size_t>(color[static_cast<size_t>(t)])]++)] = t;
+  for (size_t k = 0; k < color.size(); ++k) {
+    color_chunks_[static_cast<size_t>(fill[static_cast<size_t>(color[k])]++)] = static_cast<int32_t>(k);
+  }
 
   topology_version_ = model.topology_version();
   built_ = true;

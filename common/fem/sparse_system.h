@@ -7,11 +7,15 @@
 ///
 /// The pattern is built once per topology version. Each tet keeps, for each
 /// of its 16 corner pairs, the offset of its 3×3 block in the value array, so
-/// assembly is a scatter without search. Tets are greedily coloured so that
-/// no two tets of one colour share a node: a scatter that runs colour by
-/// colour, each colour in parallel, adds into every entry in the same order
-/// for any thread count, so assembly gives the same bits for 1 and 2 threads.
+/// assembly is a scatter without search. Tets are cut into chunks of kChunk
+/// consecutive tets and the chunks greedily coloured so that no two chunks
+/// of one colour share a node: a scatter that runs colour by colour, each
+/// colour's chunks in parallel and each chunk's tets in order, adds into
+/// every entry in the same order for any thread count (assembly gives the
+/// same bits for 1 and 2 threads), and a chunk's tets touch neighbouring
+/// memory (a few colours sweep the value array, not one per tet colour).
 
+#include <algorithm>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -69,10 +73,15 @@ class SparseSystem {
   [[nodiscard]] const int32_t* tet_blocks(int32_t t) const { return tet_block_.data() + 16 * t; }
 
   // ---- colouring -----------------------------------------------------------
+  /// Consecutive tets per chunk.
+  static constexpr int32_t kChunk = 64;
   [[nodiscard]] int32_t num_colors() const { return static_cast<int32_t>(color_ptr_.size()) - 1; }
-  /// Tets of colour c: color_tets()[color_ptr()[c] .. color_ptr()[c+1]).
+  /// Chunks of colour c: color_chunks()[color_ptr()[c] .. color_ptr()[c+1]).
   [[nodiscard]] const int32_t* color_ptr() const { return color_ptr_.data(); }  // #colors+1
-  [[nodiscard]] const int32_t* color_tets() const { return color_tets_.data(); }  // #T
+  [[nodiscard]] const int32_t* color_chunks() const { return color_chunks_.data(); }  // #chunks
+  /// Tets of chunk k: [chunk_begin(k), chunk_end(k)).
+  [[nodiscard]] int32_t chunk_begin(int32_t k) const { return k * kChunk; }
+  [[nodiscard]] int32_t chunk_end(int32_t k) const { return std::min(num_tets_, (k + 1) * kChunk); }
 
   // ---- products and block access ------------------------------------------
   /// y = A·x for the symmetric matrix with the given values (#nnz); each
@@ -103,7 +112,7 @@ class SparseSystem {
   std::vector<int32_t> diag_offset_;  // #N
   std::vector<int32_t> tet_block_;    // #T×16
   std::vector<int32_t> color_ptr_;    // #colors+1
-  std::vector<int32_t> color_tets_;   // #T
+  std::vector<int32_t> color_chunks_; // #chunks
 };
 
 }  // namespace cutsim::fem

@@ -159,6 +159,8 @@ TEST_F(ImplicitAssembly, ForcesAndDampingMatchTheExplicitPath) {
 }
 
 TEST_F(ImplicitAssembly, OneThreadEqualsTwoThreads) {
+  // Enough chunks that a colour holds several (sparse_system.h).
+  model_ = testing::MakeCantilever(24, 0.24, 3e4, true, 2.0, 10.0);
   const std::vector<double> x = testing::DeformedPositions(model_, 2e-3, 0.85);
   ImplicitIntegrator one({.num_threads = 1}), two({.num_threads = 2});
   std::vector<double> k1, k2, c1, c2;
@@ -169,10 +171,11 @@ TEST_F(ImplicitAssembly, OneThreadEqualsTwoThreads) {
   EXPECT_EQ(k1, k2);
   EXPECT_EQ(c1, c2);
   EXPECT_GT(one.system().num_colors(), 1);
+  EXPECT_GE(one.system().color_ptr()[1], 2);  // the first colour has chunks to share
 }
 
 TEST(SparseSystemPattern, BlocksAreSymmetricAndColoursDisjoint) {
-  const Model<double> model = testing::MakeCantilever(3, 0.03, 3e4);
+  const Model<double> model = testing::MakeCantilever(16, 0.16, 3e4);
   SparseSystem sys;
   sys.Build(model);
   for (int32_t t = 0; t < model.num_tets(); ++t) {
@@ -184,14 +187,24 @@ TEST(SparseSystemPattern, BlocksAreSymmetricAndColoursDisjoint) {
       }
     }
   }
-  std::vector<int> seen(static_cast<size_t>(model.num_nodes()));
+  // Chunks of one colour share no node; every tet is in exactly one chunk.
+  std::vector<int32_t> owner(static_cast<size_t>(model.num_nodes()));
+  std::vector<int> tet_seen(static_cast<size_t>(model.num_tets()), 0);
   for (int32_t c = 0; c < sys.num_colors(); ++c) {
-    std::fill(seen.begin(), seen.end(), 0);
+    std::fill(owner.begin(), owner.end(), -1);
     for (int32_t k = sys.color_ptr()[c]; k < sys.color_ptr()[c + 1]; ++k) {
-      for (int i = 0; i < 4; ++i) EXPECT_EQ(seen[static_cast<size_t>(model.tet_node(sys.color_tets()[k], i))]++, 0);
+      const int32_t chunk = sys.color_chunks()[k];
+      for (int32_t t = sys.chunk_begin(chunk); t < sys.chunk_end(chunk); ++t) {
+        ++tet_seen[static_cast<size_t>(t)];
+        for (int i = 0; i < 4; ++i) {
+          int32_t& o = owner[static_cast<size_t>(model.tet_node(t, i))];
+          EXPECT_TRUE(o == -1 || o == chunk) << "colour " << c << " tet " << t;
+          o = chunk;
+        }
+      }
     }
   }
-  EXPECT_EQ(sys.color_ptr()[sys.num_colors()], model.num_tets());
+  for (const int n : tet_seen) EXPECT_EQ(n, 1);
 }
 
 /// SPD test matrix on a model's pattern: M/h² + K at rest, identity rows on

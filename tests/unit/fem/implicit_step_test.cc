@@ -155,7 +155,7 @@ void SplitMiddleNode(Model<double>& model, State<double>& state) {
 }
 
 TEST(ImplicitStep, OneThreadEqualsTwoThreads) {
-  const Model<double> model = testing::MakeCantilever(4, 0.04, 3e4, true, 5.0, 20.0);
+  const Model<double> model = testing::MakeCantilever(16, 0.16, 3e5, true, 5.0, 20.0);
   State<double> s1(model), s2(model);
   ImplicitOptions o = Tight(1e-8);
   o.mass_damping = 2.0;
