@@ -2,7 +2,21 @@
 # Installs every Debian package cutsim needs to build, test, run its demo and
 # its benchmarks. Idempotent: does nothing when all are present, and runs
 # `apt-get update` once, only when something is missing.
+#
+#   deploy/install-deps.sh           the default set
+#   deploy/install-deps.sh --bench   also CalculiX (ccx), which produces the
+#                                    independent FE references in
+#                                    bench/reference/ (CUTSIM_BENCH_DEPS=1 does
+#                                    the same)
 set -euo pipefail
+
+with_bench="${CUTSIM_BENCH_DEPS:-0}"
+for arg in "$@"; do
+  case "$arg" in
+    --bench) with_bench=1 ;;
+    *) echo "install-deps: unknown argument '$arg' (known: --bench)" >&2; exit 2 ;;
+  esac
+done
 
 packages=(
   # toolchain
@@ -31,6 +45,12 @@ packages=(
   # deploy files: `systemd-analyze verify` of the shipped units (tests)
   systemd
 )
+
+# Optional: the reference solver of bench/reference/run_calculix.py; its
+# ctest check skips when ccx is absent.
+if [ "$with_bench" = 1 ]; then
+  packages+=(calculix-ccx)
+fi
 
 missing=()
 for p in "${packages[@]}"; do
