@@ -2,7 +2,7 @@
 """Summarises a demo session in out/: a force-over-time plot and summary.json.
 
 Reads the JSON each process wrote (server.json, haptic.json, viewer*.json,
-block.json) and the haptic CSV; prints where everything is.
+block.json, organ-*.json) and the haptic CSV; prints where everything is.
 """
 import csv
 import json
@@ -56,6 +56,9 @@ def main(out):
         "viewer": load_json(os.path.join(out, "viewer.json")),
         "viewer_late": load_json(os.path.join(out, "viewer-late.json")),
         "headless_block": load_json(os.path.join(out, "block.json")),
+        "organ_server": load_json(os.path.join(out, "organ-server.json")),
+        "organ_haptic": load_json(os.path.join(out, "organ-haptic.json")),
+        "organ_viewer": load_json(os.path.join(out, "organ-viewer.json")),
         "haptic_cut_times_s": cut_times,
         "haptic_peak_force_n": max(force) if force else 0.0,
     }
@@ -79,7 +82,14 @@ def main(out):
                   % (name, vv["verified_frames"], vv["resyncs"], vv["hash_mismatches"], vv["join_latency_s"]))
     if b:
         print("  headless block: %d cut steps, %d parts, wall %.1f s" % (b["cuts"], b["components"], b["wall_time"]))
-    print("  frames:       %s/frames/ and %s/frames-late/" % (out, out))
+    o, ov = summary["organ_server"], summary["organ_viewer"]
+    if o:
+        print("  organ session: %d physics frames, %d cut steps, %d parts, %d frame overruns (p99 frame %.1f ms)"
+              % (o["frames"], o["cuts"], o["components"], o["frame_overruns"], o["frame_time_p99_ms"]))
+    if ov:
+        print("  organ viewer: %d verified frames, %d resyncs, %d hash mismatches"
+              % (ov["verified_frames"], ov["resyncs"], ov["hash_mismatches"]))
+    print("  frames:       %s/frames/, %s/frames-late/ and %s/organ-frames/" % (out, out, out))
     if os.path.exists(os.path.join(out, "session.mp4")):
         print("  video:        %s/session.mp4" % out)
     print("  force plot:   %s" % plot)

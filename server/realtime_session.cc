@@ -336,7 +336,7 @@ int ServerApp::RunRealtime() {
   transport::ValidateSessionName(options_.session, "--session");
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
-      scene, {.threads = options_.threads, .precision = options_.precision});
+      scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
   sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
   if (options_.resume) (void)checkpointer.Resume(*simulation);
   const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();

@@ -61,6 +61,13 @@ v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s) {
   r.set_min_rest_volume(s.min_rest_volume);
   r.set_total_mass(s.total_mass);
   r.set_cut_wall_time(s.cut_wall_time);
+  r.set_integrator(s.integrator);
+  r.set_newton_iterations(ReportCount(s.implicit.newton_iterations));
+  r.set_max_newton_iterations(ReportCount(s.implicit.max_newton_iterations));
+  r.set_pcg_iterations(ReportCount(s.implicit.pcg_iterations));
+  r.set_max_pcg_iterations(ReportCount(s.implicit.max_pcg_iterations));
+  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
+  r.set_factorizations(ReportCount(s.implicit.factorizations));
   return r;
 }
 
@@ -100,6 +107,8 @@ void AddRunOptions(CLI::App& app, ServerOptions& o) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--precision", o.precision, "Override the scene's precision")
       ->check(CLI::IsMember({"float", "double"}));
+  app.add_option("--integrator", o.integrator, "Override the scene's integrator")
+      ->check(CLI::IsMember({"explicit", "implicit", "auto"}));
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off");
   app.add_flag("!--no-progress", o.progress, "No progress bar");
 }
@@ -228,7 +237,7 @@ int ServerApp::RunReplay() {
 int ServerApp::RunHeadless() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
-      scene, {.threads = options_.threads, .precision = options_.precision});
+      scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
   sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
   if (options_.resume) (void)checkpointer.Resume(*simulation);
   // The run ends at --duration, else when the tool path ends, else (with

@@ -20,6 +20,7 @@ struct ServerOptions {
   std::string out;                 ///< .vtu of the final state
   int threads = 0;
   std::string precision;
+  std::string integrator;          ///< "", "explicit", "implicit", "auto": overrides the scene's
   std::string log_level = "info";
   bool progress = true;
   // Real-time session (not --headless).

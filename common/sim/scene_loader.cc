@@ -201,6 +201,15 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   if (ts.frame_dt() == 0.0) ts.set_frame_dt(0.01);
   RequirePositive(s, "time_step.frame_dt", ts.frame_dt());
   if (ts.threads() < 0) FieldError(s, "time_step.threads", "must be >= 0");
+  if (!v1::TimeStepPolicy::Integrator_IsValid(ts.integrator())) {
+    FieldError(s, "time_step.integrator", fmt::format("unknown value {}", static_cast<int>(ts.integrator())));
+  }
+  if (!v1::TimeStepPolicy::Precision_IsValid(ts.precision())) {
+    FieldError(s, "time_step.precision", fmt::format("unknown value {}", static_cast<int>(ts.precision())));
+  }
+  if (!v1::TimeStepPolicy::Viscosity_IsValid(ts.viscosity())) {
+    FieldError(s, "time_step.viscosity", fmt::format("unknown value {}", static_cast<int>(ts.viscosity())));
+  }
   if (ts.refresh_every_steps() == 0) ts.set_refresh_every_steps(10);
   if (ts.refresh_every_steps() < 0) FieldError(s, "time_step.refresh_every_steps", "must be > 0");
 

@@ -12,6 +12,8 @@
 #include "common/fem/integrator.h"
 #include "common/sim/checkpoint.h"
 #include "common/sim/cut_pipeline.h"
+#include "common/sim/dynamics.h"
+#include "common/sim/integrator_choice.h"
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
 #include "common/sim/scene_mesh.h"
@@ -24,20 +26,26 @@ namespace {
 
 /// A Simulation composed of its stages: the scene's FEM (SceneFem), the
 /// surface the tool sees (SurfaceTracker), the tool and its contact
-/// (ToolState) and the cut test (CutPipeline). Each stage owns its state;
+/// (ToolState), the frame's dynamics (Dynamics, explicit or implicit) and
+/// the cut test (CutPipeline). Each stage owns its state;
 /// the engine hands them what they need, frame by frame.
 template <typename T>
 class Engine final : public Simulation {
  public:
   Engine(const LoadedScene& scene, SceneMesh scene_mesh, const SimulationOptions& options)
-      : scene_(scene), mesh_(std::move(scene_mesh)), fem_(scene_, mesh_, options), world_access_(fem_.state().x) {
+      : scene_(scene),
+        mesh_(std::move(scene_mesh)),
+        fem_(scene_, mesh_, options),
+        world_access_(fem_.state().x),
+        dynamics_(ChooseKind(scene_, mesh_, fem_, options), fem_.threads(), scene_.scene.mass_damping()) {
     if (scene_.scene.has_tool()) SetUpTool();
     RebuildSurface();
     const fem::Model<T>& model = fem_.model();
-    Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}",
+    Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}, {} integrator",
                scene_.scene.name(), model.num_nodes(), model.num_tets(), fem_.num_free(), PrecisionName(),
                fem_.threads(),
-               fem_.step_options().viscous == fem::ViscousTreatment::kImplicit ? "implicit" : "explicit");
+               fem_.step_options().viscous == fem::ViscousTreatment::kImplicit ? "implicit" : "explicit",
+               IntegratorName(dynamics_.kind()));
   }
 
   /// One frame: the tool moves and finds its contact, the tissue steps
@@ -66,7 +74,7 @@ class Engine final : public Simulation {
     return r;
   }
   Eigen::Matrix3d ContactStiffness() const override {
-    return tool_ ? tool_->ContactStiffness(fem_.model(), fem_.state().x.data()) : Eigen::Matrix3d::Zero();
+    return tool_ ? dynamics_.ContactStiffness(*tool_, fem_) : Eigen::Matrix3d::Zero();
   }
   uint64_t topology_version() const override { return fem_.model().topology_version(); }
   const std::vector<CutStepTiming>& CutTimings() const override { return cuts_ ? cuts_->timings() : no_timings_; }
@@ -86,6 +94,7 @@ class Engine final : public Simulation {
 
   SimulationSummary QuickSummary() const override {
     SimulationSummary s = QuickSummaryOf(scene_.scene.name(), fem_, run_, AtRest());
+    dynamics_.AddToSummary(s);
     if (cuts_) cuts_->AddToSummary(s);
     return s;
   }
@@ -142,6 +151,28 @@ class Engine final : public Simulation {
  private:
   static const char* PrecisionName() { return sizeof(T) == 4 ? "float" : "double"; }
 
+  /// The scene's integrator (or the command line's), AUTO resolved by the
+  /// cost estimate of integrator_choice.h, which is logged.
+  static IntegratorKind ChooseKind(const LoadedScene& scene, const SceneMesh& mesh, const SceneFem<T>& fem,
+                                   const SimulationOptions& options) {
+    const v1::TimeStepPolicy& ts = scene.scene.time_step();
+    const v1::TimeStepPolicy::Integrator policy = IntegratorPolicy(ts.integrator(), options.integrator);
+    if (policy != v1::TimeStepPolicy::INTEGRATOR_AUTO) {
+      return ChooseIntegrator(policy, IntegratorCost{}, sizeof(T) == 8, scene.path.string());
+    }
+    fem::State<T> probe = fem.state();  // the estimate leaves the run's state untouched
+    const double stable_dt = static_cast<double>(fem::CurrentTimeStep(fem.model(), probe, fem.step_options()));
+    const IntegratorCost cost = EstimateFrameCost(mesh.mesh.num_tets(), StiffnessNonzeros(mesh.mesh.tets, mesh.mesh.num_nodes()),
+                                                  ts.frame_dt(), stable_dt);
+    const IntegratorKind kind = ChooseIntegrator(policy, cost, sizeof(T) == 8, scene.path.string());
+    Log().info("integrator AUTO: explicit {:.3g} ms/frame ({} substeps of {:.3g} s), implicit {:.3g} ms/frame "
+               "({} nonzeros) → {}{}",
+               1e3 * cost.explicit_seconds, static_cast<int64_t>(std::ceil(ts.frame_dt() / stable_dt)), stable_dt,
+               1e3 * cost.implicit_seconds, cost.nnz, IntegratorName(kind),
+               sizeof(T) == 8 ? "" : " (float precision: implicit needs double)");
+    return kind;
+  }
+
   void SetUpTool() {
     tool_.emplace(scene_, mesh_.mesh, fem_.model());
     const auto& s = scene_.scene;
@@ -177,37 +208,9 @@ class Engine final : public Simulation {
     tool_->FindContact(surface_, fem_.model(), fem_.state().x.data());
   }
 
-  /// The frame's dynamics in substeps under fem's substep rule, the
-  /// contact-limited bound lowering each while the tool loads the tissue,
-  /// and the contact force refreshed before each for the tip interpolated
-  /// over the frame.
+  /// The frame's dynamics (Dynamics: explicit substeps or one implicit step).
   fem::StepResult StepDynamics(const ToolPose& start, double frame_time) {
-    fem::Model<T>& model = fem_.model();
-    fem::State<T>& state = fem_.state();
-    const fem::StepOptions& options = fem_.step_options();
-    const Eigen::Vector3d end_tip = tool_ ? tool_->pose().tip : start.tip;
-    const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
-    fem::StepResult r;
-    double remaining = frame_time;
-    double elapsed = 0;
-    while (remaining > 0) {
-      const bool loaded = tool_ && tool_->Loaded();
-      double dt_max = static_cast<double>(fem::CurrentTimeStep(model, state, options));
-      if (loaded) dt_max = tool_->ContactLimitedStep(dt_max, model, options.safety_factor);
-      const fem::Substep sub = fem::EqualSubstep(remaining, dt_max);
-      if (loaded) {
-        const double s = (elapsed + sub.dt) / frame_time;
-        tool_->ApplyContactForce(start.tip + s * (end_tip - start.tip), tool_velocity, state);
-      }
-      r = fem::Step(model, state, static_cast<T>(sub.dt), options);
-      if (!r.ok()) break;
-      run_.last_dt = r.dt > 0 ? r.dt : sub.dt;
-      remaining -= sub.dt;
-      elapsed += sub.dt;
-      if (sub.last) break;
-    }
-    if (tool_) tool_->ClearContactForce(state);
-    return r;
+    return dynamics_.StepFrame(fem_, tool_ ? &*tool_ : nullptr, start, frame_time, run_);
   }
 
   /// Counts the frame; a failed step stops the run with its diagnosis.
@@ -252,6 +255,7 @@ class Engine final : public Simulation {
   SceneMesh mesh_;
   SceneFem<T> fem_;
   StateWorld<T> world_access_;  // the cut code's view of fem_'s positions
+  Dynamics<T> dynamics_;
   SurfaceTracker surface_;
   std::optional<ToolState<T>> tool_;      // with a tool
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting

@@ -174,9 +174,8 @@ double ToolState<T>::ContactLimitedStep(double dt_max, const fem::Model<T>& mode
 }
 
 template <typename T>
-void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
-                                     fem::State<T>& state) {
-  const T* x = state.x.data();
+Eigen::Vector3d ToolState<T>::ContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+                                           const T* x) {
   const auto& nd = ForceNodes();
   const Eigen::Vector3d x0 = NodeX(x, nd[0]), x1 = NodeX(x, nd[1]), x2 = NodeX(x, nd[2]);
   Eigen::Vector3d F;
@@ -187,12 +186,6 @@ void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Ve
   } else {
     F = PenaltyForce(facet_, x0, x1, x2, tip, tool_velocity, contact_stiffness_, contact_damping_, indent_limit_);
   }
-  const Eigen::Vector3d& w = ForceWeights();
-  for (int i = 0; i < 3; ++i) {
-    const size_t b = 3 * static_cast<size_t>(nd[static_cast<size_t>(i)]);
-    for (int k = 0; k < 3; ++k) state.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(w[i] * F[k]);
-  }
-  applied_nodes_ = nd;
   report_.force_on_tool = -F;
   report_.depth = grip_.active ? grip_.stretch.norm() : facet_.depth;
   report_.point = facet_.point;
@@ -200,6 +193,45 @@ void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Ve
   // on the tool (against the blade's sideways motion when gripping).
   const double f = F.norm();
   report_.normal = grip_.active && f > 0 ? Eigen::Vector3d(-F / f) : facet_.normal;
+  return F;
+}
+
+template <typename T>
+void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+                                     fem::State<T>& state) {
+  const Eigen::Vector3d F = ContactForce(tip, tool_velocity, state.x.data());
+  const auto& nd = ForceNodes();
+  const Eigen::Vector3d& w = ForceWeights();
+  for (int i = 0; i < 3; ++i) {
+    const size_t b = 3 * static_cast<size_t>(nd[static_cast<size_t>(i)]);
+    for (int k = 0; k < 3; ++k) state.f_ext[b + static_cast<size_t>(k)] = static_cast<T>(w[i] * F[k]);
+  }
+  applied_nodes_ = nd;
+}
+
+/// The force is linear in p below its caps: the tip penalty
+/// −k·((p − tip)·n)·n has −∂F/∂p = k·n nᵀ while 0 < depth < the
+/// indentation limit, the grip k·(tip − p)⊥ has k·(I − d dᵀ) while its
+/// stretch is below the grip limit. At a cap the force is constant in p.
+template <typename T>
+fem::PenaltyTerm ToolState<T>::ContactPenalty(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+                                              const T* x) {
+  fem::PenaltyTerm term;
+  term.force = ContactForce(tip, tool_velocity, x);
+  const Eigen::Vector3d& w = ForceWeights();
+  for (size_t i = 0; i < 3; ++i) {
+    term.nodes[i] = ForceNodes()[i];
+    term.weights[i] = w[static_cast<Eigen::Index>(i)];
+  }
+  if (grip_.active) {
+    if (grip_.stretch.norm() < grip_limit_) {
+      const Eigen::Vector3d& d = pose_.blade_dir;
+      term.stiffness = contact_stiffness_ * (Eigen::Matrix3d::Identity() - d * d.transpose());
+    }
+  } else if (facet_.depth > 0.0 && facet_.depth < indent_limit_) {
+    term.stiffness = contact_stiffness_ * facet_.normal * facet_.normal.transpose();
+  }
+  return term;
 }
 
 template <typename T>
@@ -212,25 +244,43 @@ void ToolState<T>::ClearContactForce(fem::State<T>& state) {
 }
 
 /// The contact spring k in series with the tissue's point stiffness along
-/// the direction it pushes (PatchStiffness). The tip penalty acts along n:
-/// K = k_eff·n nᵀ. The edge grip acts across the blade, K = k_eff·(I − d dᵀ),
-/// with the tissue taken along the stretch (or, unloaded, along the facet
-/// normal's part across the blade).
+/// the direction it pushes. The tip penalty acts along n: K = k_eff·n nᵀ.
+/// The edge grip acts across the blade, K = k_eff·(I − d dᵀ), with the
+/// tissue taken along the stretch (or, unloaded, along the facet normal's
+/// part across the blade).
+template <typename T>
+bool ToolState<T>::StiffnessShape(Eigen::Vector3d& u, Eigen::Matrix3d& shape) const {
+  if (!Loaded()) return false;
+  u = facet_.normal;
+  shape = u * u.transpose();
+  if (!grip_.active) return true;
+  const Eigen::Vector3d d = pose_.blade_dir;
+  u = grip_.stretch;
+  if (u.norm() <= 1e-12 * (1.0 + indent_limit_)) u = facet_.normal - facet_.normal.dot(d) * d;
+  const double u_len = u.norm();
+  if (!(u_len > 0)) return false;
+  u /= u_len;
+  shape = Eigen::Matrix3d::Identity() - d * d.transpose();
+  return true;
+}
+
 template <typename T>
 Eigen::Matrix3d ToolState<T>::ContactStiffness(const fem::Model<T>& model, const T* x) const {
-  if (!Loaded()) return Eigen::Matrix3d::Zero();
-  Eigen::Vector3d u = facet_.normal;
-  Eigen::Matrix3d shape = u * u.transpose();
-  if (grip_.active) {
-    const Eigen::Vector3d d = pose_.blade_dir;
-    u = grip_.stretch;
-    if (u.norm() <= 1e-12 * (1.0 + indent_limit_)) u = facet_.normal - facet_.normal.dot(d) * d;
-    const double u_len = u.norm();
-    if (!(u_len > 0)) return Eigen::Matrix3d::Zero();
-    u /= u_len;
-    shape = Eigen::Matrix3d::Identity() - d * d.transpose();
-  }
+  Eigen::Vector3d u;
+  Eigen::Matrix3d shape;
+  if (!StiffnessShape(u, shape)) return Eigen::Matrix3d::Zero();
   const double k_tissue = PatchStiffness(model, x, ForceNodes(), ForceWeights(), u, patch_);
+  return SeriesStiffness(contact_stiffness_, k_tissue) * shape;
+}
+
+/// The tissue's stiffness along u for a load along u: 1/(uᵀ K⁻¹ u).
+template <typename T>
+Eigen::Matrix3d ToolState<T>::ContactStiffness(const Eigen::Matrix3d& tissue) const {
+  Eigen::Vector3d u;
+  Eigen::Matrix3d shape;
+  if (!StiffnessShape(u, shape)) return Eigen::Matrix3d::Zero();
+  const double compliance = u.dot(tissue.ldlt().solve(u));
+  const double k_tissue = compliance > 0 && std::isfinite(compliance) ? 1.0 / compliance : 0.0;
   return SeriesStiffness(contact_stiffness_, k_tissue) * shape;
 }
 

@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 
+#include "common/fem/implicit.h"
 #include "common/fem/model.h"
 #include "common/fem/state.h"
 #include "common/haptics/tool_path.h"
@@ -65,9 +66,23 @@ class ToolState {
   void ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity, fem::State<T>& state);
   /// Takes the contact force off f_ext again (end of the frame's substeps).
   void ClearContactForce(fem::State<T>& state);
+  /// The contact as a spring inside an implicit step: the force on the
+  /// loaded nodes for the blade tip at `tip` moving at `tool_velocity`, at
+  /// positions `x` (#N·3), and its stiffness −∂F/∂p in the contact point p
+  /// (k·n nᵀ for the tip penalty, k·(I − d dᵀ) for the edge grip; zero where
+  /// the force is capped). Updates the report as ApplyContactForce does.
+  [[nodiscard]] fem::PenaltyTerm ContactPenalty(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+                                                const T* x);
   /// K = −∂f_tool/∂x_tool at the current contact, N/m (tool_contact.h);
-  /// zero without load.
+  /// zero without load. The tissue's part: PatchStiffness.
   [[nodiscard]] Eigen::Matrix3d ContactStiffness(const fem::Model<T>& model, const T* x) const;
+  /// The same with the tissue's point stiffness `tissue` (3×3, N/m, symmetric
+  /// positive definite) at the loaded nodes, e.g. the implicit step's own
+  /// linearisation (fem::ImplicitIntegrator::EffectiveStiffness).
+  [[nodiscard]] Eigen::Matrix3d ContactStiffness(const Eigen::Matrix3d& tissue) const;
+  /// Nodes and barycentric weights the contact force goes to this frame.
+  [[nodiscard]] const std::array<int32_t, 3>& force_nodes() const { return ForceNodes(); }
+  [[nodiscard]] const Eigen::Vector3d& force_weights() const { return ForceWeights(); }
   /// A cut step executed and swept `sweep`: the blade is in its own cut.
   void EnterCut(const CutSweep& sweep);
 
@@ -78,6 +93,12 @@ class ToolState {
  private:
   [[nodiscard]] ToolPose Sample(double t) const;
   void UpdateGrip(const fem::Model<T>& model, const T* x);
+  /// The contact force F on the tissue at positions `x` (grip or tip
+  /// penalty), with the report updated for it.
+  Eigen::Vector3d ContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity, const T* x);
+  /// The direction u the tissue is probed along and the shape of the
+  /// contact's stiffness (n nᵀ or I − d dᵀ); false without load.
+  bool StiffnessShape(Eigen::Vector3d& u, Eigen::Matrix3d& shape) const;
   /// Nodes and weights the contact force goes to this frame.
   [[nodiscard]] const std::array<int32_t, 3>& ForceNodes() const { return grip_.active ? grip_.nodes : facet_.nodes; }
   [[nodiscard]] const Eigen::Vector3d& ForceWeights() const { return grip_.active ? grip_.bary : facet_.bary; }

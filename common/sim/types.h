@@ -23,7 +23,8 @@ namespace cutsim::sim {
 /// Overrides a user gives on the command line (0/empty = take the scene's).
 struct SimulationOptions {
   int threads = 0;
-  std::string precision;  ///< "", "float" or "double"
+  std::string precision;   ///< "", "float" or "double"
+  std::string integrator;  ///< "", "explicit", "implicit" or "auto"
 };
 
 /// Why stepping stopped, if it did.
@@ -31,6 +32,17 @@ enum class SimStatus {
   kOk,
   kNonFinite,       ///< NaN/Inf detected: the diagnosis says where
   kEnergyRunaway,   ///< energy grew past the guard's bound
+};
+
+/// What the implicit step did over a run (zero with the explicit one).
+struct ImplicitCounters {
+  int64_t steps = 0;                 ///< backward Euler steps
+  int64_t newton_iterations = 0;     ///< summed over the steps
+  int max_newton_iterations = 0;     ///< largest in one step
+  int64_t pcg_iterations = 0;        ///< summed over the steps
+  int max_pcg_iterations = 0;        ///< largest summed over one step's solves
+  int64_t unconverged_steps = 0;     ///< steps stopped at the Newton cap
+  int64_t factorizations = 0;        ///< factorisations completed
 };
 
 /// Numbers a run reports (the headless JSON summary).
@@ -56,6 +68,8 @@ struct SimulationSummary {
   bool at_rest = false;
   std::string status = "ok";
   std::string diagnosis;
+  std::string integrator = "explicit";  ///< "explicit" or "implicit" (after AUTO's choice)
+  ImplicitCounters implicit;
   // Tool and cutting (zero without a tool).
   uint64_t cuts = 0;             ///< executed cut steps
   uint64_t cut_attempts = 0;     ///< geometric attempts (seed §3.1)

@@ -31,6 +31,7 @@
 
 #include "common/core/clock.h"
 #include "common/fem/forces.h"
+#include "common/fem/implicit.h"
 #include "common/fem/integrator.h"
 #include "common/fem/model.h"
 #include "common/fem/stable_dt.h"
@@ -429,6 +430,71 @@ inline Result FixedStep(const std::string& name, int cells, int64_t steps, doubl
   return r;
 }
 
+/// FixedStep's jittered, undamped cube stepped by backward Euler
+/// (fem::ImplicitIntegrator, factor inline) with a step of `multiple` × the
+/// start state's Lanczos limit, `steps` steps. No stability limit binds it:
+/// it holds when every step converges and the energy never rises above E₀
+/// (backward Euler only dissipates).
+inline Result ImplicitLargeStep(const std::string& name, int cells, int64_t steps, double multiple) {
+  Result r;
+  r.name = name;
+  r.expectation = "holds, energy non-increasing";
+  const mesh::TetMesh m = Cube(cells);
+  fem::Material mat = SeedTissue();
+  mat.psi = mat.phi = 0;
+  fem::Model<double> model(m, std::span(&mat, 1));
+  for (int32_t n = 0; n < model.num_nodes(); ++n) model.SetFixed(n, m.nodes(n, 2) < 1e-9);
+  fem::State<double> s(model);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const double h = 0.01 / cells;
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    if (model.fixed(n)) continue;
+    for (int k = 0; k < 3; ++k) s.x[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] += 0.05 * h * u(rng);
+  }
+  const double dt = multiple * fem::EstimateStableStep(model, s, false, 60, 1).dt;
+  // Without a load the relative tolerance would shrink with the motion as
+  // the cube comes to rest: an absolute one, a millionth of the start's
+  // largest elastic nodal force.
+  std::vector<double> f0(s.x.size(), 0.0);
+  fem::ImplicitIntegrator integrator({.num_threads = 1, .asynchronous_factorization = false});
+  integrator.InternalForce(model, s.x.data(), f0.data());
+  double f_max = 0;
+  for (const double f : f0) f_max = std::max(f_max, std::abs(f));
+  integrator.mutable_options().force_tolerance = 1e-6 * f_max;
+  const double mass0 = model.TotalMass();
+  const double e0 = TotalEnergy(model, s);
+  double peak = e0;
+  int unconverged = 0;
+  bool failed = false;
+  Stopwatch watch;
+  while (s.step < steps) {
+    const fem::ImplicitResult step = integrator.Step(model, s, dt);
+    if (step.status == fem::ImplicitStatus::kNonFinite) {
+      failed = true;
+      break;
+    }
+    unconverged += step.ok() ? 0 : 1;
+    peak = std::max(peak, TotalEnergy(model, s));
+  }
+  r.wall = watch.ElapsedSeconds();
+  r.tets = model.num_tets();
+  r.steps = s.step;
+  r.sim_time = s.time;
+  r.min_dt = r.max_dt = dt;
+  r.finite = std::all_of(s.x.begin(), s.x.end(), [](double x) { return std::isfinite(x); });
+  r.mass_rel_change = std::abs(model.TotalMass() - mass0) / mass0;
+  r.energy_drift = std::abs(TotalEnergy(model, s) - e0) / e0;
+  r.step_status = failed ? "non-finite (implicit)" : "ok";
+  r.holds = !failed && r.finite && unconverged == 0 && peak <= e0 * (1 + 1e-9);
+  r.physical = r.holds;
+  r.expected_ok = r.holds;
+  r.reason = "dt " + std::to_string(multiple).substr(0, 4) + " x Lanczos limit, " + std::to_string(unconverged) +
+             " unconverged steps, energy " + std::to_string(TotalEnergy(model, s) / e0) + " of E0 at the end, peak " +
+             std::to_string(peak / e0);
+  return r;
+}
+
 // ---- Simulation-level cases (cutting, tool) ---------------------------------
 
 /// Smallest det F = det(Ds·Dm⁻¹) over the tets of a mesh view, and how many
@@ -462,10 +528,13 @@ inline sim::LoadedScene BlockScene(const std::string& path, int nx, int ny, int 
 }
 
 /// The tool cases' block at the suite's size (2s × s × max(2, s/2) cells,
-/// s = size.cells), no tool path, one thread.
-inline std::unique_ptr<sim::Simulation> SmallBlock(const Size& size, const std::string& scene_path, bool cutting) {
+/// s = size.cells), no tool path, one thread, stepped by `integrator`
+/// ("explicit" or "implicit"; the scene's AUTO would pick by size).
+inline std::unique_ptr<sim::Simulation> SmallBlock(const Size& size, const std::string& scene_path, bool cutting,
+                                                   const std::string& integrator = "explicit") {
   const int s = size.cells;
-  return sim::Simulation::Create(BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), cutting), {.threads = 1});
+  return sim::Simulation::Create(BlockScene(scene_path, 2 * s, s, std::max(2, s / 2), cutting),
+                                 {.threads = 1, .integrator = integrator});
 }
 
 /// Finishes a Simulation case from its summary and mesh.
@@ -598,11 +667,13 @@ inline Result ToolDrawnThrough(const Size& size, const std::string& scene_path) 
 /// tissue and its edge grip holds it (tool_contact.h). At 0.5 mm under the
 /// top (under the indentation limit) the tip presses the top corner: the
 /// penalty acts on a vertex and the edges shared by the top and side facets.
-inline Result ToolOnEdge(const Size& size, const std::string& scene_path, double tip_z = 0.0) {
+inline Result ToolOnEdge(const Size& size, const std::string& scene_path, double tip_z = 0.0,
+                         const std::string& integrator = "explicit") {
   Result r;
   r.name = tip_z == 0.0 ? "tool resting on the block's corner edge (no path)"
                         : "tool tip pressing the block's top corner, 0.5 mm";
-  auto simulation = SmallBlock(size, scene_path, true);
+  if (integrator != "explicit") r.name += ", " + integrator;
+  auto simulation = SmallBlock(size, scene_path, true, integrator);
   const double mass0 = simulation->Summary().total_mass;
   const double frame = 0.01;
   Stopwatch watch;
@@ -651,6 +722,8 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
     const std::string name = "Advance, safety_factor " + std::to_string(frac).substr(0, 4);
     add(name, [&] { return FixedStep(name, size.cells, size.dt_steps, frac, false, true); });
   }
+  const std::string implicit_large = "implicit dt = 20 x initial Lanczos limit";
+  add(implicit_large, [&] { return ImplicitLargeStep(implicit_large, size.cells, size.dt_steps / 20, 20.0); });
   add("fixed dt = 1.5 x Lanczos limit (beyond)",
       [&] { return FixedStep("fixed dt = 1.5 x Lanczos limit (beyond)", size.cells, size.dt_steps, 1.5, true); });
   const std::string long_fixed = "long run: " + std::to_string(size.long_steps) + " steps, fixed dt 0.5 x Lanczos, 48 tets";
@@ -662,6 +735,7 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
   add("tool jammed, cutting on", [&] { return ToolJammed(size, scene_path, true); });
   add("tool on the corner edge", [&] { return ToolOnEdge(size, scene_path); });
   add("tool tip pressing the corner", [&] { return ToolOnEdge(size, scene_path, 0.0095); });
+  add("tool on the corner edge, implicit", [&] { return ToolOnEdge(size, scene_path, 0.0, "implicit"); });
   add("tool drawn through uncut tissue", [&] { return ToolDrawnThrough(size, scene_path); });
   add("random cuts", [&] { return RandomCuts(size, scene_path); });  // last: see the note in stability_test.cc
   return out;

@@ -136,6 +136,24 @@ TEST(Stability, ToolTipPressingTheCorner) {
   ExpectHolds(ToolOnEdge(size, kBlock, 0.0095));
 }
 
+// The same edge with backward Euler: the grip's spring inside the Newton
+// system, one step per frame.
+TEST(Stability, ToolOnTheCornerEdgeImplicit) {
+  Size size = Size::Test();
+  size.jam_time = 0.5;
+  const Result r = ToolOnEdge(size, kBlock, 0.0, "implicit");
+  ExpectHolds(r);
+  EXPECT_EQ(r.final_inverted, 0) << r.reason;
+}
+
+// Backward Euler with a step far beyond the explicit limit: converges
+// every step and only loses energy (`holds` requires both).
+TEST(Stability, ImplicitStepBeyondTheExplicitLimitHolds) {
+  const Result r = ImplicitLargeStep("implicit large", Size::Test().cells, 100, 20.0);
+  ExpectHolds(r);
+  EXPECT_GT(r.energy_drift, 0.0) << r.reason;  // it dissipates
+}
+
 // Drawn back and forth through tissue it may not cut: the edge grip drags
 // the tissue at its cap the whole way.
 TEST(Stability, ToolDrawnThroughUncutTissue) {

@@ -1,0 +1,145 @@
+#include "common/sim/dynamics.h"
+
+#include <algorithm>
+#include <type_traits>
+
+#include "common/core/log.h"
+
+namespace cutsim::sim {
+
+template <typename T>
+Dynamics<T>::Dynamics(IntegratorKind kind, int threads, double mass_damping) : kind_(kind) {
+  if (kind_ != IntegratorKind::kImplicit) return;
+  fem::ImplicitOptions options;
+  options.num_threads = threads;
+  options.mass_damping = mass_damping;
+  options.asynchronous_factorization = threads >= 2;
+  implicit_ = std::make_unique<fem::ImplicitIntegrator>(options);
+  penalties_.reserve(1);
+}
+
+template <typename T>
+Dynamics<T>::~Dynamics() = default;
+
+template <typename T>
+fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+                                       double frame_time, RunCounters& run) {
+  if (kind_ == IntegratorKind::kImplicit) return StepImplicit(fem, tool, start, frame_time, run);
+  return StepExplicit(fem, tool, start, frame_time, run);
+}
+
+/// Substeps under fem's substep rule, the contact-limited bound lowering
+/// each while the tool loads the tissue, and the contact force refreshed
+/// before each for the tip interpolated over the frame.
+template <typename T>
+fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+                                          double frame_time, RunCounters& run) {
+  fem::Model<T>& model = fem.model();
+  fem::State<T>& state = fem.state();
+  const fem::StepOptions& options = fem.step_options();
+  const Eigen::Vector3d end_tip = tool ? tool->pose().tip : start.tip;
+  const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
+  fem::StepResult r;
+  double remaining = frame_time;
+  double elapsed = 0;
+  while (remaining > 0) {
+    const bool loaded = tool && tool->Loaded();
+    double dt_max = static_cast<double>(fem::CurrentTimeStep(model, state, options));
+    if (loaded) dt_max = tool->ContactLimitedStep(dt_max, model, options.safety_factor);
+    const fem::Substep sub = fem::EqualSubstep(remaining, dt_max);
+    if (loaded) {
+      const double s = (elapsed + sub.dt) / frame_time;
+      tool->ApplyContactForce(start.tip + s * (end_tip - start.tip), tool_velocity, state);
+    }
+    r = fem::Step(model, state, static_cast<T>(sub.dt), options);
+    if (!r.ok()) break;
+    run.last_dt = r.dt > 0 ? r.dt : sub.dt;
+    remaining -= sub.dt;
+    elapsed += sub.dt;
+    if (sub.last) break;
+  }
+  if (tool) tool->ClearContactForce(state);
+  return r;
+}
+
+/// One backward Euler step of the frame with the contact spring for the
+/// tip at the frame's end; the report then shows the force at the step's
+/// end positions.
+template <typename T>
+fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+                                          double frame_time, RunCounters& run) {
+  fem::StepResult r;
+  if constexpr (std::is_same_v<T, double>) {
+    fem::Model<double>& model = fem.model();
+    fem::State<double>& state = fem.state();
+    penalties_.clear();
+    const Eigen::Vector3d end_tip = tool ? tool->pose().tip : start.tip;
+    const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
+    if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(end_tip, tool_velocity, state.x.data()));
+    last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
+    const fem::ImplicitResult result = implicit_->Step(model, state, frame_time, penalties_);
+    Count(result, state.step);
+    r.step = state.step;
+    r.dt = frame_time;
+    r.substeps = 1;
+    if (result.status == fem::ImplicitStatus::kNonFinite) {
+      r.status = fem::StepStatus::kNonFiniteForce;
+      r.quantity = "implicit residual";
+      r.value = result.residual;
+      return r;
+    }
+    if (tool && tool->Loaded()) (void)tool->ContactPenalty(end_tip, tool_velocity, state.x.data());
+    run.last_dt = frame_time;
+  } else {
+    (void)fem, (void)tool, (void)start, (void)frame_time, (void)run;
+  }
+  return r;
+}
+
+template <typename T>
+void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
+  ImplicitCounters& c = counters_;
+  ++c.steps;
+  c.newton_iterations += r.newton_iterations;
+  c.max_newton_iterations = std::max(c.max_newton_iterations, r.newton_iterations);
+  c.pcg_iterations += r.pcg_iterations;
+  c.max_pcg_iterations = std::max(c.max_pcg_iterations, r.pcg_iterations);
+  c.factorizations = implicit_->linear_solver().stats().completed;
+  if (r.status != fem::ImplicitStatus::kCapped) return;
+  ++c.unconverged_steps;
+  // The first few and then every hundredth: visible without flooding the log.
+  if (c.unconverged_steps <= 3 || c.unconverged_steps % 100 == 0) {
+    Log().warn("implicit step {}: Newton stopped at {} iterations, residual {:.3g} N > tolerance {:.3g} N "
+               "({} such steps so far)",
+               step, r.newton_iterations, r.residual, r.tolerance, c.unconverged_steps);
+  }
+}
+
+template <typename T>
+Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const {
+  if constexpr (std::is_same_v<T, double>) {
+    if (kind_ == IntegratorKind::kImplicit) {
+      const std::array<int32_t, 3>& nodes = tool.force_nodes();
+      const Eigen::Vector3d& w = tool.force_weights();
+      const std::array<double, 3> weights{w[0], w[1], w[2]};
+      Eigen::Matrix3d tissue = implicit_->EffectiveStiffness(nodes, weights);
+      if (tissue.isZero()) return tool.ContactStiffness(fem.model(), fem.state().x.data());
+      // The last Jacobian holds the contact spring on the same point
+      // (W·k_pen·Wᵀ): (h²WᵀA⁻¹W)⁻¹ is the tissue's stiffness plus k_pen.
+      if (last_penalty_.nodes == nodes && last_penalty_.weights == weights) tissue -= last_penalty_.stiffness;
+      return tool.ContactStiffness(tissue);
+    }
+  }
+  return tool.ContactStiffness(fem.model(), fem.state().x.data());
+}
+
+template <typename T>
+void Dynamics<T>::AddToSummary(SimulationSummary& s) const {
+  s.integrator = IntegratorName(kind_);
+  s.implicit = counters_;
+}
+
+template class Dynamics<float>;
+template class Dynamics<double>;
+
+}  // namespace cutsim::sim

@@ -1,0 +1,75 @@
+#pragma once
+/// @file
+/// The frame's dynamics: the tissue steps one physics frame under the
+/// tool's contact, explicitly (symplectic Euler in stable substeps, the
+/// contact force held on f_ext over each, the contact spring lowering the
+/// substep) or implicitly (one backward Euler step of the whole frame,
+/// fem::ImplicitIntegrator, with the contact spring inside the Newton
+/// system as a fem::PenaltyTerm with its stiffness). The implicit step is
+/// double precision only (integrator_choice.h refuses float).
+///
+/// With the implicit step the haptic linearisation is the step's own: the
+/// tissue's point stiffness is EffectiveStiffness at the contact's nodes
+/// minus the contact spring the last step put in its Jacobian, in series
+/// with the contact spring (ToolState::ContactStiffness).
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "common/fem/implicit.h"
+#include "common/fem/integrator.h"
+#include "common/sim/integrator_choice.h"
+#include "common/sim/output.h"
+#include "common/sim/scene_fem.h"
+#include "common/sim/tool_state.h"
+#include "common/sim/types.h"
+
+namespace cutsim::sim {
+
+template <typename T>
+class Dynamics {
+ public:
+  /// `threads` ≥ 2 factors on a worker thread beside the steps; one thread
+  /// factors inline (bit-reproducible runs). `mass_damping`: α, 1/s.
+  Dynamics(IntegratorKind kind, int threads, double mass_damping);
+  ~Dynamics();
+  Dynamics(const Dynamics&) = delete;
+  Dynamics& operator=(const Dynamics&) = delete;
+
+  [[nodiscard]] IntegratorKind kind() const { return kind_; }
+
+  /// Steps `frame_time` seconds; the tool (or null) moved from `start` to
+  /// its current pose over the frame. Sets run.last_dt. A Newton step that
+  /// stops at its iteration cap is counted and logged (the state keeps its
+  /// last iterate); a non-finite one fails like an explicit step.
+  fem::StepResult StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+                            RunCounters& run);
+
+  /// The haptic stiffness at the tool's contact (file comment), N/m.
+  [[nodiscard]] Eigen::Matrix3d ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const;
+
+  /// The integrator and the implicit step's counters.
+  void AddToSummary(SimulationSummary& s) const;
+
+ private:
+  fem::StepResult StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+                               RunCounters& run);
+  fem::StepResult StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+                               RunCounters& run);
+  void Count(const fem::ImplicitResult& r, int64_t step);
+
+  IntegratorKind kind_;
+  // With kImplicit; mutable: EffectiveStiffness solves in its workspace.
+  mutable std::unique_ptr<fem::ImplicitIntegrator> implicit_;
+  std::vector<fem::PenaltyTerm> penalties_;  // the frame's contact spring, 0 or 1
+  fem::PenaltyTerm last_penalty_;            // the one in the last Jacobian (zero stiffness if none)
+  ImplicitCounters counters_;
+};
+
+extern template class Dynamics<float>;
+extern template class Dynamics<double>;
+
+}  // namespace cutsim::sim
