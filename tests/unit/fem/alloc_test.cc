@@ -1,50 +1,12 @@
-// A step must not touch the heap. glibc lets the executable interpose malloc
-// and friends and forward to __libc_*, which catches operator new, Eigen's
-// aligned_malloc and anything else in one place.
-#include <atomic>
-#include <cstddef>
-
+// A step must not touch the heap (allocations counted by
+// tests/support/malloc_counter.h).
 #include <gtest/gtest.h>
 
 #include "common/fem/integrator.h"
 #include "common/fem/model.h"
 #include "common/fem/state.h"
+#include "tests/support/malloc_counter.h"
 #include "tests/unit/fem/test_meshes.h"
-
-#if !defined(__SANITIZE_ADDRESS__) && defined(__GLIBC__)
-#define CUTSIM_COUNT_MALLOC 1
-namespace {
-std::atomic<bool> g_counting{false};
-std::atomic<long> g_allocations{0};
-}  // namespace
-extern "C" {
-void* __libc_malloc(size_t);
-void* __libc_calloc(size_t, size_t);
-void* __libc_realloc(void*, size_t);
-void* __libc_memalign(size_t, size_t);
-void* malloc(size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_malloc(n);
-}
-void* calloc(size_t a, size_t b) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_calloc(a, b);
-}
-void* realloc(void* p, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_realloc(p, n);
-}
-void* aligned_alloc(size_t a, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_memalign(a, n);
-}
-int posix_memalign(void** out, size_t a, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  *out = __libc_memalign(a, n);
-  return *out != nullptr ? 0 : 12;  // ENOMEM
-}
-}
-#endif
 
 namespace cutsim::fem {
 namespace {
@@ -63,15 +25,14 @@ void ExpectNoAllocation(ViscousTreatment viscous) {
   opt.dt_refresh_interval = 3;  // exercise the refresh inside Advance too
   // Warm-up: OpenMP creates its thread team on first use.
   ASSERT_TRUE(Advance(model, state, 1e-4, opt).ok());
-  g_allocations = 0;
-  g_counting = true;
+  support::StartCountingAllocations();
   const StepResult r = Advance(model, state, 2e-4, opt);
   const StepResult r2 = Step(model, state, T(1e-6), opt);
-  g_counting = false;
+  const long allocations = support::StopCountingAllocations();
   ASSERT_TRUE(r.ok());
   ASSERT_TRUE(r2.ok());
   EXPECT_GT(r.substeps, 1);  // several substeps, refreshes included
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(allocations, 0);
 #else
   (void)viscous;
   GTEST_SKIP() << "malloc interposition unavailable (sanitizer build)";

@@ -1,47 +1,10 @@
-// A steady-state implicit step must not touch the heap: the same malloc
-// interposition as alloc_test.cc (this is a separate test executable).
-#include <atomic>
-#include <cstddef>
-
+// A steady-state implicit step must not touch the heap (allocations counted
+// by tests/support/malloc_counter.h).
 #include <gtest/gtest.h>
 
 #include "common/fem/implicit.h"
+#include "tests/support/malloc_counter.h"
 #include "tests/unit/fem/implicit_fixtures.h"
-
-#if !defined(__SANITIZE_ADDRESS__) && defined(__GLIBC__)
-#define CUTSIM_COUNT_MALLOC 1
-namespace {
-std::atomic<bool> g_counting{false};
-std::atomic<long> g_allocations{0};
-}  // namespace
-extern "C" {
-void* __libc_malloc(size_t);
-void* __libc_calloc(size_t, size_t);
-void* __libc_realloc(void*, size_t);
-void* __libc_memalign(size_t, size_t);
-void* malloc(size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_malloc(n);
-}
-void* calloc(size_t a, size_t b) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_calloc(a, b);
-}
-void* realloc(void* p, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_realloc(p, n);
-}
-void* aligned_alloc(size_t a, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  return __libc_memalign(a, n);
-}
-int posix_memalign(void** out, size_t a, size_t n) {
-  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1);
-  *out = __libc_memalign(a, n);
-  return *out != nullptr ? 0 : 12;  // ENOMEM
-}
-}
-#endif
 
 namespace cutsim::fem {
 namespace {
@@ -64,14 +27,13 @@ void ExpectNoAllocation(bool bdf2) {
   // Warm-up: pattern, first factor, CHOLMOD's solve workspace, OpenMP team.
   ASSERT_TRUE(integ.Step(model, state, 0.01, std::span(&pen, 1)).ok());
   ASSERT_TRUE(integ.Step(model, state, 0.01, std::span(&pen, 1)).ok());
-  g_allocations = 0;
-  g_counting = true;
+  support::StartCountingAllocations();
   const ImplicitResult r = integ.Step(model, state, 0.01, std::span(&pen, 1));
-  g_counting = false;
+  const long allocations = support::StopCountingAllocations();
   ASSERT_TRUE(r.ok());
   EXPECT_GT(r.newton_iterations, 0);
   EXPECT_EQ(r.bdf2, bdf2);
-  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(allocations, 0);
 #else
   (void)bdf2;
   GTEST_SKIP() << "malloc interposition unavailable (sanitizer build)";
