@@ -40,7 +40,7 @@ def main() -> int:
         entry = {
             "realtime_factor": factor,
             "integrator": summary.get("integrator", "explicit"),
-            "tets": summary.get("num_tets"),
+            "tets": summary.get("tets"),
             "threads": summary.get("threads"),
             "dt": summary.get("dt"),
             "status": summary.get("status"),

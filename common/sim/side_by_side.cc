@@ -10,7 +10,7 @@ void SpinPause() {
 }
 
 // Pauses the worker spins for a next task before it sleeps (tens of
-// microseconds), and the caller spins per yield while it joins.
+// microseconds), and the caller spins per yield while the worker runs a task.
 constexpr int kWorkerSpins = 4096;
 constexpr int kJoinSpinsPerYield = 1024;
 
@@ -48,12 +48,28 @@ void SideBySide::Wait() {
   if (!started_) return;
   started_ = false;
   if (!worker_.joinable()) return;
+  // A worker that has not taken the task yet (descheduled on a loaded
+  // machine, or still waking) loses it: the caller runs it here, so a step
+  // never waits for the scheduler to give the worker a core.
+  int queued = kQueued;
+  if (state_.compare_exchange_strong(queued, kRunning, std::memory_order_acq_rel)) {
+    RunTask();
+    state_.store(kIdle, std::memory_order_release);
+    return;
+  }
   for (int spins = 1; state_.load(std::memory_order_acquire) != kDone; ++spins) {
     SpinPause();
-    // On a loaded machine the worker may be descheduled: let it run.
     if (spins % kJoinSpinsPerYield == 0) std::this_thread::yield();
   }
   state_.store(kIdle, std::memory_order_relaxed);
+}
+
+void SideBySide::RunTask() {
+  try {
+    task_();
+  } catch (...) {
+    error_ = std::current_exception();
+  }
 }
 
 void SideBySide::Join() {
@@ -64,20 +80,18 @@ void SideBySide::Join() {
 void SideBySide::WorkerLoop() {
   for (;;) {
     int s = state_.load(std::memory_order_acquire);
-    for (int spin = 0; (s == kIdle || s == kDone) && spin < kWorkerSpins; ++spin) {
+    for (int spin = 0; s != kQueued && s != kStop && spin < kWorkerSpins; ++spin) {
       SpinPause();
       s = state_.load(std::memory_order_acquire);
     }
-    if (s == kIdle || s == kDone) {
+    if (s == kStop) return;
+    if (s != kQueued) {
       state_.wait(s, std::memory_order_acquire);  // until the caller changes the state
       continue;
     }
-    if (s == kStop) return;
-    try {
-      task_();
-    } catch (...) {
-      error_ = std::current_exception();
-    }
+    // Take the task unless the caller took it first (Wait).
+    if (!state_.compare_exchange_strong(s, kRunning, std::memory_order_acq_rel)) continue;
+    RunTask();
     state_.store(kDone, std::memory_order_release);
   }
 }
