@@ -312,6 +312,24 @@ inline Result StiffnessContrast(const Size& size) {
                  [](const Eigen::Vector3d& c) { return c.x() < 0.005 ? 0 : 1; });
 }
 
+/// The seed's tissue without strain-rate damping (the energy cases).
+inline fem::Material UndampedTissue() {
+  fem::Material mat = SeedTissue();
+  mat.psi = mat.phi = 0;
+  return mat;
+}
+
+/// Moves every free node by up to `amplitude` (m) per axis, the same
+/// pseudo-random pattern every call: an excited state to release.
+inline void JitterFreeNodes(const fem::Model<double>& model, fem::State<double>& s, double amplitude) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    if (model.fixed(n)) continue;
+    for (int k = 0; k < 3; ++k) s.x[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] += amplitude * u(rng);
+  }
+}
+
 /// Undamped, no gravity, bottom face fixed, randomly perturbed start (5% of
 /// the cell size). Two ways of choosing the step:
 ///  * `adaptive` = false: a fixed dt = fraction × the Lanczos estimate of the
@@ -330,18 +348,11 @@ inline Result FixedStep(const std::string& name, int cells, int64_t steps, doubl
   r.name = name;
   r.expectation = beyond_limit ? "guard stops it, nothing written" : "holds, energy bounded";
   const mesh::TetMesh m = Cube(cells);
-  fem::Material mat = SeedTissue();
-  mat.psi = mat.phi = 0;
+  const fem::Material mat = UndampedTissue();
   fem::Model<double> model(m, std::span(&mat, 1));
   for (int32_t n = 0; n < model.num_nodes(); ++n) model.SetFixed(n, m.nodes(n, 2) < 1e-9);
   fem::State<double> s(model);
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> u(-1, 1);
-  const double h = 0.01 / cells;
-  for (int32_t n = 0; n < model.num_nodes(); ++n) {
-    if (model.fixed(n)) continue;
-    for (int k = 0; k < 3; ++k) s.x[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] += 0.05 * h * u(rng);
-  }
+  JitterFreeNodes(model, s, 0.05 * (0.01 / cells));
   const fem::SpectralEstimate est = fem::EstimateStableStep(model, s, false, 60, 1);
   const double dt = fraction * est.dt;
   Monitor mon(model, r);
@@ -440,18 +451,11 @@ inline Result ImplicitLargeStep(const std::string& name, int cells, int64_t step
   r.name = name;
   r.expectation = "holds, energy non-increasing";
   const mesh::TetMesh m = Cube(cells);
-  fem::Material mat = SeedTissue();
-  mat.psi = mat.phi = 0;
+  const fem::Material mat = UndampedTissue();
   fem::Model<double> model(m, std::span(&mat, 1));
   for (int32_t n = 0; n < model.num_nodes(); ++n) model.SetFixed(n, m.nodes(n, 2) < 1e-9);
   fem::State<double> s(model);
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> u(-1, 1);
-  const double h = 0.01 / cells;
-  for (int32_t n = 0; n < model.num_nodes(); ++n) {
-    if (model.fixed(n)) continue;
-    for (int k = 0; k < 3; ++k) s.x[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] += 0.05 * h * u(rng);
-  }
+  JitterFreeNodes(model, s, 0.05 * (0.01 / cells));
   const double dt = multiple * fem::EstimateStableStep(model, s, false, 60, 1).dt;
   // Without a load the relative tolerance would shrink with the motion as
   // the cube comes to rest: an absolute one, a millionth of the start's

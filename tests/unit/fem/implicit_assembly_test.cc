@@ -242,23 +242,9 @@ TEST(ImplicitLinearSolver, StaleFactorOfTheOldPatternStillConverges) {
     return node;
   }();
   const Vec3<double> p = model.rest_position(mid);
-  const int32_t copy = model.AddNodeCopy(mid, state);
-  std::vector<int32_t> touched;
-  for (int32_t t = 0; t < model.num_tets(); ++t) {
-    Vec3<double> centroid = Vec3<double>::Zero();
-    for (int k = 0; k < 4; ++k) centroid += model.rest_position(model.tet_node(t, k)) / 4;
-    for (int c = 0; c < 4; ++c) {
-      if (model.tet_node(t, c) == mid && centroid(0) > p(0)) {
-        model.RetargetTet(t, c, copy);
-        touched.push_back(t);
-      }
-    }
-  }
-  ASSERT_FALSE(touched.empty());
-  model.RecomputeElements(touched);
-  const std::vector<int32_t> split = {mid, copy};
-  model.RecomputeNodeMasses(split);
-  model.CommitTopology();
+  ASSERT_GT(testing::SplitNodeAsACut(model, state, mid,
+                                     [&](const Vec3<double>& c) { return c(0) > p(0); }),
+            0);
 
   ImplicitIntegrator new_integ;
   const std::vector<double> a_new = TestMatrix(new_integ, model);

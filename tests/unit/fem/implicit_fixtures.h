@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// Shared set-ups of the implicit-step tests: a cantilever box clamped at
-/// x = 0 and deformed states of it.
+/// x = 0, deformed states of it, and a vertex split as a cut makes one.
 
 #include <cmath>
 #include <vector>
@@ -41,6 +41,32 @@ inline std::vector<double> DeformedPositions(const Model<double>& model, double 
     }
   }
   return x;
+}
+
+/// Splits node `mid` as a cut does: every tet whose rest centroid c
+/// satisfies `moves(c)` takes a copy of the node in its place; elements,
+/// node masses and the topology are then brought up to date. Returns the
+/// number of tets moved (0: nothing changed but the copy).
+template <typename Moves>
+int32_t SplitNodeAsACut(Model<double>& model, State<double>& state, int32_t mid, Moves moves) {
+  const int32_t copy = model.AddNodeCopy(mid, state);
+  std::vector<int32_t> touched;
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    Vec3<double> centroid = Vec3<double>::Zero();
+    for (int k = 0; k < 4; ++k) centroid += model.rest_position(model.tet_node(t, k)) / 4;
+    for (int c = 0; c < 4; ++c) {
+      if (model.tet_node(t, c) == mid && moves(centroid)) {
+        model.RetargetTet(t, c, copy);
+        touched.push_back(t);
+      }
+    }
+  }
+  if (touched.empty()) return 0;
+  model.RecomputeElements(touched);
+  const std::vector<int32_t> split = {mid, copy};
+  model.RecomputeNodeMasses(split);
+  model.CommitTopology();
+  return static_cast<int32_t>(touched.size());
 }
 
 }  // namespace cutsim::fem::testing
