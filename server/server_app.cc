@@ -68,6 +68,7 @@ v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s) {
   r.set_max_pcg_iterations(ReportCount(s.implicit.max_pcg_iterations));
   r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
   r.set_factorizations(ReportCount(s.implicit.factorizations));
+  r.set_tangent_assemblies(ReportCount(s.implicit.tangent_assemblies));
   return r;
 }
 

@@ -21,6 +21,10 @@ constexpr int32_t kMinTetsForThreads = 4096;
 
 /// Out-of-pattern penalty couplings kept without allocation (more allocate).
 constexpr size_t kExtraBlockReserve = 64;
+/// PCG tolerance of EffectiveStiffness, relative to ‖w‖: the compliance
+/// wᵀA⁻¹w is a quadratic form, so its relative error is about the square of
+/// the solve's (far below what a hand can feel).
+constexpr double kCompliancePcgTolerance = 1e-4;
 /// Armijo sufficient-decrease constant of the line search.
 constexpr double kArmijo = 1e-4;
 /// Relative round-off of Φ: near the solution the decrease Φ can show is
@@ -90,7 +94,9 @@ double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t n
 }  // namespace
 
 ImplicitIntegrator::ImplicitIntegrator(const ImplicitOptions& options)
-    : options_(options), solver_(options.asynchronous_factorization) {}
+    : options_(options), solver_(options.asynchronous_factorization) {
+  last_penalties_.reserve(kExtraBlockReserve);
+}
 
 int ImplicitIntegrator::NumThreads() const {
   if (options_.num_threads > 0) return options_.num_threads;
@@ -104,6 +110,7 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     const auto nnz = static_cast<size_t>(system_.nnz());
     b_values_.assign(nnz, 0.0);
     a_values_.assign(nnz, 0.0);
+    k_values_.assign(nnz, 0.0);
     for (auto* v : {&x0_, &v0_, &v_, &v_try_, &x_, &force_, &node_force_, &residual_, &residual_try_,
                     &bv_, &dir_, &rhs_}) {
       v->assign(nd, 0.0);
@@ -114,10 +121,13 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     extra_.reserve(kExtraBlockReserve);
     solver_.Resize(system_);
     have_jacobian_ = false;
+    have_k_ = false;
     result.pattern_rebuilt = true;
   }
   for (int32_t n = 0; n < system_.num_nodes(); ++n) {
-    active_[static_cast<size_t>(n)] = !model.fixed(n) && model.node_mass(n) > 0 ? 1 : 0;
+    const uint8_t on = !model.fixed(n) && model.node_mass(n) > 0 ? 1 : 0;
+    if (active_[static_cast<size_t>(n)] != on) have_k_ = false;  // K's identity rows moved
+    active_[static_cast<size_t>(n)] = on;
   }
 }
 
@@ -181,12 +191,24 @@ void ImplicitIntegrator::DampingPass(const Model<double>& model, const double* x
 }
 
 void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
-                                          std::span<const PenaltyTerm> penalties, bool clamped) {
+                                          std::span<const PenaltyTerm> penalties, bool clamped, bool assemble) {
   const int32_t nd = system_.num_dofs();
-  for (int32_t i = 0; i < nd; ++i) {
-    x_[static_cast<size_t>(i)] = x0_[static_cast<size_t>(i)] + (active_[static_cast<size_t>(i / 3)] != 0 ? h * v_[static_cast<size_t>(i)] : 0.0);
+  if (assemble) {
+    for (int32_t i = 0; i < nd; ++i) {
+      const auto s = static_cast<size_t>(i);
+      x_[s] = x0_[s] + (active_[s / 3] != 0 ? h * v_[s] : 0.0);
+    }
+    std::fill(k_values_.begin(), k_values_.end(), 0.0);
+    ElementPass(model, x_.data(), 1.0, clamped, true, k_values_.data());
+    have_k_ = true;
+    k_clamped_ = clamped;
   }
-  std::memcpy(a_values_.data(), b_values_.data(), a_values_.size() * sizeof(double));
+  const double h2 = h * h;
+  const auto nnz = static_cast<int64_t>(a_values_.size());
+#pragma omp parallel for schedule(static) num_threads(NumThreads())
+  for (int64_t k = 0; k < nnz; ++k) {
+    a_values_[static_cast<size_t>(k)] = b_values_[static_cast<size_t>(k)] + h2 * k_values_[static_cast<size_t>(k)];
+  }
   extra_.clear();
   for (const PenaltyTerm& p : penalties) {
     const Eigen::Matrix3d ks = 0.5 * (p.stiffness + p.stiffness.transpose());
@@ -199,14 +221,13 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
         const double w = p.weights[static_cast<size_t>(i)] * p.weights[static_cast<size_t>(j)];
         const int32_t off = system_.FindBlock(a, b);
         if (off >= 0) {
-          system_.AddBlock(a_values_.data(), off, b, (h * h * w) * ks);
+          system_.AddBlock(a_values_.data(), off, b, (h2 * w) * ks);
         } else if (i < j) {  // outside the pattern: applied by the PCG product
-          extra_.push_back({a, b, (h * h * w) * ks});
+          extra_.push_back({a, b, (h2 * w) * ks});
         }
       }
     }
   }
-  ElementPass(model, x_.data(), h * h, clamped, true, a_values_.data());
 }
 
 ImplicitIntegrator::Eval ImplicitIntegrator::Evaluate(const Model<double>& model, const State<double>& state,
@@ -376,6 +397,7 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
                          ? options_.force_tolerance
                          : options_.relative_force_tolerance * LoadScale(model, state, penalties);
   bool clamped = options_.tangent == TangentMode::kClamped;
+  k_fresh_ = false;
   for (int it = 0;; ++it) {
     result.residual = current.residual;
     if (it < ImplicitResult::kHistory) result.residual_history[static_cast<size_t>(it)] = current.residual;
@@ -389,13 +411,21 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
       break;
     }
     result.newton_iterations = it + 1;
-    AssembleJacobian(model, h, penalties, clamped);
+    const bool assemble = !have_k_ || reassemble_k_ || k_clamped_ != clamped ||
+                          options_.tangent_reuse_contraction <= 0;
+    AssembleJacobian(model, h, penalties, clamped, assemble);
+    result.tangent_assemblies += assemble ? 1 : 0;
+    k_fresh_ = k_fresh_ || assemble;
     have_jacobian_ = true;
     const bool was_clamped = clamped;
+    const double last_residual = current.residual;
     SolveDirection(h, result.tolerance, result, &clamped);
     result.clamped = result.clamped || was_clamped;
-    if (!LineSearch(model, state, h, penalties, current, result)) {
+    const bool accepted = LineSearch(model, state, h, penalties, current, result);
+    reassemble_k_ = !accepted || !(current.residual <= options_.tangent_reuse_contraction * last_residual);
+    if (!accepted) {
       if (clamped != was_clamped) continue;  // retry the iteration with K⁺
+      if (!assemble) continue;                // retry with K assembled here
       // No acceptable step: the state gets the last accepted iterate.
       current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
       result.residual = current.residual;
@@ -414,12 +444,22 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
   state.time += step_size;
   ++state.step;
   last_h_ = h;
+  last_clamped_ = clamped;
+  last_penalties_.assign(penalties.begin(), penalties.end());
   return result;
 }
 
-Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(std::span<const int32_t> nodes,
+Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
                                                        std::span<const double> weights) {
-  if (!have_jacobian_ || !(last_h_ > 0)) return Eigen::Matrix3d::Zero();
+  if (!(last_h_ > 0) || system_.Stale(model)) return Eigen::Matrix3d::Zero();
+  if (!k_fresh_) {
+    // x_ holds the last step's solution (its last evaluation).
+    AssembleJacobian(model, last_h_, last_penalties_, last_clamped_, true);
+    have_jacobian_ = true;
+    k_fresh_ = true;
+    reassemble_k_ = false;
+  }
+  if (!have_jacobian_) return Eigen::Matrix3d::Zero();
   const int32_t nn = system_.num_nodes();
   Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
   bool any = false;
@@ -433,7 +473,8 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(std::span<const int32_t> 
     }
     if (!any) return Eigen::Matrix3d::Zero();
     const double norm = std::sqrt(Dot(rhs_, rhs_, nn, NumThreads()));
-    solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(), 1e-12 * norm,
+    solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(),
+                  kCompliancePcgTolerance * norm,
                   options_.max_pcg_iterations, NumThreads(), extra_);
     for (size_t i = 0; i < nodes.size(); ++i) {
       const int32_t n = nodes[i];

@@ -18,7 +18,9 @@
 ///
 /// Newton on r with the Jacobian A = ∂r/∂v⁺ = M + h(C + αM) + h²(K + K_pen),
 /// K = −∂f_int/∂x (tangent.h), solved by PCG (linear_solver.h), then a
-/// backtracking (Armijo) line search on Φ. Stops when the force residual
+/// backtracking (Armijo) line search on Φ. K may come from an earlier
+/// iterate while Newton still contracts fast (tangent_reuse_contraction):
+/// its assembly costs about one preconditioned solve. Stops when the force residual
 /// max over free nodes |r_node|/h ≤ the force tolerance, or at the cap.
 ///
 /// Indefinite K (StVK under compression; TangentMode): with kExact, PCG
@@ -83,6 +85,14 @@ struct ImplicitOptions {
   int max_pcg_iterations = 300;
   /// Ask for a new factor when a PCG solve needs more iterations than this.
   int refactor_pcg_iterations = 12;
+  /// Tangent reuse (modified Newton): K assembled at an earlier iterate,
+  /// of this step or an earlier one, serves again while every Newton
+  /// iteration cuts the force residual to at most this fraction of the
+  /// last; K is assembled anew after one that does not, after a failed
+  /// line search, and after a topology change. The residual and the
+  /// stopping rule stay exact, so only the iteration count can change.
+  /// 0: assemble K at every iteration (plain Newton).
+  double tangent_reuse_contraction = 0.25;
   /// Factor on a worker thread (steps never wait, except for the first
   /// factor when wait_for_first_factor); false: factor inline when asked
   /// (bit-reproducible: the factor in use does not depend on timing).
@@ -127,6 +137,7 @@ struct ImplicitResult {
   int pcg_iterations = 0;      ///< Summed over the Newton iterations.
   int max_pcg_iterations = 0;  ///< Largest single solve.
   int line_search_halvings = 0;
+  int tangent_assemblies = 0;  ///< Newton iterations that assembled K (the rest reused it).
   double residual = 0;   ///< max over free nodes |r_node|/h at the end, N.
   double tolerance = 0;  ///< The force tolerance used, N.
   bool negative_curvature = false;  ///< Some PCG solve met it.
@@ -158,9 +169,15 @@ class ImplicitIntegrator {
   /// The model's own stiffness at a point p = Σ w_i x_i over one step of
   /// the last Step's size h, N/m: (h²·Wᵀ A⁻¹ W)⁻¹ with A the last assembled
   /// Jacobian (A/h² = K + (C + αM)/h + M/h², which tends to the static
-  /// stiffness K for large h). Three PCG solves with the current factor.
-  /// Zero before the first step or if the point has no free node.
-  Eigen::Matrix3d EffectiveStiffness(std::span<const int32_t> nodes, std::span<const double> weights);
+  /// stiffness K for large h). K is the one assembled at the last step's
+  /// solution: when the last step reused an older K (or assembled none),
+  /// it is assembled there now and serves the next step's Newton too. Then
+  /// three PCG solves with the current factor, each to 1e-4 of the
+  /// right-hand side (the compliance comes out far closer). Zero before the
+  /// first step or if the point has no free node. `model` is the last
+  /// Step's.
+  Eigen::Matrix3d EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
+                                     std::span<const double> weights);
 
   [[nodiscard]] const ImplicitOptions& options() const { return options_; }
   /// Options for the next steps (asynchronous_factorization is read only
@@ -202,9 +219,10 @@ class ImplicitIntegrator {
   /// + scale·C(x).
   void DampingPass(const Model<double>& model, const double* x, double scale, double mass_scale,
                    bool skip_inactive, double* values);
-  /// a_values_ = b_values_ + h²(K(x0 + h v_) + K_pen).
+  /// a_values_ = b_values_ + h²(K + K_pen), K assembled at x0 + h v_ when
+  /// `assemble`, else the last one assembled.
   void AssembleJacobian(const Model<double>& model, double h, std::span<const PenaltyTerm> penalties,
-                        bool clamped);
+                        bool clamped, bool assemble);
   /// Φ, the residual (into `residual`, #N×3) and the total force (force_)
   /// at velocity v.
   Eval Evaluate(const Model<double>& model, const State<double>& state, double h,
@@ -221,6 +239,7 @@ class ImplicitIntegrator {
   std::vector<uint8_t> active_;      // #N: free and with mass
   std::vector<double> b_values_;     // M + h(C + αM) + h²K_pen  // #nnz
   std::vector<double> a_values_;     // b_values_ + h²K          // #nnz
+  std::vector<double> k_values_;     // K (K⁺ if k_clamped_) at an earlier iterate  // #nnz
   std::vector<double> x0_, v0_;      // start of step  // #N×3
   std::vector<double> v_, v_try_;    // iterate, trial  // #N×3
   std::vector<double> x_;            // x0 + h v  // #N×3
@@ -237,6 +256,12 @@ class ImplicitIntegrator {
   double history_h_ = 0;       // step size of that history, s
   double last_h_ = 0;
   bool have_jacobian_ = false;
+  bool have_k_ = false;        // k_values_ holds K of the current pattern and active set
+  bool k_clamped_ = false;     // k_values_ is K⁺
+  bool reassemble_k_ = true;   // the last iteration contracted too little to reuse K
+  bool k_fresh_ = false;       // K was assembled during the last step
+  bool last_clamped_ = false;  // the last step ended with K⁺
+  std::vector<PenaltyTerm> last_penalties_;  // the last step's, for a re-formed A
 };
 
 }  // namespace cutsim::fem

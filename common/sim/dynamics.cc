@@ -7,13 +7,21 @@
 
 namespace cutsim::sim {
 
-template <typename T>
-Dynamics<T>::Dynamics(IntegratorKind kind, int threads, double mass_damping) : kind_(kind) {
-  if (kind_ != IntegratorKind::kImplicit) return;
+fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads) {
+  const v1::ImplicitSolver& s = scene.time_step().implicit();
   fem::ImplicitOptions options;
   options.num_threads = threads;
-  options.mass_damping = mass_damping;
+  options.mass_damping = scene.mass_damping();
   options.asynchronous_factorization = threads >= 2;
+  options.force_tolerance = s.force_tolerance();
+  if (s.linear_tolerance() > 0) options.linear_tolerance = s.linear_tolerance();
+  if (s.max_newton_iterations() > 0) options.max_newton_iterations = s.max_newton_iterations();
+  return options;
+}
+
+template <typename T>
+Dynamics<T>::Dynamics(IntegratorKind kind, const fem::ImplicitOptions& options) : kind_(kind) {
+  if (kind_ != IntegratorKind::kImplicit) return;
   implicit_ = std::make_unique<fem::ImplicitIntegrator>(options);
   penalties_.reserve(1);
 }
@@ -105,6 +113,7 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
   c.pcg_iterations += r.pcg_iterations;
   c.max_pcg_iterations = std::max(c.max_pcg_iterations, r.pcg_iterations);
   c.factorizations = implicit_->linear_solver().stats().completed;
+  c.tangent_assemblies += r.tangent_assemblies;
   if (r.status != fem::ImplicitStatus::kCapped) return;
   ++c.unconverged_steps;
   // The first few and then every hundredth: visible without flooding the log.
@@ -122,7 +131,7 @@ Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const Sc
       const std::array<int32_t, 3>& nodes = tool.force_nodes();
       const Eigen::Vector3d& w = tool.force_weights();
       const std::array<double, 3> weights{w[0], w[1], w[2]};
-      Eigen::Matrix3d tissue = implicit_->EffectiveStiffness(nodes, weights);
+      Eigen::Matrix3d tissue = implicit_->EffectiveStiffness(fem.model(), nodes, weights);
       if (tissue.isZero()) return tool.ContactStiffness(fem.model(), fem.state().x.data());
       // The last Jacobian holds the contact spring on the same point
       // (W·k_pen·Wᵀ): (h²WᵀA⁻¹W)⁻¹ is the tissue's stiffness plus k_pen.

@@ -29,12 +29,17 @@
 
 namespace cutsim::sim {
 
+/// The implicit step's options for a scene: its time_step.implicit
+/// stopping rules and mass damping, `threads` OpenMP threads; two or more
+/// factor on a worker thread beside the steps, one factors inline
+/// (bit-reproducible runs).
+[[nodiscard]] fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads);
+
 template <typename T>
 class Dynamics {
  public:
-  /// `threads` ≥ 2 factors on a worker thread beside the steps; one thread
-  /// factors inline (bit-reproducible runs). `mass_damping`: α, 1/s.
-  Dynamics(IntegratorKind kind, int threads, double mass_damping);
+  /// `options` serve the implicit step (unused by the explicit one).
+  Dynamics(IntegratorKind kind, const fem::ImplicitOptions& options);
   ~Dynamics();
   Dynamics(const Dynamics&) = delete;
   Dynamics& operator=(const Dynamics&) = delete;

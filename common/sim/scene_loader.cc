@@ -14,6 +14,10 @@
 namespace cutsim::sim {
 namespace {
 
+/// Newton iterations a scene may ask of one implicit step: beyond this a
+/// frame's cost has no useful bound.
+constexpr int kMaxNewtonIterations = 200;
+
 namespace pb = google::protobuf;
 
 /// Keeps the first parse error with its position (protobuf reports 0-based).
@@ -210,8 +214,22 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   if (!v1::TimeStepPolicy::Viscosity_IsValid(ts.viscosity())) {
     FieldError(s, "time_step.viscosity", fmt::format("unknown value {}", static_cast<int>(ts.viscosity())));
   }
+  if (scene.settle() && ts.precision() == v1::TimeStepPolicy::PRECISION_FLOAT) {
+    FieldError(s, "settle", "needs time_step.precision double (the static solve is double precision)");
+  }
   if (ts.refresh_every_steps() == 0) ts.set_refresh_every_steps(10);
   if (ts.refresh_every_steps() < 0) FieldError(s, "time_step.refresh_every_steps", "must be > 0");
+  auto& im = *ts.mutable_implicit();
+  RequireNonNegative(s, "time_step.implicit.force_tolerance", im.force_tolerance());
+  if (im.linear_tolerance() == 0.0) im.set_linear_tolerance(1e-4);
+  RequirePositive(s, "time_step.implicit.linear_tolerance", im.linear_tolerance());
+  if (im.linear_tolerance() >= 1.0) {
+    FieldError(s, "time_step.implicit.linear_tolerance", "must be < 1 (a fraction of the Newton residual)");
+  }
+  if (im.max_newton_iterations() == 0) im.set_max_newton_iterations(20);
+  if (im.max_newton_iterations() < 0 || im.max_newton_iterations() > kMaxNewtonIterations) {
+    FieldError(s, "time_step.implicit.max_newton_iterations", fmt::format("must be in [1, {}]", kMaxNewtonIterations));
+  }
 
   RequireNonNegative(s, "rest.kinetic_energy", scene.rest().kinetic_energy());
   RequireNonNegative(s, "rest.residual_force", scene.rest().residual_force());

@@ -2,12 +2,14 @@
 
 #include <optional>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
+#include "common/core/error.h"
 #include "common/core/log.h"
 #include "common/fem/integrator.h"
 #include "common/sim/checkpoint.h"
@@ -17,6 +19,7 @@
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
 #include "common/sim/scene_mesh.h"
+#include "common/sim/settle.h"
 #include "common/sim/surface_tracker.h"
 #include "common/sim/tool_state.h"
 #include "cutsim/v1/checkpoint.pb.h"
@@ -37,7 +40,8 @@ class Engine final : public Simulation {
         mesh_(std::move(scene_mesh)),
         fem_(scene_, mesh_, options),
         world_access_(fem_.state().x),
-        dynamics_(ChooseKind(scene_, mesh_, fem_, options), fem_.threads(), scene_.scene.mass_damping()) {
+        dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())) {
+    if (scene_.scene.settle()) SettleTissue();
     if (scene_.scene.has_tool()) SetUpTool();
     RebuildSurface();
     const fem::Model<T>& model = fem_.model();
@@ -171,6 +175,22 @@ class Engine final : public Simulation {
                1e3 * cost.implicit_seconds, cost.nnz, IntegratorName(kind),
                sizeof(T) == 8 ? "" : " (float precision: implicit needs double)");
     return kind;
+  }
+
+  /// The load-time stage: static equilibrium under the scene's loads.
+  void SettleTissue() {
+    if constexpr (std::is_same_v<T, double>) {
+      Stopwatch watch;
+      const SettleResult r = Settle(fem_.model(), fem_.state(), ImplicitOptionsFor(scene_.scene, fem_.threads()));
+      Log().log(r.converged ? spdlog::level::info : spdlog::level::warn,
+                "settle: {} under the scene's loads in {:.2f} s ({} Newton iterations, {} PCG), largest "
+                "displacement {:.3g} m, residual {:.3g} N (tolerance {:.3g} N)",
+                r.converged ? "at equilibrium" : "NOT converged", watch.ElapsedSeconds(), r.newton_iterations,
+                r.pcg_iterations, r.max_displacement, r.residual, r.tolerance);
+    } else {
+      ThrowInputError({.file = scene_.path.string(), .field = "settle"},
+                      "needs double precision (the static solve is double precision)");
+    }
   }
 
   void SetUpTool() {

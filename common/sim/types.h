@@ -43,6 +43,7 @@ struct ImplicitCounters {
   int max_pcg_iterations = 0;        ///< largest summed over one step's solves
   int64_t unconverged_steps = 0;     ///< steps stopped at the Newton cap
   int64_t factorizations = 0;        ///< factorisations completed
+  int64_t tangent_assemblies = 0;    ///< Newton iterations that assembled K
 };
 
 /// Numbers a run reports (the headless JSON summary).

@@ -162,6 +162,43 @@ TEST(ImplicitSimTest, StaticEquilibriumMatchesExplicit) {
   EXPECT_EQ(implicit_sim->QuickSummary().implicit.unconverged_steps, 0);
 }
 
+// `settle` starts a scene at the equilibrium the explicit run comes to
+// rest at, with zero velocity: the first frames then stay put.
+TEST(ImplicitSimTest, SettleStartsAtTheExplicitEquilibrium) {
+  const auto explicit_sim = Make(kBeam, "explicit");
+  const Eigen::VectorXd ue = RestDisplacement(*explicit_sim);
+  std::string settled = kBeam;
+  const std::string ts = "time_step { frame_dt: 0.01 }";
+  settled.replace(settled.find(ts), ts.size(),
+                  "time_step { frame_dt: 0.01 implicit { force_tolerance: 1e-10 } }\nsettle: true");
+  for (const std::string integrator : {"explicit", "implicit"}) {
+    const auto sim = Make(settled, integrator);
+    MeshView view;
+    sim->FillMeshView(view);
+    const Eigen::MatrixXd u = view.world - view.rest;
+    const Eigen::VectorXd us = Eigen::Map<const Eigen::VectorXd>(u.data(), u.size());
+    EXPECT_LT((us - ue).norm() / ue.norm(), 1e-4) << integrator;
+    EXPECT_EQ(sim->sim_time(), 0.0);
+    for (int frame = 0; frame < 10; ++frame) ASSERT_EQ(sim->AdvanceFrame(), SimStatus::kOk);
+    const SimulationSummary s = sim->Summary();
+    // A millionth of the sag's strain energy is left to move.
+    EXPECT_GT(s.strain_energy, 0.0) << integrator;
+    EXPECT_LT(s.kinetic_energy, 1e-6 * s.strain_energy) << integrator;
+  }
+}
+
+TEST(ImplicitSimTest, SettleNeedsDoublePrecision) {
+  std::string settled = kBeam;
+  settled += "settle: true\n";
+  const LoadedScene scene = ParseScene(settled, "test.pbtxt", ".");
+  try {
+    (void)Simulation::Create(scene, {.threads = 1, .precision = "float", .integrator = ""});
+    FAIL() << "float precision with settle was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source().field, "settle");
+  }
+}
+
 // A block pressed from above by the blade's tip; the tool is driven by
 // SetToolPose so the last frame's tip can be varied.
 const char* kPress = R"pb(
