@@ -73,15 +73,34 @@ run organ_mesh "$out/organ_mesh.log" "$bin/organ_mesh" > "$out/organ_mesh.json"
 cat "$out/organ_mesh.json"
 
 echo "== shipped scenes headless (real-time factor, integrator each scene's time_step picks)"
-# Each scene for SCENE_SECONDS simulated seconds on its default threads;
+# Each scene for SCENE_SECONDS simulated seconds on its default threads, the
+# organ for its whole stroke (organ-cut.path, ORGAN_SECONDS);
 # bench/scene_targets.py then checks the real-time targets on the JSON.
 for scene in ligament beam block organ; do
+  seconds="${SCENE_SECONDS:-2}"
+  [[ $scene == organ ]] && seconds="${ORGAN_SECONDS:-8.4}"
   run "scene_$scene" "$out/scene_$scene.log" "$bin/cutsim-server" --headless --scene "scenes/$scene.pbtxt" \
-    --duration "${SCENE_SECONDS:-2}" --no-progress > "$out/scene_$scene.json"
+    --duration "$seconds" --no-progress > "$out/scene_$scene.json"
 done
 run scene_targets "$out/scene_targets.log" /usr/bin/python3 bench/scene_targets.py "$out" \
   > "$out/scene_targets.json"
 cat "$out/scene_targets.json" 2>/dev/null || true
+
+echo "== real-time sessions on the block and the organ (scripted haptic client cutting each)"
+# Exit 77: no network namespace here (deploy/netns-run.sh), a skip.
+for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 9"; do
+  read -r scene path seconds <<<"$session"
+  rc=0
+  bench/scene_session.sh "$PWD/$bin" "$PWD/$out" "$scene" "$path" "$seconds" \
+    >"$out/session_${scene%.pbtxt}.json" 2>"$out/session_${scene%.pbtxt}.log" || rc=$?
+  if [[ $rc -eq 77 ]]; then
+    echo "session ${scene%.pbtxt} skipped (see $out/session_${scene%.pbtxt}.log)"
+  elif [[ $rc -ne 0 ]]; then
+    echo "!! session_${scene%.pbtxt} failed (exit $rc, see $out/session_${scene%.pbtxt}.log)"
+    failed+=("session_${scene%.pbtxt}")
+  fi
+  cat "$out/session_${scene%.pbtxt}.json" 2>/dev/null || true
+done
 
 echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \

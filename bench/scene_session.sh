@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# A real-time session on a shipped scene: cutsim-server (real-time loop,
+# normal priority) and cutsim-haptic with the scripted device on the scene's
+# cut path, in a private loopback namespace (deploy/netns-run.sh). Prints one
+# JSON line with the server's frame overruns, frame times and tool-pose-to-
+# model latency, the cuts made, and the targets; exits 1 when a target is
+# missed, 77 when no namespace can be made.
+#   bench/scene_session.sh BIN_DIR OUT_DIR SCENE PATH SECONDS
+# Targets: block — no overruns and pose-to-model p99
+# ≤ 6 ms; organ — ≤ 1 % overruns and p99 ≤ one frame + 2 ms; both cut.
+set -euo pipefail
+bin="$1"; out="$2"; scene="$3"; path="$4"; seconds="$5"
+root="$(cd "$(dirname "$0")/.." && pwd)"
+if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
+  exec "$root/deploy/netns-run.sh" "$0" "$@"
+fi
+name="$(basename "$scene" .pbtxt)"
+log="$out/session_$name"
+"$bin/cutsim-server" --scene "$root/scenes/$scene" --session "bench-$name" --no-rt --duration "$seconds" \
+  --stats-json "$log-server.json" >/dev/null 2>"$log-server.log" &
+server=$!
+# The client starts once the server's session is up (its start-up log line;
+# the organ's mesh is generated and settled first).
+deadline=$((SECONDS + 120))
+until grep -q "session '.*': physics" "$log-server.log" 2>/dev/null; do
+  if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$server" 2>/dev/null; then
+    echo "scene_session: the server did not come up (see $log-server.log)" >&2
+    kill "$server" 2>/dev/null || true
+    exit 1
+  fi
+  sleep 0.05
+done
+"$bin/cutsim-haptic" --session "bench-$name" --device scripted --no-rt --path "$root/scenes/$path" \
+  >"$log-haptic.json" 2>"$log-haptic.log"
+wait "$server" || true
+/usr/bin/python3 - "$log" "$name" <<'PY'
+import json, sys
+log, name = sys.argv[1], sys.argv[2]
+srv = json.load(open(f"{log}-server.json"))
+frames = max(1, srv["frames"])
+frame_ms = 1e3 * srv["sim_time"] / frames
+overrun = 100.0 * srv["frame_overruns"] / frames
+p99 = srv["pose_to_model_p99_ms"]
+if name == "organ":
+    targets = {"overrun_percent_max": 1.0, "pose_to_model_p99_ms_max": frame_ms + 2.0}
+else:
+    targets = {"overrun_percent_max": 0.0, "pose_to_model_p99_ms_max": 6.0}
+met = overrun <= targets["overrun_percent_max"] and p99 <= targets["pose_to_model_p99_ms_max"] \
+    and srv.get("cuts", 0) > 0 and srv.get("status") == "ok"
+print(json.dumps({
+    "kind": "scene_session", "scene": name, "frame_ms": round(frame_ms, 3), "frames": srv["frames"],
+    "overrun_percent": round(overrun, 2),
+    "frame_time_ms": {"p50": srv["frame_time_p50_ms"], "p99": srv["frame_time_p99_ms"],
+                      "max": srv["frame_time_max_ms"]},
+    "pose_to_model_ms": {"p50": srv["pose_to_model_p50_ms"], "p99": p99},
+    "cuts": srv.get("cuts", 0), "status": srv.get("status"), "targets": targets, "met": met,
+    "loadavg_1min": float(open("/proc/loadavg").read().split()[0]),
+}))
+sys.exit(0 if met else 1)
+PY
