@@ -7,11 +7,16 @@
 #include <cstring>
 #include <limits>
 
+#include "common/fem/implicit_internal.h"
 #include "common/fem/node_sums.h"
 
 namespace cutsim::fem {
 
 namespace {
+
+using internal::ForEachTetByColor;
+using internal::ScatterBlocks;
+using internal::TetPositions;
 
 /// Below this many tets the automatic thread count is one: the element
 /// pass has a barrier per colour and PCG a few per iteration, which cost
@@ -30,47 +35,6 @@ constexpr double kArmijo = 1e-4;
 /// Relative round-off of Φ: near the solution the decrease Φ can show is
 /// below it, so a trial within it that lowers the residual is accepted.
 constexpr double kPhiRoundOff = 1e-12;
-
-/// Calls body(t) for every tet, colour by colour (sparse_system.h), each
-/// colour's chunks split over the team (an orphaned `omp for` per colour,
-/// with its barrier) and each chunk's tets in order: chunks of one colour
-/// share no node, so their scatters never collide.
-template <typename Body>
-void ForEachTetByColor(const SparseSystem& system, Body&& body) {
-  const int32_t* cp = system.color_ptr();
-  const int32_t* chunks = system.color_chunks();
-  for (int32_t c = 0; c < system.num_colors(); ++c) {
-#pragma omp for schedule(dynamic, 1)
-    for (int32_t k = cp[c]; k < cp[c + 1]; ++k) {
-      for (int32_t t = system.chunk_begin(chunks[k]); t < system.chunk_end(chunks[k]); ++t) body(t);
-    }
-  }
-}
-
-/// Adds scale·blocks of tet t into `values`; pairs with an inactive node
-/// are skipped when `active` is given (their rows and columns stay identity).
-void ScatterBlocks(const SparseSystem& system, const Model<double>& model, int32_t t,
-                   const ElementBlocks& blocks, double scale, const uint8_t* active, double* values) {
-  const int32_t* off = system.tet_blocks(t);
-  for (int i = 0; i < 4; ++i) {
-    const int32_t a = model.tet_node(t, i);
-    if (active != nullptr && active[a] == 0) continue;
-    for (int j = 0; j < 4; ++j) {
-      const int32_t b = model.tet_node(t, j);
-      if (active != nullptr && active[b] == 0) continue;
-      system.AddBlock(values, off[4 * i + j], b, scale * blocks[4 * i + j]);
-    }
-  }
-}
-
-Mat34<double> TetPositions(const Model<double>& model, const double* x, int32_t t) {
-  Mat34<double> xs;
-  for (int c = 0; c < 4; ++c) {
-    const int32_t n = model.tet_node(t, c);
-    xs.col(c) = Vec3<double>(x[3 * n], x[3 * n + 1], x[3 * n + 2]);
-  }
-  return xs;
-}
 
 /// p = Σ w_i x_i of a penalty term.
 Eigen::Vector3d PenaltyPoint(const PenaltyTerm& p, const double* x) {
@@ -119,11 +83,20 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     active_.assign(static_cast<size_t>(system_.num_nodes()), 0);
     extra_.clear();
     extra_.reserve(kExtraBlockReserve);
+    nodal_pressure_ = model.element() == ElementKind::kNodalPressure;
+    if (nodal_pressure_) {
+      volume_grad_.assign(12 * static_cast<size_t>(system_.num_tets()), 0.0);
+      for (auto* v : {&node_volume_now_, &node_pressure_, &patch_curvature_, &patch_slope_}) {
+        v->assign(static_cast<size_t>(system_.num_nodes()), 0.0);
+      }
+      factor_values_.assign(nnz, 0.0);
+    }
     solver_.Resize(system_);
     have_jacobian_ = false;
     have_k_ = false;
     result.pattern_rebuilt = true;
   }
+  model_ = &model;
   for (int32_t n = 0; n < system_.num_nodes(); ++n) {
     const uint8_t on = !model.fixed(n) && model.node_mass(n) > 0 ? 1 : 0;
     if (active_[static_cast<size_t>(n)] != on) have_k_ = false;  // K's identity rows moved
@@ -149,7 +122,7 @@ void ImplicitIntegrator::ElementPass(const Model<double>& model, const double* x
       const Mat3<double> dm_inv = model.DmInv(t);
       const Mat34<double> g = ShapeGradients(dm_inv);
       const Mat3<double> F = EdgeMatrix(TetPositions(model, x, t)) * dm_inv;
-      const double lambda = model.lambdas()[t], mu = model.mus()[t];
+      const double lambda = model.element_lambdas()[t], mu = model.mus()[t];
       Mat3<double> S;
       Mat34<double> fe;
       energy[t] = StvkEnergyAndForce(F, g, vol, lambda, mu, &S, &fe);
@@ -163,6 +136,7 @@ void ImplicitIntegrator::ElementPass(const Model<double>& model, const double* x
       }
     });
   }
+  if (nodal_pressure_) VolumetricPass(model, x, tangent_scale, clamped, active, values);
 }
 
 void ImplicitIntegrator::DampingPass(const Model<double>& model, const double* x, double scale,
@@ -204,6 +178,7 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
     k_clamped_ = clamped;
   }
   const double h2 = h * h;
+  patch_scale_ = h2;
   const auto nnz = static_cast<int64_t>(a_values_.size());
 #pragma omp parallel for schedule(static) num_threads(NumThreads())
   for (int64_t k = 0; k < nnz; ++k) {
@@ -276,6 +251,7 @@ ImplicitIntegrator::Eval ImplicitIntegrator::Evaluate(const Model<double>& model
   }
   double w = 0;
   for (int32_t t = 0; t < system_.num_tets(); ++t) w += tet_energy_[static_cast<size_t>(t)];
+  if (nodal_pressure_) w += volumetric_energy_;
   e.phi = sums.Total(0) + sums.Total(1) + w + u_pen;
   e.scale = std::abs(sums.Total(0)) + std::abs(sums.Total(1)) + std::abs(w) + std::abs(u_pen);
   double rmax = 0;
@@ -338,17 +314,17 @@ void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResu
   for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
   solver_.Acquire();
   if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
-    if (solver_.RequestFactor(system_, a_values_.data())) result.factor_requested = true;
+    if (solver_.RequestFactor(system_, FactorValues())) result.factor_requested = true;
     if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
   }
   const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
   const double lin_tol = std::max(options_.linear_tolerance * rhs_norm, 0.1 * h * tolerance);
   const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(),
-                                     lin_tol, options_.max_pcg_iterations, NumThreads(), extra_);
+                                     lin_tol, options_.max_pcg_iterations, NumThreads(), extra_, matrix_free());
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
-  if (pr.iterations > options_.refactor_pcg_iterations && solver_.RequestFactor(system_, a_values_.data())) {
+  if (pr.iterations > options_.refactor_pcg_iterations && solver_.RequestFactor(system_, FactorValues())) {
     result.factor_requested = true;
   }
   if (pr.negative_curvature) {
@@ -475,7 +451,7 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
     const double norm = std::sqrt(Dot(rhs_, rhs_, nn, NumThreads()));
     solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(),
                   kCompliancePcgTolerance * norm,
-                  options_.max_pcg_iterations, NumThreads(), extra_);
+                  options_.max_pcg_iterations, NumThreads(), extra_, matrix_free());
     for (size_t i = 0; i < nodes.size(); ++i) {
       const int32_t n = nodes[i];
       if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;

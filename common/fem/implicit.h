@@ -33,6 +33,12 @@
 /// the same rule; the exact Jacobian gives quadratic convergence near a
 /// stable solution, K⁺ linear convergence where elements are compressed.
 ///
+/// With the nodal-pressure element (Model::element(), nodal_pressure.h) the
+/// potential also holds the nodal volumetric energy; its local part enters
+/// the assembled Jacobian, its patch part Σ_a U''/V_a·∇v_a∇v_aᵀ the PCG
+/// product matrix-free, and the factor an element-local positive
+/// semidefinite approximation of the patch part.
+///
 /// The implicit path uses plain StVK for every element (the explicit path
 /// switches elements with det F < 0.3 to the invertible StVK of Irving et
 /// al., which has no potential); above that threshold the forces agree.
@@ -233,6 +239,29 @@ class ImplicitIntegrator {
   double LoadScale(const Model<double>& model, const State<double>& state,
                    std::span<const PenaltyTerm> penalties) const;
 
+  /// The nodal-pressure element's patch term h²·Σ_a c_a ∇v_a∇v_aᵀ at the
+  /// last tangent point, applied by the PCG product (implicit_volumetric.cc).
+  class PatchTerm final : public MatrixFreeTerm {
+   public:
+    explicit PatchTerm(const ImplicitIntegrator& owner) : owner_(owner) {}
+    void AddProduct(const double* p, double* q) const override;
+
+   private:
+    const ImplicitIntegrator& owner_;
+  };
+  /// The nodal-pressure element's volumetric pass at x: energy into
+  /// volumetric_energy_, forces added into node_force_; with tangent_scale
+  /// > 0 also tangent_scale·Σ_e p̄_e ∂²v_e (not when clamped: it is
+  /// indefinite) into `values`, and ∇v_e and c_a = U''(J_a)/V_a kept for
+  /// the patch term.
+  void VolumetricPass(const Model<double>& model, const double* x, double tangent_scale, bool clamped,
+                      const uint8_t* active, double* values);
+  /// The values to factor: a_values_, plus with the nodal-pressure element
+  /// the patch term's element-diagonal part h²·Σ_e (Σ_{a∈e} c_a/16)·∇v_e∇v_eᵀ
+  /// (positive semidefinite, on the pattern) in factor_values_.
+  const double* FactorValues();
+  [[nodiscard]] const MatrixFreeTerm* matrix_free() const { return nodal_pressure_ ? &patch_ : nullptr; }
+
   ImplicitOptions options_;
   SparseSystem system_;
   LinearSolver solver_;
@@ -262,6 +291,18 @@ class ImplicitIntegrator {
   bool k_fresh_ = false;       // K was assembled during the last step
   bool last_clamped_ = false;  // the last step ended with K⁺
   std::vector<PenaltyTerm> last_penalties_;  // the last step's, for a re-formed A
+  // The nodal-pressure element (implicit_volumetric.cc).
+  bool nodal_pressure_ = false;
+  const Model<double>* model_ = nullptr;     // the model of the last pass
+  std::vector<double> volume_grad_;          // ∇v_e at the tangent point  // #T×12
+  std::vector<double> node_volume_now_;      // v_a  // #N
+  std::vector<double> node_pressure_;        // p_a = U'(J_a)  // #N
+  std::vector<double> patch_curvature_;      // c_a = U''(J_a)/V_a at the tangent point  // #N
+  mutable std::vector<double> patch_slope_;  // product scratch  // #N
+  std::vector<double> factor_values_;        // #nnz
+  double volumetric_energy_ = 0;             // J
+  double patch_scale_ = 0;                   // h² of a_values_
+  PatchTerm patch_{*this};
 };
 
 }  // namespace cutsim::fem

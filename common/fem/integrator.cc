@@ -291,6 +291,8 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
 template <typename T>
 StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions& options) {
   CUTSIM_CHECK(!model.topology_dirty(), "fem::Step: call Model::CommitTopology after mutations");
+  CUTSIM_CHECK(model.element() == ElementKind::kLinear,
+               "fem::Step: the nodal-pressure element needs the implicit integrator");
   StepResult res;
   res.step = state.step;
   res.dt = static_cast<double>(dt);

@@ -346,7 +346,8 @@ void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t
 
 PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                               const double* b, double* x, double tolerance, int max_iterations,
-                              int num_threads, std::span<const ExtraBlock> extra) {
+                              int num_threads, std::span<const ExtraBlock> extra,
+                              const MatrixFreeTerm* matrix_free) {
   const int nt = Threads(num_threads);
   const int32_t nn = system.num_nodes();
   Acquire();
@@ -385,6 +386,7 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
       for (int32_t i = 0; i < 3 * nn; ++i) p[i] = z[i] + beta * p[i];
       system.MultiplyTeam(values, p, q);
     }
+    if (matrix_free != nullptr) matrix_free->AddProduct(p, q);
     for (const ExtraBlock& e : extra) {
       Eigen::Map<Eigen::Vector3d>(q + 3 * e.a) += e.k * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.b);
       if (e.a != e.b) {

@@ -52,6 +52,15 @@ struct ExtraBlock {
   Eigen::Matrix3d k = Eigen::Matrix3d::Zero();
 };
 
+/// A term of the system matrix applied without assembly: the PCG product
+/// adds it to the assembled part's (the preconditioner does not see it).
+class MatrixFreeTerm {
+ public:
+  virtual ~MatrixFreeTerm() = default;
+  /// q += (the term)·p on all DOFs.  // #N×3 each
+  virtual void AddProduct(const double* p, double* q) const = 0;
+};
+
 /// Cumulative counters of the factorisations.
 struct FactorStats {
   int64_t requested = 0;     ///< Snapshots handed to the worker.
@@ -98,10 +107,12 @@ class LinearSolver {
   /// Solves A x = b on the DOFs with active[dof/3] != 0 (others stay 0) by
   /// PCG from x = 0, until ‖r‖₂ ≤ tolerance or max_iterations. Picks up the
   /// newest finished factor first. Block Jacobi blocks come from `values`.
+  /// `matrix_free`, if given, adds its product to A's.
   /// Allocates nothing once Resize ran and a factor of this size was used.
   PcgResult Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                   const double* b, double* x, double tolerance, int max_iterations,
-                  int num_threads, std::span<const ExtraBlock> extra = {});
+                  int num_threads, std::span<const ExtraBlock> extra = {},
+                  const MatrixFreeTerm* matrix_free = nullptr);
 
  private:
   struct Factor;

@@ -79,6 +79,11 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
   grad_sq_max_.assign(P, T(0));
   lambda_.assign(P, T(0));
   mu_.assign(P, T(0));
+  element_lambda_.assign(P, T(0));
+  kappa_.assign(P, T(0));
+  node_volume_.assign(NC, T(0));
+  node_kappa_.assign(NC, T(0));
+  element_ = options.element;
   psi_.assign(P, T(0));
   phi_.assign(P, T(0));
   element_mass_.assign(P, T(0));
@@ -120,6 +125,9 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
     }
     lambda_[t] = static_cast<T>(mat.lambda);
     mu_[t] = static_cast<T>(mat.mu);
+    kappa_[t] = static_cast<T>(mat.lambda + 2.0 / 3.0 * mat.mu);
+    element_lambda_[t] = element_ == ElementKind::kNodalPressure ? static_cast<T>(-2.0 / 3.0 * mat.mu)
+                                                                 : static_cast<T>(mat.lambda);
     psi_[t] = static_cast<T>(mat.psi);
     phi_[t] = static_cast<T>(mat.phi);
     damped_ = damped_ || mat.psi != 0 || mat.phi != 0;
@@ -203,6 +211,8 @@ void Model<T>::reserve_nodes(int32_t capacity) {
   const auto NC = static_cast<size_t>(capacity);
   rest_.resize(3 * NC, T(0));
   node_mass_.resize(NC, T(0));
+  node_volume_.resize(NC, T(0));
+  node_kappa_.resize(NC, T(0));
   fixed_.resize(NC, 0);
   prescribed_force_.resize(3 * NC, T(0));
   inc_range_.resize(2 * NC, inc_tail_);
@@ -225,6 +235,7 @@ int32_t Model<T>::AddNodeCopy(int32_t node, State<T>& state) {
   }
   fixed_[n] = fixed_[node];
   node_mass_[n] = T(0);
+  node_volume_[n] = node_kappa_[n] = T(0);
   inc_range_[2 * n] = inc_range_[2 * n + 1] = inc_tail_;  // empty range
   topology_dirty_ = true;
   return n;
@@ -258,6 +269,11 @@ int Model<T>::RecomputeElements(std::span<const int32_t> tets) {
     ComputeElement(t, &degenerate);
     degenerate_count += degenerate ? 1 : 0;
   }
+  if (element_ == ElementKind::kNodalPressure) {
+    for (const int32_t t : tets) {
+      for (int c = 0; c < 4; ++c) RecomputeNodeVolume(tets_[4 * t + c]);
+    }
+  }
   return degenerate_count;
 }
 
@@ -282,7 +298,21 @@ void Model<T>::RecomputeNodeMasses(std::span<const int32_t> nodes) {
       m += static_cast<double>(element_mass_[inc_slots_[k] / 12]) / 4.0;
     }
     node_mass_[n] = static_cast<T>(m);
+    if (element_ == ElementKind::kNodalPressure) RecomputeNodeVolume(n);
   }
+}
+
+template <typename T>
+void Model<T>::RecomputeNodeVolume(int32_t n) {
+  double volume = 0, kappa_volume = 0;
+  for (int32_t k = inc_range_[2 * n]; k < inc_range_[2 * n + 1]; ++k) {
+    const int32_t t = inc_slots_[k] / 12;
+    const double v = 0.25 * static_cast<double>(volume_[t]);
+    volume += v;
+    kappa_volume += v * static_cast<double>(kappa_[t]);
+  }
+  node_volume_[n] = static_cast<T>(volume);
+  node_kappa_[n] = volume > 0 ? static_cast<T>(kappa_volume / volume) : T(0);
 }
 
 template <typename T>

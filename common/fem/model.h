@@ -38,7 +38,19 @@ struct Material {
                                    double psi = 0, double phi = 0);
 };
 
+/// The element formulation.
+enum class ElementKind : uint8_t {
+  /// Linear tet, StVK per element. Locks as ν → ½.
+  kLinear,
+  /// Average nodal pressure (nodal_pressure.h): μ|dev E|² per element (the
+  /// StVK kernel with λ = −2μ/3) and the volumetric energy on the nodes, from
+  /// each node patch's volume ratio. Nearly incompressible tissue without
+  /// locking. Implicit integrator only.
+  kNodalPressure,
+};
+
 struct ModelOptions {
+  ElementKind element = ElementKind::kLinear;
   /// Nodes reserved for cutting (AddNodeCopy); 0 means exactly the mesh's.
   int32_t node_capacity = 0;
   /// Gravity, m/s².
@@ -94,6 +106,18 @@ class Model {
 
   // ---- material ------------------------------------------------------------
   [[nodiscard]] const T* lambdas() const { return lambda_.data(); }  // #T_pad, Pa
+  [[nodiscard]] ElementKind element() const { return element_; }
+  /// The λ the element kernels use: the material's for kLinear, −2μ/3 for
+  /// kNodalPressure (the element then carries μ|dev E|² only). The
+  /// material's λ (lambdas()) still sets wave speeds and the stable step.
+  [[nodiscard]] const T* element_lambdas() const { return element_lambda_.data(); }  // #T_pad, Pa
+  /// Bulk modulus κ = λ + 2μ/3 per tet, Pa.  // #T_pad
+  [[nodiscard]] const T* kappas() const { return kappa_.data(); }
+  /// kNodalPressure: a node's patch rest volume V_a = Σ_{e∋a} V_e/4 (m³) and
+  /// volume-weighted bulk modulus κ_a (Pa), kept current through cuts
+  /// (RecomputeElements, RecomputeNodeMasses); zero for kLinear.
+  [[nodiscard]] T node_rest_volume(int32_t n) const { return node_volume_[n]; }
+  [[nodiscard]] T node_kappa(int32_t n) const { return node_kappa_[n]; }
   [[nodiscard]] const T* mus() const { return mu_.data(); }          // #T_pad, Pa
   [[nodiscard]] const T* psis() const { return psi_.data(); }        // #T_pad, Pa·s
   [[nodiscard]] const T* phis() const { return phi_.data(); }        // #T_pad, Pa·s
@@ -154,10 +178,12 @@ class Model {
   /// Recomputes Dm⁻¹, rest volume and grad_sq_max of `tets` from the current
   /// rest positions. Element masses stay frozen. An element whose rest volume
   /// became non-positive (a degenerate cut) gets zero stiffness (vol = 0,
-  /// Dm⁻¹ = 0) so it can never produce NaN; returns how many did.
+  /// Dm⁻¹ = 0) so it can never produce NaN; returns how many did. With
+  /// kNodalPressure the patch rest volumes of the tets' nodes follow.
   int RecomputeElements(std::span<const int32_t> tets);
   /// node mass = Σ element_mass/4 over the node's incident tets (commits
-  /// the topology first if it is dirty).
+  /// the topology first if it is dirty); with kNodalPressure also the node's
+  /// patch rest volume and bulk modulus.
   void RecomputeNodeMasses(std::span<const int32_t> nodes);
   /// Ends a batch of RetargetTet/AddNodeCopy: bumps topology_version(). The
   /// incidence is already current (kept up to date locally, see above).
@@ -165,6 +191,7 @@ class Model {
 
  private:
   void ComputeElement(int32_t t, bool* degenerate);
+  void RecomputeNodeVolume(int32_t n);
   void RebuildIncidence();
   void RemoveIncidence(int32_t node, int32_t slot);
   void AddIncidence(int32_t node, int32_t slot);
@@ -179,6 +206,11 @@ class Model {
   std::vector<T> volume_;          // #T_pad, m³
   std::vector<T> grad_sq_max_;     // #T_pad, 1/m²
   std::vector<T> lambda_, mu_;     // #T_pad, Pa
+  std::vector<T> element_lambda_;  // #T_pad, Pa
+  std::vector<T> kappa_;           // #T_pad, Pa
+  std::vector<T> node_volume_;     // #N_cap, m³ (kNodalPressure)
+  std::vector<T> node_kappa_;      // #N_cap, Pa (kNodalPressure)
+  ElementKind element_ = ElementKind::kLinear;
   std::vector<T> psi_, phi_;       // #T_pad, Pa·s
   std::vector<T> element_mass_;    // #T_pad, kg
   std::vector<T> node_mass_;       // #N_cap, kg
