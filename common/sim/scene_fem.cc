@@ -53,6 +53,8 @@ fem::ModelOptions MakeModelOptions(const LoadedScene& scene, int32_t num_nodes) 
   o.node_capacity = NodeCapacity(scene.scene, num_nodes);
   o.gravity = ToEigen(scene.scene.gravity());
   o.source = scene.path.string();
+  o.element = scene.scene.element() == v1::Scene::ELEMENT_NODAL_PRESSURE ? fem::ElementKind::kNodalPressure
+                                                                       : fem::ElementKind::kLinear;
   return o;
 }
 

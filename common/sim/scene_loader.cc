@@ -214,6 +214,9 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   if (!v1::TimeStepPolicy::Viscosity_IsValid(ts.viscosity())) {
     FieldError(s, "time_step.viscosity", fmt::format("unknown value {}", static_cast<int>(ts.viscosity())));
   }
+  if (!v1::Scene::Element_IsValid(scene.element())) {
+    FieldError(s, "element", fmt::format("unknown value {}", static_cast<int>(scene.element())));
+  }
   if (scene.settle() && ts.precision() == v1::TimeStepPolicy::PRECISION_FLOAT) {
     FieldError(s, "settle", "needs time_step.precision double (the static solve is double precision)");
   }

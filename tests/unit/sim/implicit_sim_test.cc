@@ -199,6 +199,22 @@ TEST(ImplicitSimTest, SettleNeedsDoublePrecision) {
   }
 }
 
+// The nodal-pressure element runs with the implicit integrator and is
+// refused, naming the field, with the explicit one.
+TEST(ImplicitSimTest, NodalPressureElementNeedsTheImplicitIntegrator) {
+  std::string text = kBeam;
+  text += "element: ELEMENT_NODAL_PRESSURE\n";
+  const auto sim = Make(text, "implicit");
+  for (int frame = 0; frame < 5; ++frame) ASSERT_EQ(sim->AdvanceFrame(), SimStatus::kOk);
+  EXPECT_GT(sim->Summary().strain_energy, 0.0);
+  try {
+    (void)Make(text, "explicit");
+    FAIL() << "the explicit integrator was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source().field, "element");
+  }
+}
+
 // A block pressed from above by the blade's tip; the tool is driven by
 // SetToolPose so the last frame's tip can be varied.
 const char* kPress = R"pb(

@@ -75,6 +75,7 @@ TEST(SceneLoaderTest, BadValuesNameTheField) {
       {"absurd newton cap", mesh + mat + "time_step { implicit { max_newton_iterations: 1000000 } }",
        "time_step.implicit.max_newton_iterations"},
       {"settle in float", mesh + mat + "settle: true time_step { precision: PRECISION_FLOAT }", "settle"},
+      {"unknown element", mesh + mat + "element: 7", "element"},
       {"keyframes not increasing",
        mesh + mat + "tool { keyframes { t: 1 } keyframes { t: 1 } }", "tool.keyframes[1].t"},
       {"plane normal zero", mesh + mat + "boundary { plane { } }", "boundary[0].plane.normal"},
