@@ -89,29 +89,42 @@ void ImplicitIntegrator::VolumetricPass(const Model<double>& model, const double
 void ImplicitIntegrator::PatchTerm::AddProduct(const double* p, double* q) const {
   const ImplicitIntegrator& o = owner_;
   const Model<double>& model = *o.model_;
-  std::vector<double>& slope = o.patch_slope_;
-  std::fill(slope.begin(), slope.end(), 0.0);
-  // ∇v_a·p = ¼ Σ_{e∋a} ∇v_e·p, then w_a = c_a·(∇v_a·p).
-  for (int32_t t = 0; t < o.system_.num_tets(); ++t) {
-    if (!(model.rest_volume(t) > 0)) continue;
-    const double* g = o.volume_grad_.data() + 12 * static_cast<size_t>(t);
-    double d = 0;
-    for (int c = 0; c < 4; ++c) {
-      const int32_t n = model.tet_node(t, c);
-      d += g[3 * c] * p[3 * n] + g[3 * c + 1] * p[3 * n + 1] + g[3 * c + 2] * p[3 * n + 2];
-    }
-    for (int c = 0; c < 4; ++c) slope[static_cast<size_t>(model.tet_node(t, c))] += 0.25 * d;
-  }
-  for (size_t a = 0; a < slope.size(); ++a) slope[a] *= o.patch_curvature_[a];
-  // q_c += h²·Σ_{e∋c} w̄_e ∇v_e|_c.
-  for (int32_t t = 0; t < o.system_.num_tets(); ++t) {
-    if (!(model.rest_volume(t) > 0)) continue;
-    const double* g = o.volume_grad_.data() + 12 * static_cast<size_t>(t);
-    const double w = o.patch_scale_ * CornerMean(model, t, slope);
-    for (int c = 0; c < 4; ++c) {
-      const int32_t n = model.tet_node(t, c);
-      for (int d = 0; d < 3; ++d) q[3 * n + d] += w * g[3 * c + d];
-    }
+  double* slope = o.patch_slope_.data();
+  const double* curvature = o.patch_curvature_.data();
+  const double* grads = o.volume_grad_.data();
+  const auto nn = static_cast<int32_t>(o.patch_slope_.size());
+  // Colour by colour, so the scatters of one colour never collide and every
+  // node sums in the same order for any thread count.
+#pragma omp parallel num_threads(o.NumThreads())
+  {
+#pragma omp for schedule(static)
+    for (int32_t n = 0; n < nn; ++n) slope[n] = 0;
+    // ∇v_a·p = ¼ Σ_{e∋a} ∇v_e·p.
+    ForEachTetByColor(o.system_, [&](int32_t t) {
+      if (!(model.rest_volume(t) > 0)) return;
+      const double* g = grads + 12 * static_cast<size_t>(t);
+      double d = 0;
+      for (int c = 0; c < 4; ++c) {
+        const int32_t n = model.tet_node(t, c);
+        d += g[3 * c] * p[3 * n] + g[3 * c + 1] * p[3 * n + 1] + g[3 * c + 2] * p[3 * n + 2];
+      }
+      for (int c = 0; c < 4; ++c) slope[model.tet_node(t, c)] += 0.25 * d;
+    });
+    // w_a = c_a·(∇v_a·p).
+#pragma omp for schedule(static)
+    for (int32_t n = 0; n < nn; ++n) slope[n] *= curvature[n];
+    // q_c += h²·Σ_{e∋c} w̄_e ∇v_e|_c.
+    ForEachTetByColor(o.system_, [&](int32_t t) {
+      if (!(model.rest_volume(t) > 0)) return;
+      const double* g = grads + 12 * static_cast<size_t>(t);
+      double w = 0;
+      for (int c = 0; c < 4; ++c) w += slope[model.tet_node(t, c)];
+      w *= 0.25 * o.patch_scale_;
+      for (int c = 0; c < 4; ++c) {
+        const int32_t n = model.tet_node(t, c);
+        for (int d = 0; d < 3; ++d) q[3 * n + d] += w * g[3 * c + d];
+      }
+    });
   }
 }
 
