@@ -6,6 +6,8 @@
 set -euo pipefail
 bin="$1"; out="$2"; seconds="${3:-20}"
 root="$(cd "$(dirname "$0")/.." && pwd)"
+# shellcheck source=bench/wait_for_server.sh
+source "$root/bench/wait_for_server.sh"
 if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
   exec "$root/deploy/netns-run.sh" "$0" "$@"
 fi
@@ -26,14 +28,7 @@ PY
   --stats-json "$out/haptic_server.json" >/dev/null 2>"$out/haptic_server.log" &
 server=$!
 # The client starts once the server's session is up (its start-up log line).
-deadline=$((SECONDS + 60))
-until grep -q "session '.*': physics" "$out/haptic_server.log" 2>/dev/null; do
-  if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$server" 2>/dev/null; then
-    echo "haptic_session: the server did not come up (see $out/haptic_server.log)" >&2
-    exit 1
-  fi
-  sleep 0.05
-done
+wait_for_server "$out/haptic_server.log" "$server" 60
 "$bin/cutsim-haptic" --device scripted --path "$out/strokes.path" --csv "$out/haptic.csv" \
   >"$out/haptic_loop.json" 2>"$out/haptic_loop.log"
 kill -TERM "$server"; wait "$server" || true

@@ -11,6 +11,8 @@
 set -euo pipefail
 bin="$1"; out="$2"; scene="$3"; path="$4"; seconds="$5"
 root="$(cd "$(dirname "$0")/.." && pwd)"
+# shellcheck source=bench/wait_for_server.sh
+source "$root/bench/wait_for_server.sh"
 if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
   exec "$root/deploy/netns-run.sh" "$0" "$@"
 fi
@@ -21,15 +23,7 @@ log="$out/session_$name"
 server=$!
 # The client starts once the server's session is up (its start-up log line;
 # the organ's mesh is generated and settled first).
-deadline=$((SECONDS + 120))
-until grep -q "session '.*': physics" "$log-server.log" 2>/dev/null; do
-  if [ "$SECONDS" -ge "$deadline" ] || ! kill -0 "$server" 2>/dev/null; then
-    echo "scene_session: the server did not come up (see $log-server.log)" >&2
-    kill "$server" 2>/dev/null || true
-    exit 1
-  fi
-  sleep 0.05
-done
+wait_for_server "$log-server.log" "$server" 120
 "$bin/cutsim-haptic" --session "bench-$name" --device scripted --no-rt --path "$root/scenes/$path" \
   >"$log-haptic.json" 2>"$log-haptic.log"
 wait "$server" || true
