@@ -197,7 +197,9 @@ class ImplicitIntegrator {
 
   /// Stiffness K (or K⁺ when `clamped`) of the model at positions x (#N×3)
   /// on system()'s pattern, without elimination of fixed nodes (for tests
-  /// and the haptic linearisation). Builds the pattern if stale.
+  /// and the haptic linearisation). Builds the pattern if stale. With the
+  /// nodal-pressure element the patch term, which is not on the pattern, is
+  /// left out (the implicit step applies it matrix-free).
   void AssembleStiffness(const Model<double>& model, const double* x, bool clamped,
                          std::vector<double>& values);
   /// The damping operator C(x) + α·M on system()'s pattern, likewise.
