@@ -6,6 +6,8 @@
 #include <climits>
 #include <cmath>
 
+#include "common/fem/nodal_pressure.h"
+
 namespace cutsim::fem {
 
 namespace {
@@ -307,14 +309,44 @@ double GravityPotential(const Model<T>& model, const T* x) {
   return e;
 }
 
+namespace {
+
+/// p̄ = ¼ Σ_{a∈t} U'(J_a) of the nodal-pressure element, each J_a from the
+/// current volumes of node a's incident tets (a query for one tet).
+template <typename T>
+double ElementMeanNodalPressure(const Model<T>& model, const T* x, int32_t t) {
+  const int32_t* slots = model.incidence_slots();
+  double sum = 0;
+  for (int c = 0; c < 4; ++c) {
+    const int32_t a = model.tet_node(t, c);
+    const double rest = static_cast<double>(model.node_rest_volume(a));
+    if (!(rest > 0)) continue;
+    double now = 0;
+    for (int32_t k = model.incidence_begin(a); k < model.incidence_end(a); ++k) {
+      const int32_t e = slots[k] / 12;
+      now += 0.25 * static_cast<double>(model.rest_volume(e)) *
+             static_cast<double>(DeformationGradient(model, x, e).determinant());
+    }
+    const double j = now / rest;
+    sum += VolumetricPressure(j, static_cast<double>(model.node_kappa(a)));
+  }
+  return 0.25 * sum;
+}
+
+}  // namespace
+
 template <typename T>
 Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t) {
   const Mat3<T> F = DeformationGradient(model, x, t);
-  const T lam = model.lambdas()[t], mu = model.mus()[t];
+  const T lam = model.element_lambdas()[t], mu = model.mus()[t];
   const Mat3<T> P = F.determinant() >= model.inversion_det_threshold()
                         ? StvkFirstPiola<T>(F, lam, mu)
                         : InvertibleStvkFirstPiola<T>(F, lam, mu, model.min_singular_value());
-  return CauchyStress<T>(F, P);
+  Mat3<T> sigma = CauchyStress<T>(F, P);
+  if (model.element() == ElementKind::kNodalPressure) {
+    sigma.diagonal().array() += static_cast<T>(ElementMeanNodalPressure(model, x, t));
+  }
+  return sigma;
 }
 
 template <typename T>

@@ -59,7 +59,10 @@ template <typename T>
 double GravityPotential(const Model<T>& model, const T* x);
 
 /// Cauchy stress σ = (1/J) P Fᵀ of tet t (elastic part, with the inversion
-/// remedy where it is active; zero if J ≤ 0), Pa.
+/// remedy where it is active; zero if J ≤ 0), Pa. With the nodal-pressure
+/// element: the element's deviatoric part plus p̄·I, p̄ the mean of its
+/// nodes' pressures U'(J_a) (nodal_pressure.h), so the stress the cut
+/// criterion reads is the one the element carries.
 template <typename T>
 Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t);
 

@@ -11,6 +11,7 @@
 
 #include <Eigen/Geometry>
 
+#include "common/fem/forces.h"
 #include "common/fem/nodal_pressure.h"
 #include "common/fem/tangent.h"
 #include "tests/unit/fem/test_meshes.h"
@@ -181,6 +182,33 @@ TEST(NodalPressureTest, NodalRestVolumesSumToTheBodyAndAverageKappa) {
     EXPECT_GT(node_kappa[a], k0);
     EXPECT_LT(node_kappa[a], 3.0 * k0);
   }
+}
+
+// The stress the cut criterion reads: under a uniform F every nodal ratio is
+// det F, so each element's Cauchy stress is its deviatoric part plus U'(det F)·I.
+TEST(NodalPressureTest, ElementStressIsDeviatoricPlusTheNodalPressure) {
+  const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 2, 2, 0.03, 0.02, 0.02);
+  const Material mat = Material::FromYoungPoisson(1e4, 0.49, 1000.0);
+  ModelOptions opt;
+  opt.element = ElementKind::kNodalPressure;
+  const Model<double> model(mesh, std::span(&mat, 1), opt);
+  Eigen::Matrix3d A;
+  A << 1.02, 0.03, 0.0, -0.01, 0.97, 0.02, 0.01, 0.0, 1.01;
+  std::vector<double> x(static_cast<size_t>(3 * model.num_nodes()));
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    Eigen::Map<Eigen::Vector3d>(x.data() + 3 * n) = A * model.rest_position(n);
+  }
+  const double mu = model.mus()[0];
+  const double kappa = model.kappas()[0];
+  const Mat3<double> dev = CauchyStress<double>(A, StvkFirstPiola<double>(A, -2.0 / 3.0 * mu, mu));
+  const Mat3<double> expected = dev + VolumetricPressure(A.determinant(), kappa) * Mat3<double>::Identity();
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    EXPECT_LT((ElementCauchyStress(model, x.data(), t) - expected).norm(), 1e-9 * expected.norm()) << "tet " << t;
+  }
+  // The linear element's stress under the same F is the plain StVK one.
+  const Model<double> linear(mesh, std::span(&mat, 1));
+  const Mat3<double> plain = CauchyStress<double>(A, StvkFirstPiola<double>(A, linear.lambdas()[0], mu));
+  EXPECT_LT((ElementCauchyStress(linear, x.data(), 0) - plain).norm(), 1e-9 * plain.norm());
 }
 
 }  // namespace
