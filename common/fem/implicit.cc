@@ -92,7 +92,6 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
       factor_values_.assign(nnz, 0.0);
     }
     solver_.Resize(system_);
-    have_jacobian_ = false;
     have_k_ = false;
     result.pattern_rebuilt = true;
   }
@@ -314,7 +313,8 @@ void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResu
   for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
   solver_.Acquire();
   if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
-    if (solver_.RequestFactor(system_, FactorValues())) result.factor_requested = true;
+    // FactorValues copies A: only when the worker can take it.
+    if (!solver_.busy() && solver_.RequestFactor(system_, FactorValues())) result.factor_requested = true;
     if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
   }
   const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
@@ -324,7 +324,8 @@ void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResu
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
-  if (pr.iterations > options_.refactor_pcg_iterations && solver_.RequestFactor(system_, FactorValues())) {
+  if (pr.iterations > options_.refactor_pcg_iterations && !solver_.busy() &&
+      solver_.RequestFactor(system_, FactorValues())) {
     result.factor_requested = true;
   }
   if (pr.negative_curvature) {
@@ -392,7 +393,6 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     AssembleJacobian(model, h, penalties, clamped, assemble);
     result.tangent_assemblies += assemble ? 1 : 0;
     k_fresh_ = k_fresh_ || assemble;
-    have_jacobian_ = true;
     const bool was_clamped = clamped;
     const double last_residual = current.residual;
     SolveDirection(h, result.tolerance, result, &clamped);
@@ -431,11 +431,9 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
   if (!k_fresh_) {
     // x_ holds the last step's solution (its last evaluation).
     AssembleJacobian(model, last_h_, last_penalties_, last_clamped_, true);
-    have_jacobian_ = true;
     k_fresh_ = true;
     reassemble_k_ = false;
   }
-  if (!have_jacobian_) return Eigen::Matrix3d::Zero();
   const int32_t nn = system_.num_nodes();
   Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
   bool any = false;

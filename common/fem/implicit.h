@@ -286,7 +286,6 @@ class ImplicitIntegrator {
   int64_t history_step_ = -1;  // state.step at which the history is current
   double history_h_ = 0;       // step size of that history, s
   double last_h_ = 0;
-  bool have_jacobian_ = false;
   bool have_k_ = false;        // k_values_ holds K of the current pattern and active set
   bool k_clamped_ = false;     // k_values_ is K⁺
   bool reassemble_k_ = true;   // the last iteration contracted too little to reuse K

@@ -20,13 +20,6 @@ using internal::ForEachTetByColor;
 using internal::ScatterBlocks;
 using internal::TetPositions;
 
-/// ¼ Σ_{a∈t} values[a].
-double CornerMean(const Model<double>& model, int32_t t, const std::vector<double>& values) {
-  double s = 0;
-  for (int c = 0; c < 4; ++c) s += values[static_cast<size_t>(model.tet_node(t, c))];
-  return 0.25 * s;
-}
-
 }  // namespace
 
 void ImplicitIntegrator::VolumetricPass(const Model<double>& model, const double* x, double tangent_scale,
@@ -67,7 +60,7 @@ void ImplicitIntegrator::VolumetricPass(const Model<double>& model, const double
     const Mat34<double> g = ShapeGradients(dm_inv);
     const Mat3<double> F = EdgeMatrix(TetPositions(model, x, t)) * dm_inv;
     const Mat34<double> grad = VolumeGradient(F, g, vol);
-    const double p_bar = CornerMean(model, t, node_pressure_);
+    const double p_bar = ElementMean(model, t, node_pressure_);
     for (int c = 0; c < 4; ++c) {
       Eigen::Map<Eigen::Vector3d>(force + 3 * model.tet_node(t, c)) -= p_bar * grad.col(c);
     }
@@ -137,7 +130,7 @@ const double* ImplicitIntegrator::FactorValues() {
   ForEachTetByColor(system_, [&](int32_t t) {
     if (!(model.rest_volume(t) > 0)) return;
     const Eigen::Map<const Mat34<double>> g(volume_grad_.data() + 12 * static_cast<size_t>(t));
-    const double coef = CornerMean(model, t, patch_curvature_) / 4.0;  // Σ_{a∈e} c_a / 16
+    const double coef = ElementMean(model, t, patch_curvature_) / 4.0;  // Σ_{a∈e} c_a / 16
     ElementBlocks blocks;
     for (int a = 0; a < 4; ++a) {
       for (int b = 0; b < 4; ++b) blocks[4 * a + b] = coef * g.col(a) * g.col(b).transpose();

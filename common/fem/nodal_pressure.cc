@@ -45,13 +45,6 @@ void NodalVolumeRatios(const Model<double>& model, const double* x, const std::v
   }
 }
 
-/// ¼ Σ_{a∈e} values[a] over the corners of tet t.
-double CornerMean(const Model<double>& model, int32_t t, const std::vector<double>& values) {
-  double s = 0;
-  for (int c = 0; c < 4; ++c) s += values[static_cast<size_t>(model.tet_node(t, c))];
-  return 0.25 * s;
-}
-
 }  // namespace
 
 void NodalRestVolumes(const Model<double>& model, std::span<const double> kappa,
@@ -93,7 +86,7 @@ double NodalPressureEnergyAndForce(const Model<double>& model, std::span<const d
     if (!(model.rest_volume(t) > 0)) continue;
     const ElementFrame e = FrameOf(model, x, t);
     const Mat34<double> grad = VolumeGradient(e.F, e.g, e.rest_volume);
-    const double p_bar = CornerMean(model, t, pressure);
+    const double p_bar = ElementMean(model, t, pressure);
     for (int c = 0; c < 4; ++c) {
       Eigen::Map<Eigen::Vector3d>(force + 3 * model.tet_node(t, c)) -= p_bar * grad.col(c);
     }
@@ -129,8 +122,8 @@ void NodalPressureHessianProduct(const Model<double>& model, std::span<const dou
     if (!(model.rest_volume(t) > 0)) continue;
     const ElementFrame e = FrameOf(model, x, t);
     const Mat34<double> grad = VolumeGradient(e.F, e.g, e.rest_volume);
-    const double w_bar = CornerMean(model, t, weight);
-    const double p_bar = CornerMean(model, t, pressure);
+    const double w_bar = ElementMean(model, t, weight);
+    const double p_bar = ElementMean(model, t, pressure);
     for (int c = 0; c < 4; ++c) {
       Eigen::Vector3d q = w_bar * grad.col(c);
       for (int b = 0; b < 4; ++b) {

@@ -78,6 +78,14 @@ inline Mat3<double> VolumeHessianBlock(const Mat3<double>& F, const Vec3<double>
   return m;
 }
 
+/// ¼ Σ_{a∈t} values[a]: the element average of a nodal field (p̄_e from the
+/// nodal pressures).
+inline double ElementMean(const Model<double>& model, int32_t t, const std::vector<double>& values) {
+  double s = 0;
+  for (int c = 0; c < 4; ++c) s += values[static_cast<size_t>(model.tet_node(t, c))];
+  return 0.25 * s;
+}
+
 /// Per-node bulk modulus κ_a = Σ_{e∋a} κ_e V_e / Σ_{e∋a} V_e (Pa) and rest
 /// patch volume V_a = Σ_{e∋a} V_e/4 (m³) of the model's nodes, from the
 /// per-tet bulk moduli `kappa` (#T). Nodes without elements get 0.

@@ -3,9 +3,11 @@
 /// Shared set-ups of the implicit-step tests: a cantilever box clamped at
 /// x = 0, deformed states of it, and a vertex split as a cut makes one.
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
+#include "common/fem/implicit.h"
 #include "common/fem/model.h"
 #include "common/fem/state.h"
 #include "tests/unit/fem/test_meshes.h"
@@ -67,6 +69,20 @@ int32_t SplitNodeAsACut(Model<double>& model, State<double>& state, int32_t mid,
   model.RecomputeNodeMasses(split);
   model.CommitTopology();
   return static_cast<int32_t>(touched.size());
+}
+
+/// Whether some Newton iteration of `r` shows quadratic convergence: with
+/// residuals scaled by `scale` (N), e₀ < 1e-2 followed by e₁ ≤ 100·e₀².
+inline bool HasQuadraticStep(const ImplicitResult& r, double scale) {
+  const int kept = std::min(r.newton_iterations, ImplicitResult::kHistory);
+  for (int k = 0; k < kept; ++k) {
+    const bool last = k + 1 == r.newton_iterations;
+    if (!last && k + 1 >= kept) break;  // the next residual was not kept
+    const double e0 = r.residual_history[static_cast<size_t>(k)] / scale;
+    const double e1 = (last ? r.residual : r.residual_history[static_cast<size_t>(k + 1)]) / scale;
+    if (e0 < 1e-2 && e1 <= 100 * e0 * e0) return true;
+  }
+  return false;
 }
 
 }  // namespace cutsim::fem::testing

@@ -70,13 +70,7 @@ TEST(ImplicitNodalPressure, NewtonConvergesQuadratically) {
   const ImplicitResult r = integ.Step(model, state, 100.0);
   ASSERT_TRUE(r.ok()) << "residual " << r.residual << " after " << r.newton_iterations;
   const double scale = r.tolerance / 1e-10;
-  bool quadratic = false;
-  for (int k = 0; k + 1 <= r.newton_iterations; ++k) {
-    const double e0 = r.residual_history[static_cast<size_t>(k)] / scale;
-    const double e1 = (k + 1 < r.newton_iterations ? r.residual_history[static_cast<size_t>(k + 1)] : r.residual) / scale;
-    if (e0 < 1e-2 && e1 <= 100 * e0 * e0) quadratic = true;
-  }
-  EXPECT_TRUE(quadratic);
+  EXPECT_TRUE(testing::HasQuadraticStep(r, scale));
 }
 
 // The linear tet locks as ν → ½: on this coarse beam its tip sags 4× less at

@@ -67,13 +67,7 @@ TEST(ImplicitStep, NewtonConvergesQuadraticallyOnAStaticCase) {
   ASSERT_TRUE(r.ok()) << "residual " << r.residual << " after " << r.newton_iterations;
   EXPECT_LE(r.newton_iterations, 12);
   const double scale = r.tolerance / 1e-11;
-  bool quadratic = false;
-  for (int k = 0; k + 1 <= r.newton_iterations; ++k) {
-    const double e0 = r.residual_history[static_cast<size_t>(k)] / scale;
-    const double e1 = (k + 1 < r.newton_iterations ? r.residual_history[static_cast<size_t>(k + 1)] : r.residual) / scale;
-    if (e0 < 1e-2 && e1 <= 100 * e0 * e0) quadratic = true;
-  }
-  EXPECT_TRUE(quadratic);
+  EXPECT_TRUE(testing::HasQuadraticStep(r, scale));
   EXPECT_EQ(r.line_search_halvings, 0);
 }
 
