@@ -8,7 +8,9 @@
 // bytes_per_s.
 #include <omp.h>
 
+#include <algorithm>
 #include <array>
+#include <chrono>
 #include <cstdio>
 #include <map>
 #include <memory>
@@ -170,6 +172,59 @@ void BM_Skip(benchmark::State& st) {
       benchmark::Counter(model.num_tets() * static_cast<double>(st.iterations()), benchmark::Counter::kIsRate);
 }
 
+// The nodal-pressure element's force pass against the plain element's on the
+// same 100k-tet box, deformation, precision and threads (ν = 0.49,
+// undamped). Each iteration times one pass of each, back to back, so both
+// see the same machine; the counter `ratio` is the median of the per-pair
+// ratios and must stay ≤ kNodalPressureCostTarget.
+constexpr double kNodalPressureCostTarget = 1.5;
+bool g_nodal_pressure_cost_missed = false;
+
+template <typename T>
+void BM_NodalPressureCost(benchmark::State& st) {
+  const int threads = static_cast<int>(st.range(0));
+  const auto& s = kSizes[2];
+  static const mesh::TetMesh mesh = MakeBox(s[0], s[1], s[2], 1e-3);
+  const Material mat = Material::FromYoungPoisson(3e4, 0.49, 1000.0);
+  ModelOptions linear_options, nodal_options;
+  nodal_options.element = ElementKind::kNodalPressure;
+  const Model<T> linear(mesh, std::span(&mat, 1), linear_options);
+  const Model<T> nodal(mesh, std::span(&mat, 1), nodal_options);
+  State<T> state(linear);
+  for (size_t i = 0; i < state.x.size(); ++i) state.x[i] *= T(1) + T(1e-3) * static_cast<T>(i % 7);
+  std::vector<T> out(state.x.size());
+  std::vector<double> ratios, linear_s, nodal_s;
+  using Clock = std::chrono::steady_clock;
+  for (auto _ : st) {
+    const auto t0 = Clock::now();
+    ComputeInternalForces(linear, state, ForceMode::kElastic, out.data(), threads);
+    benchmark::DoNotOptimize(out.data());
+    const auto t1 = Clock::now();
+    ComputeInternalForces(nodal, state, ForceMode::kElastic, out.data(), threads);
+    benchmark::DoNotOptimize(out.data());
+    benchmark::ClobberMemory();
+    const auto t2 = Clock::now();
+    linear_s.push_back(std::chrono::duration<double>(t1 - t0).count());
+    nodal_s.push_back(std::chrono::duration<double>(t2 - t1).count());
+    ratios.push_back(nodal_s.back() / linear_s.back());
+  }
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const double ratio = median(ratios);
+  st.counters["tets"] = linear.num_tets();
+  st.counters["threads"] = threads;
+  st.counters["linear_ms"] = 1e3 * median(linear_s);
+  st.counters["nodal_pressure_ms"] = 1e3 * median(nodal_s);
+  st.counters["ratio"] = ratio;
+  st.counters["target"] = kNodalPressureCostTarget;
+  if (ratio > kNodalPressureCostTarget) {
+    g_nodal_pressure_cost_missed = true;
+    st.SetLabel("target missed");
+  }
+}
+
 // STREAM triad a = b + s·c, 3 × 32 MiB of doubles (well beyond L3).
 void BM_Triad(benchmark::State& st) {
   const int threads = static_cast<int>(st.range(0));
@@ -198,6 +253,10 @@ void RegisterAll() {
       benchmark::RegisterBenchmark("BM_Skip", BM_Skip)->Args({which, on})->UseRealTime();
     }
   }
+  for (int t : {1, 2}) {
+    benchmark::RegisterBenchmark("BM_NodalPressureCost<double>", BM_NodalPressureCost<double>)->Arg(t)->UseRealTime();
+    benchmark::RegisterBenchmark("BM_NodalPressureCost<float>", BM_NodalPressureCost<float>)->Arg(t)->UseRealTime();
+  }
   for (int size = 0; size < 4; ++size) {
     for (int threads : {1, 2}) {
       for (int damped : {0, 1}) {
@@ -220,5 +279,10 @@ int main(int argc, char** argv) {
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();
   benchmark::Shutdown();
+  if (cutsim::fem::g_nodal_pressure_cost_missed) {
+    std::fprintf(stderr, "fem_bench: the nodal-pressure force pass costs more than %.2fx the plain one\n",
+                 cutsim::fem::kNodalPressureCostTarget);
+    return 1;
+  }
   return 0;
 }

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <vector>
 
 #include "common/fem/nodal_pressure.h"
 
@@ -21,10 +22,11 @@ int Threads(int requested) { return requested > 0 ? requested : omp_get_max_thre
 /// P = F S, H = −vol·P·Dm⁻ᵀ, node 0 gets −ΣH. Straight-line code over the
 /// lanes of a `omp simd` loop so GCC vectorises across elements; the
 /// irregular parts (node gathers, the inversion fallback) stay outside it.
-template <typename T, ForceMode kMode>
-void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restrict v, int32_t t0,
-                  T* __restrict ef, int32_t* bad_tet) {
+template <typename T, ForceMode kMode, bool kPressure>
+void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restrict v,
+                  const T* __restrict node_pressure, int32_t t0, T* __restrict ef, int32_t* bad_tet) {
   constexpr bool kElastic = kMode != ForceMode::kViscousOnly;
+  static_assert(kElastic || !kPressure);
   constexpr bool kDamped = kMode != ForceMode::kElastic;
   const int32_t* tets = model.tets() + 4 * t0;
   alignas(64) T ds[9][kW];  // Ds, row-major components
@@ -47,12 +49,20 @@ void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restr
   const T* __restrict b[9];
   for (int k = 0; k < 9; ++k) b[k] = model.dm_inv(k) + t0;
   const T* __restrict vol = model.rest_volumes() + t0;
-  const T* __restrict lam = model.lambdas() + t0;
+  const T* __restrict lam = model.element_lambdas() + t0;
   const T* __restrict mu = model.mus() + t0;
   const T* __restrict psi = model.psis() + t0;
   const T* __restrict phi = model.phis() + t0;
   alignas(64) T out[12][kW];
   alignas(64) T det[kW];
+  alignas(64) T p_bar[kW];  // nodal-pressure element: the mean pressure of the tet's nodes, Pa
+  if constexpr (kPressure) {
+    for (int l = 0; l < kW; ++l) {
+      const int32_t* tn = tets + 4 * l;
+      p_bar[l] = T(0.25) * (node_pressure[tn[0]] + node_pressure[tn[1]] + node_pressure[tn[2]] +
+                            node_pressure[tn[3]]);
+    }
+  }
 
 #pragma omp simd
   for (int l = 0; l < kW; ++l) {
@@ -118,6 +128,20 @@ void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restr
       P[3 * r + 1] = F[3 * r] * s01 + F[3 * r + 1] * s11 + F[3 * r + 2] * s12;
       P[3 * r + 2] = F[3 * r] * s02 + F[3 * r + 1] * s12 + F[3 * r + 2] * s22;
     }
+    if constexpr (kPressure) {
+      // P += p̄·cof(F), cof(F) = ∂det F/∂F with columns f₁×f₂, f₂×f₀, f₀×f₁:
+      // the element's share of the nodal volumetric force (nodal_pressure.h).
+      const T p = p_bar[l];
+      P[0] += p * (F[4] * F[8] - F[7] * F[5]);
+      P[3] += p * (F[7] * F[2] - F[1] * F[8]);
+      P[6] += p * (F[1] * F[5] - F[4] * F[2]);
+      P[1] += p * (F[5] * F[6] - F[8] * F[3]);
+      P[4] += p * (F[8] * F[0] - F[2] * F[6]);
+      P[7] += p * (F[2] * F[3] - F[5] * F[0]);
+      P[2] += p * (F[3] * F[7] - F[6] * F[4]);
+      P[5] += p * (F[6] * F[1] - F[0] * F[7]);
+      P[8] += p * (F[0] * F[4] - F[3] * F[1]);
+    }
     // H = −vol·P·Dm⁻ᵀ: H_rc = −vol Σ_k P_rk B_ck.
     const T nv = -vol[l];
     for (int r = 0; r < 3; ++r) {
@@ -153,6 +177,7 @@ void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restr
         // it into finite garbage).
         if (!Fm.allFinite()) continue;
         Mat3<T> P = InvertibleStvkFirstPiola<T>(Fm, lam[l], mu[l], model.min_singular_value());
+        if constexpr (kPressure) P += p_bar[l] * Cofactor<T>(Fm);
         if constexpr (kDamped) {
           Mat3<T> Dv;
           for (int k = 0; k < 9; ++k) Dv(k / 3, k % 3) = dv[k][l];
@@ -177,13 +202,14 @@ void ElementBlock(const Model<T>& model, const T* __restrict x, const T* __restr
   }
 }
 
-template <typename T, ForceMode kMode>
-void ElementLoop(const Model<T>& model, const T* x, const T* v, T* ef, int32_t* bad_tet) {
+template <typename T, ForceMode kMode, bool kPressure = false>
+void ElementLoop(const Model<T>& model, const T* x, const T* v, const T* node_pressure, T* ef,
+                 int32_t* bad_tet) {
   const int32_t num_blocks = model.padded_tets() / kW;
   int32_t local_bad = INT32_MAX;
 #pragma omp for schedule(static)
   for (int32_t blk = 0; blk < num_blocks; ++blk) {
-    ElementBlock<T, kMode>(model, x, v, blk * kW, ef, &local_bad);
+    ElementBlock<T, kMode, kPressure>(model, x, v, node_pressure, blk * kW, ef, &local_bad);
   }
   if (local_bad != INT32_MAX) [[unlikely]] {
 #pragma omp critical(cutsim_fem_bad_tet)
@@ -191,21 +217,77 @@ void ElementLoop(const Model<T>& model, const T* x, const T* v, T* ef, int32_t* 
   }
 }
 
+/// The nodal-pressure element's first two passes: each tet's quarter of its
+/// current volume v_e/4 = V_e·det F/4 into ef[t] (`ef` as #T_pad scratch:
+/// the force pass overwrites it), then per node, through the
+/// node→element CSR, J_a = Σ v_e/4 / V_a and p_a = U'(J_a) into
+/// `node_pressure` (#N). J_a is held at or above kMinNodalVolumeRatio, where
+/// U' already pushes back with about 18κ: a patch turned inside out keeps a
+/// finite restoring pressure instead of a pole or a sign flip.
+template <typename T>
+void NodalPressuresTeam(const Model<T>& model, const T* x, T* ef, T* node_pressure) {
+  constexpr T kMinNodalVolumeRatio = T(0.027);
+  const int32_t num_blocks = model.padded_tets() / kW;
+#pragma omp for schedule(static)
+  for (int32_t blk = 0; blk < num_blocks; ++blk) {
+    // v_e/4 = V_e·det F/4 = det(Ds)/24 (V_e = det(Dm)/6 > 0 for every
+    // element with a volume; degenerate ones and the padding carry none).
+    const int32_t t0 = blk * kW;
+    const int32_t* tets = model.tets() + 4 * t0;
+    const T* __restrict vol = model.rest_volumes() + t0;
+    alignas(64) T quarter[kW];
+    for (int l = 0; l < kW; ++l) {
+      const int32_t* tn = tets + 4 * l;
+      const T* x0 = x + 3 * tn[0];
+      const T* x1 = x + 3 * tn[1];
+      const T* x2 = x + 3 * tn[2];
+      const T* x3 = x + 3 * tn[3];
+      const T a0 = x1[0] - x0[0], a1 = x2[0] - x0[0], a2 = x3[0] - x0[0];
+      const T a3 = x1[1] - x0[1], a4 = x2[1] - x0[1], a5 = x3[1] - x0[1];
+      const T a6 = x1[2] - x0[2], a7 = x2[2] - x0[2], a8 = x3[2] - x0[2];
+      const T d = a0 * (a4 * a8 - a5 * a7) - a1 * (a3 * a8 - a5 * a6) + a2 * (a3 * a7 - a4 * a6);
+      quarter[l] = vol[l] > T(0) ? d * T(1.0 / 24.0) : T(0);
+    }
+    for (int l = 0; l < kW; ++l) ef[t0 + l] = quarter[l];
+  }
+  const int32_t* range = model.incidence_ranges();
+  const int32_t* slots = model.incidence_slots();
+  const int32_t nn = model.num_nodes();
+#pragma omp for schedule(static)
+  for (int32_t n = 0; n < nn; ++n) {
+    const T rest = model.node_rest_volume(n);
+    T now = 0;
+    for (int32_t k = range[2 * n]; k < range[2 * n + 1]; ++k) now += ef[slots[k] / 12];
+    const T j = rest > T(0) ? std::max(now / rest, kMinNodalVolumeRatio) : T(1);
+    node_pressure[n] = T(0.5) * model.node_kappa(n) * (j - T(1) / j);
+  }
+}
+
 }  // namespace
 
 template <typename T>
 void ElementForcesTeam(const Model<T>& model, const T* x, const T* v, ForceMode mode,
-                       T* element_force, int32_t* bad_tet) {
+                       T* node_pressure, T* element_force, int32_t* bad_tet) {
   static_assert(Model<T>::kBlock == kW);
+  const bool pressure = model.element() == ElementKind::kNodalPressure && mode != ForceMode::kViscousOnly;
+  if (pressure) NodalPressuresTeam(model, x, element_force, node_pressure);
   switch (mode) {
     case ForceMode::kElastic:
-      ElementLoop<T, ForceMode::kElastic>(model, x, v, element_force, bad_tet);
+      if (pressure) {
+        ElementLoop<T, ForceMode::kElastic, true>(model, x, v, node_pressure, element_force, bad_tet);
+      } else {
+        ElementLoop<T, ForceMode::kElastic>(model, x, v, nullptr, element_force, bad_tet);
+      }
       break;
     case ForceMode::kElasticDamped:
-      ElementLoop<T, ForceMode::kElasticDamped>(model, x, v, element_force, bad_tet);
+      if (pressure) {
+        ElementLoop<T, ForceMode::kElasticDamped, true>(model, x, v, node_pressure, element_force, bad_tet);
+      } else {
+        ElementLoop<T, ForceMode::kElasticDamped>(model, x, v, nullptr, element_force, bad_tet);
+      }
       break;
     case ForceMode::kViscousOnly:
-      ElementLoop<T, ForceMode::kViscousOnly>(model, x, v, element_force, bad_tet);
+      ElementLoop<T, ForceMode::kViscousOnly>(model, x, v, nullptr, element_force, bad_tet);
       break;
   }
 }
@@ -258,7 +340,7 @@ int32_t ComputeInternalForces(const Model<T>& model, State<T>& state, ForceMode 
   T* ef = state.element_force.data();
 #pragma omp parallel num_threads(Threads(num_threads))
   {
-    ElementForcesTeam(model, state.x.data(), state.v.data(), mode, ef, &bad);
+    ElementForcesTeam(model, state.x.data(), state.v.data(), mode, state.node_pressure.data(), ef, &bad);
 #pragma omp barrier
     GatherNodeForcesTeam<T>(model, ef, nullptr, false, out);
   }
@@ -277,12 +359,24 @@ Mat3<T> DeformationGradient(const Model<T>& model, const T* x, int32_t t) {
 
 template <typename T>
 double StrainEnergy(const Model<T>& model, const T* x) {
+  const bool nodal = model.element() == ElementKind::kNodalPressure;
+  std::vector<double> node_volume(nodal ? static_cast<size_t>(model.num_nodes()) : 0, 0.0);
   double e = 0;
   for (int32_t t = 0; t < model.num_tets(); ++t) {
     const Mat3<double> F = DeformationGradient(model, x, t).template cast<double>();
-    e += static_cast<double>(model.rest_volume(t)) *
-         StvkEnergyDensity<double>(F, static_cast<double>(model.lambdas()[t]),
-                                   static_cast<double>(model.mus()[t]));
+    const double vol = static_cast<double>(model.rest_volume(t));
+    e += vol * StvkEnergyDensity<double>(F, static_cast<double>(model.element_lambdas()[t]),
+                                         static_cast<double>(model.mus()[t]));
+    if (nodal) {
+      for (int c = 0; c < 4; ++c) node_volume[static_cast<size_t>(model.tet_node(t, c))] += 0.25 * vol * F.determinant();
+    }
+  }
+  for (int32_t n = 0; n < static_cast<int32_t>(node_volume.size()); ++n) {
+    const double rest = static_cast<double>(model.node_rest_volume(n));
+    if (rest > 0) {
+      e += rest * VolumetricEnergyDensity(node_volume[static_cast<size_t>(n)] / rest,
+                                          static_cast<double>(model.node_kappa(n)));
+    }
   }
   return e;
 }
@@ -364,7 +458,7 @@ void ComputeElementStresses(const Model<T>& model, const T* x, std::span<T> sigm
 }
 
 #define CUTSIM_FEM_INSTANTIATE(T)                                                              \
-  template void ElementForcesTeam<T>(const Model<T>&, const T*, const T*, ForceMode, T*,       \
+  template void ElementForcesTeam<T>(const Model<T>&, const T*, const T*, ForceMode, T*, T*,   \
                                      int32_t*);                                                \
   template void GatherNodeForcesTeam<T>(const Model<T>&, const T*, const T*, bool, T*);       \
   template int32_t ComputeInternalForces<T>(const Model<T>&, State<T>&, ForceMode, T*, int);   \

@@ -27,9 +27,13 @@ enum class ForceMode {
 /// det F < model.inversion_det_threshold() use the invertible StVK
 /// (element.h). If any element force is non-finite, the smallest such tet
 /// index is min-reduced into `*bad_tet` (initialise it to INT32_MAX).
+/// With the nodal-pressure element (and an elastic mode) two passes come
+/// first: the nodes' volume ratios J_a and pressures p_a = U'(J_a) into
+/// `node_pressure` (#N scratch; unused, may be null, otherwise), then the
+/// element pass adds p̄_e·cof(F) to each P (nodal_pressure.h).
 template <typename T>
 void ElementForcesTeam(const Model<T>& model, const T* x, const T* v, ForceMode mode,
-                       T* element_force, int32_t* bad_tet);
+                       T* node_pressure, T* element_force, int32_t* bad_tet);
 
 /// Pass 2 for all nodes: out[n] = Σ element forces of n (+ external f_ext if
 /// non-null + prescribed + m·g when `add_loads`).  // out #N×3
@@ -38,7 +42,8 @@ void GatherNodeForcesTeam(const Model<T>& model, const T* element_force, const T
                           bool add_loads, T* out);
 
 /// Internal (elastic + damping unless mode says otherwise) nodal forces of
-/// the state into `out` (#N×3), using `state.element_force` as scratch.
+/// the state into `out` (#N×3), using `state.element_force` and
+/// `state.node_pressure` as scratch.
 /// Returns the first non-finite tet or −1.
 template <typename T>
 int32_t ComputeInternalForces(const Model<T>& model, State<T>& state, ForceMode mode, T* out,
@@ -48,7 +53,8 @@ int32_t ComputeInternalForces(const Model<T>& model, State<T>& state, ForceMode 
 template <typename T>
 Mat3<T> DeformationGradient(const Model<T>& model, const T* x, int32_t t);
 
-/// Strain energy Σ vol·(λ/2 tr(E)² + μ tr(E²)), J (accumulated in double).
+/// Strain energy Σ vol·(λ/2 tr(E)² + μ tr(E²)), J (accumulated in double);
+/// with the nodal-pressure element Σ_e V_e·μ|dev E_e|² + Σ_a V_a·U(J_a).
 template <typename T>
 double StrainEnergy(const Model<T>& model, const T* x);
 /// Kinetic energy ½ Σ m|v|², J.

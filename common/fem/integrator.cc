@@ -127,7 +127,7 @@ double ApplyViscousSystem(const Model<T>& model, const T* x, const T* p, T dt, T
   NodeSums<1> pq(nn);  // the same bits for any thread count (node_sums.h)
 #pragma omp parallel num_threads(nt)
   {
-    ElementForcesTeam(model, x, p, ForceMode::kViscousOnly, ef, bad);
+    ElementForcesTeam<T>(model, x, p, ForceMode::kViscousOnly, nullptr, ef, bad);
 #pragma omp barrier
     GatherNodeForcesTeam<T>(model, ef, nullptr, false, q);  // q = f_visc(p) = −C p
     pq.Team([&](int32_t n, std::array<double, 1>& acc) {
@@ -291,8 +291,6 @@ int ImplicitViscous(const Model<T>& model, State<T>& state, T dt, const StepOpti
 template <typename T>
 StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions& options) {
   CUTSIM_CHECK(!model.topology_dirty(), "fem::Step: call Model::CommitTopology after mutations");
-  CUTSIM_CHECK(model.element() == ElementKind::kLinear,
-               "fem::Step: the nodal-pressure element needs the implicit integrator");
   StepResult res;
   res.step = state.step;
   res.dt = static_cast<double>(dt);
@@ -322,7 +320,7 @@ StepResult Step(const Model<T>& model, State<T>& state, T dt, const StepOptions&
   int runaway = 0;
 #pragma omp parallel num_threads(nt)
   {
-    ElementForcesTeam(model, x, v, mode, ef, &bad_tet);
+    ElementForcesTeam(model, x, v, mode, state.node_pressure.data(), ef, &bad_tet);
 #pragma omp barrier
     GatherNodeForcesTeam<T>(model, ef, state.f_ext.data(), true, f);
     // Guard before writing anything: the predicted velocity of every free

@@ -409,6 +409,7 @@ State<T>::State(const Model<T>& model) {
   lanczos_x.assign(NC, T(0));
   lanczos_f0.assign(NC, T(0));
   element_force.assign(12 * static_cast<size_t>(model.padded_tets()), T(0));
+  node_pressure.assign(static_cast<size_t>(model.node_capacity()), T(0));
   element_dt.assign(static_cast<size_t>(model.padded_tets()), std::numeric_limits<T>::infinity());
   element_dt_at_spectral.assign(static_cast<size_t>(model.padded_tets()), std::numeric_limits<T>::infinity());
   dt_leaves = 1;

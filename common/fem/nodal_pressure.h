@@ -55,8 +55,9 @@ inline double VolumetricModulus(double J, double kappa) { return 0.5 * kappa * (
 
 /// cof(F) = det(F)·F⁻ᵀ, as the columns f₂×f₃, f₃×f₁, f₁×f₂ of F's columns
 /// (polynomial: defined for singular F too).  // 3×3
-inline Mat3<double> Cofactor(const Mat3<double>& F) {
-  Mat3<double> c;
+template <typename T>
+inline Mat3<T> Cofactor(const Mat3<T>& F) {
+  Mat3<T> c;
   c.col(0) = F.col(1).cross(F.col(2));
   c.col(1) = F.col(2).cross(F.col(0));
   c.col(2) = F.col(0).cross(F.col(1));

@@ -25,7 +25,14 @@ T ElementStableStep(const Model<T>& model, const T* x, int32_t t, bool explicit_
   // compressed state must never buy a longer step (measured: without the
   // floor, a body released from compression blows up at 0.5 of the bound).
   const T s2 = std::max(T(1), GershgorinMax<T>(C));
-  const T lam = model.lambdas()[t], mu = model.mus()[t];
+  const T mu = model.mus()[t];
+  T lam = model.lambdas()[t];
+  if (model.element() == ElementKind::kNodalPressure) {
+    // The nodal bulk stiffness U''(J) = κ/2·(1 + 1/J²) exceeds κ under
+    // compression; the element's own J stands in for its nodes'.
+    const T j = std::max(F.determinant(), T(0.027));
+    lam *= std::max(T(1), T(0.5) * (T(1) + T(1) / (j * j)));
+  }
   const Mat3<T> S = StvkSecondPiola<T>(T(0.5) * (C - Mat3<T>::Identity()), lam, mu);
   const T k = std::max(T(0), GershgorinMax<T>(S)) + std::max(T(3) * lam + T(2) * mu, T(2) * mu) * s2;
   const T g = model.grad_sq_max(t);
@@ -174,7 +181,7 @@ double LanczosMax(const Model<T>& model, State<T>& state, bool damping, int k, i
   if (!damping) {
 #pragma omp parallel num_threads(nt)
     {
-      ElementForcesTeam(model, x, state.v.data(), ForceMode::kElastic, ef, &bad);
+      ElementForcesTeam(model, x, state.v.data(), ForceMode::kElastic, state.node_pressure.data(), ef, &bad);
 #pragma omp barrier
       GatherNodeForcesTeam<T>(model, ef, nullptr, false, state.lanczos_f0.data());
     }
@@ -224,9 +231,9 @@ double LanczosMax(const Model<T>& model, State<T>& state, bool damping, int k, i
         }
       }
       if (damping) {
-        ElementForcesTeam(model, x, xp, ForceMode::kViscousOnly, ef, &bad);
+        ElementForcesTeam<T>(model, x, xp, ForceMode::kViscousOnly, nullptr, ef, &bad);
       } else {
-        ElementForcesTeam(model, xp, xp, ForceMode::kElastic, ef, &bad);
+        ElementForcesTeam(model, xp, xp, ForceMode::kElastic, state.node_pressure.data(), ef, &bad);
       }
 #pragma omp barrier
       GatherNodeForcesTeam<T>(model, ef, nullptr, false, w);

@@ -28,6 +28,8 @@ struct State {
 
   // ---- scratch (owned by the integrator; contents are undefined) ----------
   std::vector<T> element_force;  ///< Per-element nodal forces.  // #T_pad×12
+  /// Nodal-pressure element: each node's pressure U'(J_a), Pa.  // #N_cap
+  std::vector<T> node_pressure;
   std::vector<T> v_star;         ///< Implicit viscous: explicit predictor.  // #N_cap×3
   std::vector<T> cg_r, cg_p, cg_q;  ///< Implicit viscous CG vectors.  // #N_cap×3
   /// Implicit viscous: inverse of each node's 3×3 diagonal block of

@@ -48,13 +48,36 @@ int MaterialOfRegion(const v1::Scene& scene, int32_t region, int catch_all) {
   return catch_all;
 }
 
+}  // namespace
+
+fem::ElementKind ChooseElement(const v1::Scene& scene) {
+  switch (scene.element()) {
+    case v1::Scene::ELEMENT_LINEAR:
+      return fem::ElementKind::kLinear;
+    case v1::Scene::ELEMENT_NODAL_PRESSURE:
+      return fem::ElementKind::kNodalPressure;
+    default:
+      break;
+  }
+  // AUTO: the linear tet locks as ν → ½ and is already markedly too stiff
+  // at 0.45 (bench/README "Run time against error"), so any nearly
+  // incompressible material takes the nodal-pressure element.
+  for (const v1::Material& m : scene.materials()) {
+    const fem::Material fm = MaterialOf(m);
+    const double nu = fm.lambda / (2.0 * (fm.lambda + fm.mu));
+    if (nu >= kNodalPressurePoisson) return fem::ElementKind::kNodalPressure;
+  }
+  return fem::ElementKind::kLinear;
+}
+
+namespace {
+
 fem::ModelOptions MakeModelOptions(const LoadedScene& scene, int32_t num_nodes) {
   fem::ModelOptions o;
   o.node_capacity = NodeCapacity(scene.scene, num_nodes);
   o.gravity = ToEigen(scene.scene.gravity());
   o.source = scene.path.string();
-  o.element = scene.scene.element() == v1::Scene::ELEMENT_NODAL_PRESSURE ? fem::ElementKind::kNodalPressure
-                                                                       : fem::ElementKind::kLinear;
+  o.element = ChooseElement(scene.scene);
   return o;
 }
 

@@ -30,6 +30,15 @@ namespace cutsim::sim {
 [[nodiscard]] std::vector<int32_t> SelectNodes(const v1::BoundaryCondition& bc, const SceneMesh& sm,
                                                const std::string& source, int index);
 
+/// Poisson's ratio from which ELEMENT_AUTO picks the nodal-pressure element.
+inline constexpr double kNodalPressurePoisson = 0.4;
+
+/// The element a scene asks for: its `element` field, or for ELEMENT_AUTO
+/// the nodal-pressure element when some material has ν ≥
+/// kNodalPressurePoisson (ν = λ/(2(λ + μ)) for Lamé materials), else the
+/// linear one.
+[[nodiscard]] fem::ElementKind ChooseElement(const v1::Scene& scene);
+
 /// Node capacity: a cut copies nodes (seed §3.2), so cutting reserves room
 /// for them.
 [[nodiscard]] int32_t NodeCapacity(const v1::Scene& scene, int32_t num_nodes);

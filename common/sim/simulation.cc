@@ -41,11 +41,6 @@ class Engine final : public Simulation {
         fem_(scene_, mesh_, options),
         world_access_(fem_.state().x),
         dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())) {
-    if (fem_.model().element() == fem::ElementKind::kNodalPressure && dynamics_.kind() != IntegratorKind::kImplicit) {
-      ThrowInputError({.file = scene_.path.string(), .field = "element"},
-                      "ELEMENT_NODAL_PRESSURE needs the implicit integrator (time_step.integrator "
-                      "INTEGRATOR_IMPLICIT, or AUTO choosing it; double precision)");
-    }
     if (scene_.scene.settle()) SettleTissue();
     if (scene_.scene.has_tool()) SetUpTool();
     RebuildSurface();
