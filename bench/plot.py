@@ -334,7 +334,52 @@ def plot_cut(folder):
     fig.savefig(os.path.join(folder, "cut_step.png"), dpi=120)
 
 
+def plot_poisson(folder):
+    """accuracy_bench's Poisson sweep: static tip error against the CalculiX
+    reference vs wall time, per element and integrator, one panel per ν,
+    with each element's Pareto front (poisson_pareto.png)."""
+    path = os.path.join(folder, "accuracy.json")
+    if not os.path.exists(path):
+        return
+    sweep = load(path).get("poisson_sweep")
+    if not sweep:
+        return
+    runs = [r for r in sweep["runs"] if r["ok"]]
+    ratios = sorted({r["poisson"] for r in runs})
+    fig, axes = plt.subplots(1, len(ratios), figsize=(4.2 * len(ratios), 4.2), squeeze=False)
+    styles = {("linear", "backward_euler"): ("tab:red", "o"), ("linear", "symplectic_euler"): ("tab:red", "^"),
+              ("nodal_pressure", "backward_euler"): ("tab:blue", "o"),
+              ("nodal_pressure", "symplectic_euler"): ("tab:blue", "^")}
+    for ax, nu in zip(axes[0], ratios):
+        here = [r for r in runs if r["poisson"] == nu]
+        for (element, integrator), (color, marker) in styles.items():
+            pts = [r for r in here if r["element"] == element and r["integrator"] == integrator]
+            if not pts:
+                continue
+            ax.scatter([r["static_wall_s"] for r in pts], [100 * abs(r["tip_rel_error"]) for r in pts],
+                       color=color, marker=marker, label=f"{element}, {integrator.replace('_', ' ')}")
+            for r in pts:
+                ax.annotate(f"{r['tets']}", (r["static_wall_s"], 100 * abs(r["tip_rel_error"])), fontsize=6,
+                            xytext=(3, 3), textcoords="offset points")
+        for element, color in (("linear", "tab:red"), ("nodal_pressure", "tab:blue")):
+            pts = [(r["static_wall_s"], 100 * abs(r["tip_rel_error"])) for r in here if r["element"] == element]
+            front = sorted(pts[i] for i in pareto_front(pts))
+            if front:
+                ax.plot([p[0] for p in front], [p[1] for p in front], color=color, lw=1, alpha=0.6)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(f"ν = {nu}", fontsize=10)
+        ax.set_xlabel("wall time to the static tip, s (1 thread)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("|tip error| vs CalculiX C3D20R, %")
+    max(axes[0], key=lambda a: len(a.get_legend_handles_labels()[0])).legend(fontsize=7)
+    fig.suptitle("Beam under gravity: run time against error, both elements", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "poisson_pareto.png"), dpi=120)
+
+
 if __name__ == "__main__":
     main(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_accuracy(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_cut(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
+    plot_poisson(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
