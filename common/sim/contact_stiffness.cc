@@ -6,6 +6,8 @@
 #include <Eigen/SparseCholesky>
 
 #include "common/fem/element.h"
+#include "common/fem/nodal_pressure.h"
+#include "common/fem/tangent.h"
 
 namespace cutsim::sim {
 namespace {
@@ -71,6 +73,122 @@ void AddElementEntries(const fem::Model<T>& model, const T* x, int32_t t, PatchS
   }
 }
 
+// ---- the nodal-pressure element's volumetric tangent ----------------------
+// K_vol = Σ_a (U''(J_a)/V_a)·∇v_a ∇v_aᵀ + Σ_e p̄_e·∂²v_e/∂x² (nodal_pressure.h):
+// the first term couples the nodes of a patch, so it has no element matrix.
+
+/// Element t's current F and volume gradient ∂v_e/∂x (3×4, m²).
+template <typename T>
+fem::Mat34<double> ElementVolumeGradient(const fem::Model<T>& model, const T* x, int32_t t, fem::Mat3<double>* F) {
+  fem::Mat34<double> xe;
+  for (int c = 0; c < 4; ++c) xe.col(c) = NodeX(x, model.tet_node(t, c));
+  const fem::Mat3<double> dm_inv = model.DmInv(t).template cast<double>();
+  *F = fem::EdgeMatrix(xe) * dm_inv;
+  return fem::VolumeGradient(*F, fem::ShapeGradients(dm_inv), static_cast<double>(model.rest_volume(t)));
+}
+
+/// Node a's pressure U'(J_a) (Pa) and patch curvature U''(J_a)/V_a (Pa/m³).
+template <typename T>
+std::pair<double, double> NodePressure(const fem::Model<T>& model, const T* x, int32_t a) {
+  const double rest = static_cast<double>(model.node_rest_volume(a));
+  if (!(rest > 0)) return {0.0, 0.0};
+  const int32_t* slots = model.incidence_slots();
+  double now = 0;
+  for (int32_t s = model.incidence_begin(a); s < model.incidence_end(a); ++s) {
+    fem::Mat34<double> xe;
+    const int32_t t = slots[s] / 12;
+    for (int c = 0; c < 4; ++c) xe.col(c) = NodeX(x, model.tet_node(t, c));
+    now += 0.25 * static_cast<double>(model.rest_volume(t)) *
+           (fem::EdgeMatrix(xe) * model.DmInv(t).template cast<double>()).determinant();
+  }
+  const double j = now / rest, kappa = static_cast<double>(model.node_kappa(a));
+  return {fem::VolumetricPressure(j, kappa), fem::VolumetricModulus(j, kappa) / rest};
+}
+
+/// ∇_n v_a = ¼ Σ_{e ∋ a, n} ∂v_e/∂x_n: how node n's motion changes node a's
+/// patch volume, m².
+template <typename T>
+Eigen::Vector3d PatchVolumeGradient(const fem::Model<T>& model, const T* x, int32_t a, int32_t n) {
+  const int32_t* slots = model.incidence_slots();
+  Eigen::Vector3d g = Eigen::Vector3d::Zero();
+  for (int32_t s = model.incidence_begin(a); s < model.incidence_end(a); ++s) {
+    const int32_t t = slots[s] / 12;
+    for (int c = 0; c < 4; ++c) {
+      if (model.tet_node(t, c) != n) continue;
+      fem::Mat3<double> F;
+      g += 0.25 * ElementVolumeGradient(model, x, t, &F).col(c);
+    }
+  }
+  return g;
+}
+
+/// Appends the volumetric tangent's lower triangle on the patch's unknowns
+/// to `scratch.entries`: the pressure term of each element in
+/// `scratch.tets`, and the patch term of every node of those elements
+/// (elements outside them have no unknown corner, so they add nothing).
+template <typename T>
+void AddNodalPressureEntries(const fem::Model<T>& model, const T* x, PatchScratch& scratch) {
+  std::vector<int32_t> corners;
+  for (const int32_t t : scratch.tets) {
+    for (int c = 0; c < 4; ++c) corners.push_back(model.tet_node(t, c));
+  }
+  std::sort(corners.begin(), corners.end());
+  corners.erase(std::unique(corners.begin(), corners.end()), corners.end());
+  std::vector<std::pair<double, double>> pressure(corners.size());
+  for (size_t i = 0; i < corners.size(); ++i) pressure[i] = NodePressure(model, x, corners[i]);
+  const auto index = [&](int32_t node) {
+    return static_cast<size_t>(std::lower_bound(corners.begin(), corners.end(), node) - corners.begin());
+  };
+  const auto column = [&](int32_t node) { return scratch.column[static_cast<size_t>(node)]; };
+  const auto add_block = [&](int32_t row, int32_t col, const Eigen::Matrix3d& b) {
+    if (row < col) return;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) {
+        if (row == col && r < c) continue;
+        scratch.entries.emplace_back(3 * row + r, 3 * col + c, b(r, c));
+      }
+    }
+  };
+  for (const int32_t t : scratch.tets) {
+    double p_bar = 0;
+    for (int c = 0; c < 4; ++c) p_bar += 0.25 * pressure[index(model.tet_node(t, c))].first;
+    fem::Mat34<double> xe;
+    for (int c = 0; c < 4; ++c) xe.col(c) = NodeX(x, model.tet_node(t, c));
+    const fem::Mat3<double> dm_inv = model.DmInv(t).template cast<double>();
+    const fem::Mat34<double> g = fem::ShapeGradients(dm_inv);
+    const fem::Mat3<double> F = fem::EdgeMatrix(xe) * dm_inv;
+    for (int a = 0; a < 4; ++a) {
+      for (int b = 0; b < 4; ++b) {
+        if (a == b) continue;
+        const int32_t ra = column(model.tet_node(t, a)), cb = column(model.tet_node(t, b));
+        if (ra < 0 || cb < 0) continue;
+        add_block(ra, cb, p_bar * fem::VolumeHessianBlock(F, g.col(a), g.col(b), static_cast<double>(model.rest_volume(t))));
+      }
+    }
+  }
+  // Patch terms: ∇v_a on the unknowns, then its outer product.
+  const int32_t* slots = model.incidence_slots();
+  std::vector<std::pair<int32_t, Eigen::Vector3d>> grad;  // (unknown, ∇v_a block)
+  for (size_t i = 0; i < corners.size(); ++i) {
+    const double curvature = pressure[i].second;
+    if (!(curvature > 0)) continue;
+    const int32_t a = corners[i];
+    grad.clear();
+    for (int32_t s = model.incidence_begin(a); s < model.incidence_end(a); ++s) {
+      const int32_t t = slots[s] / 12;
+      fem::Mat3<double> F;
+      const fem::Mat34<double> ge = ElementVolumeGradient(model, x, t, &F);
+      for (int c = 0; c < 4; ++c) {
+        const int32_t col = column(model.tet_node(t, c));
+        if (col >= 0) grad.emplace_back(col, 0.25 * ge.col(c));
+      }
+    }
+    for (const auto& [ci, gi] : grad) {
+      for (const auto& [cj, gj] : grad) add_block(ci, cj, curvature * gi * gj.transpose());
+    }
+  }
+}
+
 }  // namespace
 
 template <typename T>
@@ -79,7 +197,7 @@ Eigen::Matrix<double, 12, 12> ElementStiffness(const fem::Model<T>& model, const
   for (int c = 0; c < 4; ++c) xe.col(c) = NodeX(x, model.tet_node(t, c));
   return fem::StvkElementStiffness<double>(xe, model.DmInv(t).template cast<double>(),
                                            static_cast<double>(model.rest_volume(t)),
-                                           static_cast<double>(model.lambdas()[t]),
+                                           static_cast<double>(model.element_lambdas()[t]),
                                            static_cast<double>(model.mus()[t]));
 }
 
@@ -91,6 +209,20 @@ double NodeNormalStiffness(const fem::Model<T>& model, const T* x, int32_t node,
     const int corner = (slots[s] % 12) / 3;
     k += n.dot(ElementStiffness(model, x, slots[s] / 12).template block<3, 3>(3 * corner, 3 * corner) * n);
   }
+  if (model.element() == fem::ElementKind::kNodalPressure) {
+    // Σ_a (U''(J_a)/V_a)·(n·∇_node v_a)² over the nodes sharing an element
+    // with `node` (the pressure term's diagonal blocks vanish).
+    std::vector<int32_t> neighbours;
+    for (int32_t s = model.incidence_begin(node); s < model.incidence_end(node); ++s) {
+      for (int c = 0; c < 4; ++c) neighbours.push_back(model.tet_node(slots[s] / 12, c));
+    }
+    std::sort(neighbours.begin(), neighbours.end());
+    neighbours.erase(std::unique(neighbours.begin(), neighbours.end()), neighbours.end());
+    for (const int32_t a : neighbours) {
+      const double along = n.dot(PatchVolumeGradient(model, x, a, node));
+      k += NodePressure(model, x, a).second * along * along;
+    }
+  }
   return k;
 }
 
@@ -100,6 +232,7 @@ double SolvePatchCompliance(const fem::Model<T>& model, const T* x, const std::a
   model.IncidentTets(scratch.unknown, scratch.tets);
   scratch.entries.clear();
   for (const int32_t t : scratch.tets) AddElementEntries(model, x, t, scratch);
+  if (model.element() == fem::ElementKind::kNodalPressure) AddNodalPressureEntries(model, x, scratch);
   const int n = 3 * static_cast<int>(scratch.unknown.size());
   Eigen::SparseMatrix<double> K(n, n);
   K.setFromTriplets(scratch.entries.begin(), scratch.entries.end());

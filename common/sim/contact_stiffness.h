@@ -6,7 +6,8 @@
 ///
 /// The tissue's point stiffness along a unit direction u for a load spread
 /// as wᵢ·u over a facet's nodes is k_t = 1/(fᵀK⁻¹f), f = w ⊗ u, K = −∂f/∂x
-/// the StVK tangent at the current positions of the free nodes within
+/// the tangent (StVK, or the nodal-pressure element's deviatoric and
+/// volumetric parts) at the current positions of the free nodes within
 /// kStiffnessRings rings of the facet, with every element touching them;
 /// nodes beyond are held. The facet nodes' diagonal blocks alone (every
 /// other node held) overestimate it several times; they remain the fallback
@@ -36,7 +37,10 @@ struct PatchScratch {
   std::vector<Eigen::Triplet<double>> entries;  ///< lower triangle of the patch K
 };
 
-/// StVK tangent K = −∂f/∂x of element `t` at positions `x` (#N·3, m).  // 12×12
+/// StVK tangent K = −∂f/∂x of element `t` at positions `x` (#N·3, m),
+/// with the element's own λ: with the nodal-pressure element the
+/// deviatoric part only (its volumetric tangent couples whole node patches
+/// and enters the patch solve and NodeNormalStiffness separately).  // 12×12
 template <typename T>
 [[nodiscard]] Eigen::Matrix<double, 12, 12> ElementStiffness(const fem::Model<T>& model, const T* x, int32_t t);
 

@@ -25,27 +25,31 @@ namespace {
 constexpr double kSize = 0.02;  // m, the block's edge
 
 /// A 3×3×2-cell block of soft tissue, its base fixed if asked, stretched
-/// along x by 10 % and jittered by a tenth of a cell, so that the tangent
+/// along x by 10 % (at constant volume for the nodal-pressure element) and jittered by a tenth of a cell, so that the tangent
 /// differs from the rest one.
 struct Fixture {
-  explicit Fixture(bool fixed_base)
+  explicit Fixture(bool fixed_base, fem::ElementKind element = fem::ElementKind::kLinear)
       : mesh(mesh::MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d(kSize, kSize, kSize), 3, 3, 2)),
-        tissue(fem::Material::FromYoungPoisson(5e4, 0.4, 1000)),
-        model(mesh, std::span(&tissue, 1), fem::ModelOptions{}),
+        tissue(fem::Material::FromYoungPoisson(5e4, element == fem::ElementKind::kLinear ? 0.4 : 0.49, 1000)),
+        model(mesh, std::span(&tissue, 1), fem::ModelOptions{.element = element}),
         state(model) {
     if (fixed_base) {
       for (int32_t n = 0; n < model.num_nodes(); ++n) {
         if (mesh.nodes(n, 2) == 0.0) model.SetFixed(n, true);
       }
     }
+    // The nearly incompressible material contracts sideways (volume kept),
+    // or the hydrostatic tension of a 10 % volume change would make the
+    // patch tangent indefinite.
+    const double lateral = element == fem::ElementKind::kLinear ? 1.0 : 1.0 / std::sqrt(1.1);
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> jitter(-0.1 * kSize / 3, 0.1 * kSize / 3);
     for (int32_t n = 0; n < model.num_nodes(); ++n) {
       const auto i = 3 * static_cast<size_t>(n);
       if (model.fixed(n)) continue;
       state.x[i] = 1.1 * mesh.nodes(n, 0) + jitter(rng);
-      state.x[i + 1] = mesh.nodes(n, 1) + jitter(rng);
-      state.x[i + 2] = mesh.nodes(n, 2) + jitter(rng);
+      state.x[i + 1] = lateral * mesh.nodes(n, 1) + jitter(rng);
+      state.x[i + 2] = lateral * mesh.nodes(n, 2) + jitter(rng);
     }
   }
 
@@ -113,8 +117,10 @@ TEST(ContactStiffness, ElementTangentsAssembleToMinusTheForceDerivative) {
   EXPECT_LT((K - K_fd).cwiseAbs().maxCoeff(), 1e-5 * scale);
 }
 
-TEST(ContactStiffness, NodeNormalStiffnessIsTheDiagonalBlockAlongTheDirection) {
-  Fixture f(/*fixed_base=*/false);
+class ContactStiffnessElements : public ::testing::TestWithParam<fem::ElementKind> {};
+
+TEST_P(ContactStiffnessElements, NodeNormalStiffnessIsTheDiagonalBlockAlongTheDirection) {
+  Fixture f(/*fixed_base=*/false, GetParam());
   const Eigen::Vector3d u = Eigen::Vector3d(0.3, -0.2, 1.0).normalized();
   for (const int32_t node : {0, f.model.num_nodes() / 2, f.model.num_nodes() - 1}) {
     Eigen::Matrix3d block;
@@ -128,8 +134,8 @@ TEST(ContactStiffness, NodeNormalStiffnessIsTheDiagonalBlockAlongTheDirection) {
 // The patch frees the facet's nodes and two rings around them, holds the
 // rest: its stiffness is 1/(fᵀK⁻¹f) with K the finite-difference tangent
 // restricted to the unknowns it freed.
-TEST(ContactStiffness, PatchStiffnessIsThePointStiffnessOfTheFreedNodes) {
-  Fixture f(/*fixed_base=*/true);
+TEST_P(ContactStiffnessElements, PatchStiffnessIsThePointStiffnessOfTheFreedNodes) {
+  Fixture f(/*fixed_base=*/true, GetParam());
   const std::array<int32_t, 3> facet = TopFacet(f);
   const Eigen::Vector3d w(0.2, 0.5, 0.3);
   const Eigen::Vector3d u = Eigen::Vector3d(0.1, 0.2, -1.0).normalized();
@@ -160,6 +166,15 @@ TEST(ContactStiffness, PatchStiffnessIsThePointStiffnessOfTheFreedNodes) {
   // A second call on the warm scratch gives the same bits.
   EXPECT_EQ(PatchStiffness(f.model, f.state.x.data(), facet, w, u, scratch), k);
 }
+
+// The nodal-pressure element's tangent couples whole node patches: the
+// patch solve and the diagonal estimate must include it to match the force's
+// derivative.
+INSTANTIATE_TEST_SUITE_P(Elements, ContactStiffnessElements,
+                         ::testing::Values(fem::ElementKind::kLinear, fem::ElementKind::kNodalPressure),
+                         [](const ::testing::TestParamInfo<fem::ElementKind>& info) {
+                           return info.param == fem::ElementKind::kLinear ? "Linear" : "NodalPressure";
+                         });
 
 TEST(ContactStiffness, SeriesStiffnessIsSofterThanEither) {
   EXPECT_DOUBLE_EQ(SeriesStiffness(100.0, 100.0), 50.0);
