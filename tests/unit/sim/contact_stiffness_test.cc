@@ -172,8 +172,8 @@ TEST_P(ContactStiffnessElements, PatchStiffnessIsThePointStiffnessOfTheFreedNode
 // derivative.
 INSTANTIATE_TEST_SUITE_P(Elements, ContactStiffnessElements,
                          ::testing::Values(fem::ElementKind::kLinear, fem::ElementKind::kNodalPressure),
-                         [](const ::testing::TestParamInfo<fem::ElementKind>& info) {
-                           return info.param == fem::ElementKind::kLinear ? "Linear" : "NodalPressure";
+                         [](const ::testing::TestParamInfo<fem::ElementKind>& param_info) {
+                           return param_info.param == fem::ElementKind::kLinear ? "Linear" : "NodalPressure";
                          });
 
 TEST(ContactStiffness, SeriesStiffnessIsSofterThanEither) {
