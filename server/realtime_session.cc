@@ -24,6 +24,7 @@
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
 #include "common/transport/mesh_stream.h"
+#include "common/transport/proto_vec.h"
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
 #include "cutsim/v1/report.pb.h"
@@ -130,6 +131,8 @@ class RealtimeLoop {
   std::optional<sim::ToolPose> TakeToolPose(int64_t frame_start);
   void PublishLocalModel(bool pose_this_frame);
   void PublishViewerFrame(int64_t frame_start);
+  /// The session as observers see it at this frame (clock, cuts, tool).
+  [[nodiscard]] v1::ObserverSession ObservedSession(int64_t frame_start) const;
   void PublishStatus(int64_t frame_start);
   void Pace(int64_t frame_start);
 
@@ -242,12 +245,30 @@ void RealtimeLoop::PublishLocalModel(bool pose_this_frame) {
   last_cuts_ = tool.cuts;
 }
 
+v1::ObserverSession RealtimeLoop::ObservedSession(int64_t frame_start) const {
+  v1::ObserverSession o;
+  o.set_sim_time(p_.simulation.sim_time());
+  o.set_wall_time(1e-9 * static_cast<double>(frame_start - start_ns_));
+  o.set_topology_version(p_.simulation.topology_version());
+  if (!p_.simulation.has_tool()) return o;
+  const sim::ToolReport tool = p_.simulation.Tool();
+  o.set_cuts(tool.cuts);
+  v1::ToolView* view = o.add_tools();
+  transport::SetVec3(tool.pose.tip, view->mutable_tip());
+  transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
+  view->set_blade_length(tool.blade_length);
+  transport::SetVec3(tool.force_on_tool, view->mutable_force());
+  view->set_contact(tool.touching);
+  return o;
+}
+
 void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
   // Viewers at their own rate; nothing is encoded while none is matched.
   next_viewer_ns_ += viewer_period_ns_;
   if (next_viewer_ns_ < frame_start) next_viewer_ns_ = frame_start + viewer_period_ns_;
   // The simulation fills the publisher's reused frame in place: once warm
   // nothing allocates, and the mesh is copied once.
+  p_.publisher.SetObserved(ObservedSession(frame_start));
   p_.publisher.PublishFrame([this](transport::MeshFrame& frame) {
     p_.simulation.FillMeshView(frame);
     frame.frame = counters_.frames;

@@ -11,6 +11,7 @@
 #include "common/core/log.h"
 #include "common/sim/scene_loader.h"
 #include "common/transport/codec.h"
+#include "common/transport/proto_vec.h"
 
 namespace cutsim::server {
 extern volatile std::sig_atomic_t g_stop;  // server_app.cc: SIGINT/SIGTERM
@@ -35,12 +36,6 @@ uint64_t FileHash(const std::filesystem::path& path) {
     h *= 0x100000001b3ULL;
   }
   return h;
-}
-
-void SetVec3(const Eigen::Vector3d& e, v1::Vec3* v) {
-  v->set_x(e.x());
-  v->set_y(e.y());
-  v->set_z(e.z());
 }
 
 uint64_t TopologyDigest(const sim::Simulation& simulation, sim::MeshView* view) {
@@ -124,8 +119,8 @@ void SessionRecorder::Frame(double frame_time, const std::optional<sim::ToolPose
   frame_msg_.set_frame_time(frame_time);
   if (applied) {
     frame_msg_.set_has_tool(true);
-    SetVec3(applied->tip, frame_msg_.mutable_tip());
-    SetVec3(applied->blade_dir, frame_msg_.mutable_blade_dir());
+    transport::SetVec3(applied->tip, frame_msg_.mutable_tip());
+    transport::SetVec3(applied->blade_dir, frame_msg_.mutable_blade_dir());
   }
   const uint64_t version = simulation.topology_version();
   frame_msg_.set_topology_version(version);

@@ -23,6 +23,7 @@
 #include "common/transport/dds.h"
 #include "common/transport/mesh_stream.h"
 #include "common/transport/report_json.h"
+#include "common/transport/proto_vec.h"
 #include "cutsim/v1/report.pb.h"
 
 namespace cutsim::viewer {
@@ -133,11 +134,22 @@ class FrameSink {
   /// Renders frame `index` of `mesh` and writes it everywhere asked; adds the
   /// render and read-back time to `*render_ns`. Returns when it was done
   /// (monotonic ns).
-  int64_t Draw(const transport::MeshReplica& mesh, int64_t index, int64_t* render_ns) {
+  int64_t Draw(const transport::MeshReplica& mesh, const std::optional<v1::ObserverSession>& observed,
+               int64_t index, int64_t* render_ns) {
     if (!camera_) camera_ = render::FrameBoundingBox(render::BoundingBox(mesh.world()), o_.width, o_.height);
     const int64_t t0 = MonotonicNs();
     render::RenderOptions ropts;
     ropts.colour_by_scalar = o_.stress;
+    if (observed && observed->tools_size() > 0) {
+      // The scalpel as the server last placed it, and the force on it.
+      const v1::ToolView& tool = observed->tools(0);
+      const Eigen::Vector3d tip = transport::FromVec3(tool.tip());
+      Eigen::Vector3d dir = transport::FromVec3(tool.blade_dir());
+      dir = dir.norm() > 0 ? Eigen::Vector3d(dir.normalized()) : Eigen::Vector3d::UnitZ();
+      ropts.tool = render::ToolSegment{.pose = {.tip = tip, .blade_dir = dir}, .length = tool.blade_length()};
+      ropts.force = render::ForceOverlay{.at = tip, .force = transport::FromVec3(tool.force()),
+                                         .full_scale = o_.force_full_scale};
+    }
     const render::Image image = renderer_.Render(
         *camera_, {.positions = mesh.world(),
                    .triangles = mesh.surface(),
@@ -238,6 +250,9 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--eye", eye, "Camera position x,y,z (m); default frames the first mesh");
   app.add_option("--target", target, "Camera target x,y,z (m)");
   app.add_flag("--stress", options_.stress, "Colour intact faces by the per-node stress");
+  app.add_option("--force-full-scale", options_.force_full_scale,
+                 "Force on the tool (N) that fills the force gauge and draws the arrow half the scene's size")
+      ->check(CLI::Range(1e-6, 1e6));
   app.add_option("--max-frames", options_.max_frames, "Exit after rendering N frames")
       ->check(CLI::PositiveNumber);
   app.add_option("--duration", options_.duration, "Exit after S seconds")->check(CLI::PositiveNumber);
@@ -302,7 +317,7 @@ int ViewerApp::Run() {
       ++r.frames_skipped;
       continue;
     }
-    const int64_t done_ns = sink.Draw(mesh, r.frames, &r.render_ns);
+    const int64_t done_ns = sink.Draw(mesh, sub.observed(), r.frames, &r.render_ns);
     NoteFrame(mesh, start_ns, done_ns, r);
     if (o.max_frames && r.frames >= *o.max_frames) {
       r.exit_reason = "max_frames";

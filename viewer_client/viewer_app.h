@@ -24,6 +24,7 @@ struct ViewerOptions {
   std::optional<Eigen::Vector3d> eye;     ///< m, world
   std::optional<Eigen::Vector3d> target;  ///< m, world
   bool stress = false;
+  double force_full_scale = 1.0;  ///< N: the force that fills the gauge.
   std::optional<int64_t> max_frames;
   std::optional<double> duration;        ///< s of wall time
   std::optional<double> exit_when_idle;  ///< s without samples (after some arrived)

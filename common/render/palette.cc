@@ -42,6 +42,12 @@ bool IsCutFaceColour(uint8_t r, uint8_t g, uint8_t b) {
   return hs.hue_deg >= 30.0 && hs.hue_deg <= 65.0 && hs.saturation >= 0.6;
 }
 
+bool IsForceColour(uint8_t r, uint8_t g, uint8_t b) {
+  if (std::max({r, g, b}) < 40) return false;
+  const HueSaturation hs = ToHueSaturation(r, g, b);
+  return hs.hue_deg >= 100.0 && hs.hue_deg <= 165.0 && hs.saturation >= 0.5;
+}
+
 Rgb StressColour(double t) {
   if (!(t > 0.0)) t = 0.0;  // also maps NaN to 0
   if (t > 1.0) t = 1.0;

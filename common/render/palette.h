@@ -32,6 +32,11 @@ inline constexpr Rgb kTissueRgb{228, 152, 142};
 inline constexpr Rgb kCutFaceRgb{235, 185, 30};
 /// The cutting tool: steel grey-blue (saturation ≈ 0.13).
 inline constexpr Rgb kToolRgb{180, 188, 206};
+/// The force on the tool (arrow and gauge): green (hue ≈ 133°,
+/// saturation ≈ 0.70), a hue no surface uses.
+inline constexpr Rgb kForceRgb{60, 200, 90};
+/// The force gauge's frame: light grey.
+inline constexpr Rgb kGaugeFrameRgb{220, 220, 220};
 
 /// Smallest lighting factor a surface pixel can get (the ambient term).
 inline constexpr double kMinLight = 0.22;
@@ -41,6 +46,10 @@ inline constexpr double kMinLight = 0.22;
 
 /// True when (r, g, b) is a lit cut-face pixel (rule in the file comment).
 [[nodiscard]] bool IsCutFaceColour(uint8_t r, uint8_t g, uint8_t b);
+
+/// True when (r, g, b) is a force-arrow or gauge pixel: hue in [100°, 165°],
+/// saturation ≥ 0.5 and largest channel ≥ 40.
+[[nodiscard]] bool IsForceColour(uint8_t r, uint8_t g, uint8_t b);
 
 /// HSV hue in degrees [0, 360) and saturation [0, 1] of an RGB triple (hue 0
 /// for greys).

@@ -62,6 +62,12 @@ void ValidateSurface(const SurfaceInput& surface, const RenderOptions& options) 
       Fail("render.tool", "tip, blade direction, length and radius must be finite");
     }
   }
+  if (options.force) {
+    const ForceOverlay& f = *options.force;
+    if (!f.at.allFinite() || !f.force.allFinite() || !(f.full_scale > 0.0) || !std::isfinite(f.full_scale)) {
+      Fail("render.force", "position and force must be finite and full_scale positive");
+    }
+  }
 }
 
 /// The scalar range to colour with: the given one, or the data's finite extent.
@@ -169,37 +175,38 @@ void SurfaceRenderer::BuildVertexArrays(const SurfaceInput& surface, const Rende
   }
 }
 
-void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
-  const Eigen::Vector3d& tip = tool.pose.tip;
-  const Eigen::Vector3d base = tool.base();
-  const Eigen::Vector3d axis = tip - base;
+namespace {
+
+/// Two unit vectors completing unit `a` to a right-handed frame (a, u, w).
+void Perpendiculars(const Eigen::Vector3d& a, Eigen::Vector3d& u, Eigen::Vector3d& w) {
+  const Eigen::Vector3d helper = std::abs(a.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  u = a.cross(helper).normalized();
+  w = a.cross(u);
+}
+
+/// A closed cylinder from `from` to `to` in the current colour. Winding is
+/// counter-clockwise seen from outside: with two-sided lighting a clockwise
+/// outside would be lit as a back face, with the normal flipped inwards (dark).
+void DrawCylinder(const Eigen::Vector3d& from, const Eigen::Vector3d& to, double radius) {
+  const Eigen::Vector3d axis = from - to;
   const double length = axis.norm();
   if (!(length > 0.0)) return;
-  const double radius = tool.radius > 0.0 ? tool.radius : 0.03 * scene_radius;
   const Eigen::Vector3d a = axis / length;
-  // Two unit vectors perpendicular to the axis.
-  const Eigen::Vector3d helper =
-      std::abs(a.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
-  const Eigen::Vector3d u = a.cross(helper).normalized();
-  const Eigen::Vector3d w = a.cross(u);
-
-  glColor4ub(kToolRgb[0], kToolRgb[1], kToolRgb[2], 255);
-  // (a, u, w) is right-handed. Winding is counter-clockwise seen from
-  // outside: with two-sided lighting a clockwise outside would be lit as a
-  // back face, i.e. with the normal flipped inwards (dark).
+  Eigen::Vector3d u, w;
+  Perpendiculars(a, u, w);
   glBegin(GL_TRIANGLE_STRIP);  // the side, smooth normals
   for (int i = 0; i <= kToolSides; ++i) {
     const double angle = 2.0 * std::numbers::pi * i / kToolSides;
     const Eigen::Vector3d radial = std::cos(angle) * u + std::sin(angle) * w;
-    const Eigen::Vector3d p_tip = tip + radius * radial;
-    const Eigen::Vector3d p_base = base + radius * radial;
+    const Eigen::Vector3d p_from = from + radius * radial;
+    const Eigen::Vector3d p_to = to + radius * radial;
     glNormal3d(radial.x(), radial.y(), radial.z());
-    glVertex3d(p_tip.x(), p_tip.y(), p_tip.z());
-    glVertex3d(p_base.x(), p_base.y(), p_base.z());
+    glVertex3d(p_from.x(), p_from.y(), p_from.z());
+    glVertex3d(p_to.x(), p_to.y(), p_to.z());
   }
   glEnd();
   for (int end = 0; end < 2; ++end) {  // flat caps
-    const Eigen::Vector3d& centre = end == 0 ? base : tip;
+    const Eigen::Vector3d& centre = end == 0 ? to : from;
     const Eigen::Vector3d normal = end == 0 ? Eigen::Vector3d(-a) : a;
     const double turn = end == 0 ? -1.0 : 1.0;  // counter-clockwise about `normal`
     glBegin(GL_TRIANGLE_FAN);
@@ -212,6 +219,80 @@ void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
     }
     glEnd();
   }
+}
+
+/// A cone with its base disc at `base` and its apex at `apex`.
+void DrawCone(const Eigen::Vector3d& base, const Eigen::Vector3d& apex, double radius) {
+  const Eigen::Vector3d axis = apex - base;
+  const double length = axis.norm();
+  if (!(length > 0.0)) return;
+  const Eigen::Vector3d a = axis / length;
+  Eigen::Vector3d u, w;
+  Perpendiculars(a, u, w);
+  glBegin(GL_TRIANGLES);
+  for (int i = 0; i < kToolSides; ++i) {
+    const double a0 = 2.0 * std::numbers::pi * i / kToolSides, a1 = 2.0 * std::numbers::pi * (i + 1) / kToolSides;
+    const Eigen::Vector3d r0 = std::cos(a0) * u + std::sin(a0) * w, r1 = std::cos(a1) * u + std::sin(a1) * w;
+    const Eigen::Vector3d n = (r0 + r1).normalized() * length + a * radius;  // the slanted side's normal
+    glNormal3d(n.x(), n.y(), n.z());
+    const Eigen::Vector3d p0 = base + radius * r0, p1 = base + radius * r1;
+    glVertex3d(p0.x(), p0.y(), p0.z());
+    glVertex3d(p1.x(), p1.y(), p1.z());
+    glVertex3d(apex.x(), apex.y(), apex.z());
+    glNormal3d(-a.x(), -a.y(), -a.z());  // the base disc
+    glVertex3d(base.x(), base.y(), base.z());
+    glVertex3d(p1.x(), p1.y(), p1.z());
+    glVertex3d(p0.x(), p0.y(), p0.z());
+  }
+  glEnd();
+}
+
+}  // namespace
+
+void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
+  const double radius = tool.radius > 0.0 ? tool.radius : 0.03 * scene_radius;
+  glColor4ub(kToolRgb[0], kToolRgb[1], kToolRgb[2], 255);
+  DrawCylinder(tool.pose.tip, tool.base(), radius);
+}
+
+void SurfaceRenderer::DrawForceArrow(const ForceOverlay& force, double scene_radius) {
+  const double magnitude = force.force.norm();
+  if (!(magnitude > 0.0)) return;
+  const double length = 0.5 * scene_radius * std::min(magnitude / force.full_scale, 1.5);
+  const Eigen::Vector3d dir = force.force / magnitude;
+  const double radius = 0.015 * scene_radius;
+  const Eigen::Vector3d neck = force.at + 0.7 * length * dir;
+  glColor4ub(kForceRgb[0], kForceRgb[1], kForceRgb[2], 255);
+  DrawCylinder(force.at, neck, radius);
+  DrawCone(neck, force.at + length * dir, 2.5 * radius);
+}
+
+void SurfaceRenderer::DrawForceGauge(const ForceOverlay& force, int width, int height) {
+  // Pixel coordinates, origin at the bottom left; no lighting or depth.
+  glDisable(GL_LIGHTING);
+  glDisable(GL_DEPTH_TEST);
+  glMatrixMode(GL_PROJECTION);
+  glLoadIdentity();
+  glOrtho(0.0, width, 0.0, height, -1.0, 1.0);
+  glMatrixMode(GL_MODELVIEW);
+  glLoadIdentity();
+  const double x0 = std::max(4.0, 0.03 * width), x1 = x0 + std::max(6.0, 0.03 * width);
+  const double y0 = 0.1 * height, y1 = 0.6 * height;
+  const double fill = std::clamp(force.force.norm() / force.full_scale, 0.0, 1.0);
+  glColor4ub(kForceRgb[0], kForceRgb[1], kForceRgb[2], 255);
+  glBegin(GL_QUADS);
+  glVertex2d(x0, y0);
+  glVertex2d(x1, y0);
+  glVertex2d(x1, y0 + fill * (y1 - y0));
+  glVertex2d(x0, y0 + fill * (y1 - y0));
+  glEnd();
+  glColor4ub(kGaugeFrameRgb[0], kGaugeFrameRgb[1], kGaugeFrameRgb[2], 255);
+  glBegin(GL_LINE_LOOP);
+  glVertex2d(x0 - 1, y0 - 1);
+  glVertex2d(x1 + 1, y0 - 1);
+  glVertex2d(x1 + 1, y1 + 1);
+  glVertex2d(x0 - 1, y1 + 1);
+  glEnd();
 }
 
 Image SurfaceRenderer::Render(const Camera& camera, const SurfaceInput& surface,
@@ -271,10 +352,12 @@ Image SurfaceRenderer::Render(const Camera& camera, const SurfaceInput& surface,
     glDisableClientState(GL_NORMAL_ARRAY);
     glDisableClientState(GL_VERTEX_ARRAY);
   }
-  if (options.tool) {
-    glLoadMatrixd(camera.ViewMatrix().data());  // the tool is drawn in world coordinates
-    DrawTool(*options.tool, scene_radius);
+  if (options.tool || options.force) {
+    glLoadMatrixd(camera.ViewMatrix().data());  // tool and arrow are drawn in world coordinates
+    if (options.tool) DrawTool(*options.tool, scene_radius);
+    if (options.force) DrawForceArrow(*options.force, scene_radius);
   }
+  if (options.force) DrawForceGauge(*options.force, camera.width, camera.height);
   if (const GLenum error = glGetError(); error != GL_NO_ERROR) {
     throw std::runtime_error(fmt::format("OpenGL error 0x{:x} while rendering", error));
   }

@@ -42,6 +42,17 @@ struct ToolSegment {
   [[nodiscard]] Eigen::Vector3d base() const { return pose.tip + length * pose.blade_dir; }
 };
 
+/// The force on the tool, drawn as a green arrow from `at` along `force` and
+/// as a gauge bar at the image's left edge.
+struct ForceOverlay {
+  Eigen::Vector3d at = Eigen::Vector3d::Zero();     ///< Arrow base (the tool's tip), m, world.
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();  ///< Force on the tool, N, world.
+  /// Magnitude that fills the gauge and draws an arrow half the scene's
+  /// bounding radius long, N (> 0). Larger forces fill the gauge to the top
+  /// and draw the arrow at most 1.5 times that long.
+  double full_scale = 1.0;
+};
+
 /// Closed range of the scalar mapped onto the stress colour map.
 struct ScalarRange {
   double min = 0.0;  ///< Maps to the blue end.
@@ -56,6 +67,8 @@ struct RenderOptions {
   std::optional<ScalarRange> scalar_range;
   /// The tool, when it should appear.
   std::optional<ToolSegment> tool;
+  /// The force on the tool, when it should appear.
+  std::optional<ForceOverlay> force;
 };
 
 /// Renders surfaces with OSMesa. Owns its context, recreated when the camera's
@@ -84,6 +97,8 @@ class SurfaceRenderer {
   void BuildVertexArrays(const SurfaceInput& surface, const RenderOptions& options,
                          const Eigen::Vector3d& origin);
   void DrawTool(const ToolSegment& tool, double scene_radius);
+  void DrawForceArrow(const ForceOverlay& force, double scene_radius);
+  void DrawForceGauge(const ForceOverlay& force, int width, int height);
 
   std::unique_ptr<OsMesaContext> context_;
   // Unindexed vertex arrays, 3 vertices per triangle, reused across frames.

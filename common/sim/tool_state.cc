@@ -78,6 +78,7 @@ ToolState<T>::ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, con
   grip_limit_ = mean_edge_;
   if (blade_length_ <= 0) blade_length_ = 2.0 * mean_edge_;
   report_.present = true;
+  report_.blade_length = blade_length_;
   if (path_.empty()) pose_ = ParkedPose(mesh, blade_length_);
   pose_ = Sample(0.0);
   report_.pose = pose_;

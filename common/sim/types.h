@@ -92,6 +92,7 @@ struct ToolReport {
   bool present = false;          ///< the scene has a tool
   bool touching = false;
   ToolPose pose;
+  double blade_length = 0.0;    ///< m
   Eigen::Vector3d point = Eigen::Vector3d::Zero();   ///< C_p, m
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ(); ///< outward facet normal
   Eigen::Vector3d force_on_tool = Eigen::Vector3d::Zero();  ///< N

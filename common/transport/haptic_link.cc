@@ -12,6 +12,7 @@
 #include "common/core/clock.h"
 #include "common/core/log.h"
 #include "common/transport/channels.h"
+#include "common/transport/proto_vec.h"
 #include "common/transport/realtime_thread.h"
 
 namespace cutsim::transport {
@@ -19,14 +20,6 @@ namespace {
 
 constexpr double kMaxToolPosition = 100.0;  // m: no tool is 100 m from the origin
 constexpr double kMaxToolSpeed = 100.0;     // m/s: no hand moves a tool that fast
-
-Eigen::Vector3d FromVec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
-
-void SetVec3(const Eigen::Vector3d& e, v1::Vec3* v) {
-  v->set_x(e.x());
-  v->set_y(e.y());
-  v->set_z(e.z());
-}
 
 std::unique_ptr<FaultInjector> MakeReceiveFaults(const FaultConfig& config) {
   ValidateFaultConfig(config);

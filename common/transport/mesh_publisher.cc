@@ -343,6 +343,7 @@ void MeshStreamPublisher::EncodeSnapshot(uint64_t seq, uint64_t hash) {
   snapshot_.set_sim_time(f.sim_time);
   snapshot_.set_topology_version(sent_version_);
   snapshot_.set_quantum(q);
+  *snapshot_.mutable_observed() = observed_;
   const auto n = static_cast<int>(sent_world_.rows());
   snapshot_.mutable_rest()->Reserve(3 * n);
   snapshot_.mutable_world()->Reserve(3 * n);
@@ -381,6 +382,7 @@ void MeshStreamPublisher::PublishDelta(uint64_t seq, uint64_t hash) {
   delta_.set_frame(frame_.frame);
   delta_.set_sim_time(frame_.sim_time);
   delta_.set_hash(hash);
+  *delta_.mutable_observed() = observed_;
   size_t size = 0;
   const auto bytes = encoder_.Encode(delta_, &size);
   if (bytes && delta_writer_.Publish(EnvelopeKind::kDelta, seq, session_, *bytes) == DdsPublishStatus::kOk) {

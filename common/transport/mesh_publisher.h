@@ -74,6 +74,11 @@ class MeshStreamPublisher {
   /// other (NaN to 0, ±∞ clamped, see `Quantise`).
   void PublishFrame(const std::function<void(MeshFrame&)>& fill);
 
+  /// The session as observers see it (clock, cuts, tools), sent with every
+  /// following snapshot and delta until set again, so a late joiner gets it
+  /// with its first snapshot. Copies; call before PublishFrame.
+  void SetObserved(const v1::ObserverSession& observed) { observed_ = observed; }
+
   /// Publishes a status message (session is filled in). Never throws.
   void PublishStatus(const cutsim::v1::SessionStatus& status);
 
@@ -136,6 +141,7 @@ class MeshStreamPublisher {
   v1::MeshSnapshot snapshot_;
   v1::MeshDelta delta_;
   v1::SessionStatus status_;
+  v1::ObserverSession observed_;
   Encoder encoder_;
   MeshStreamStats stats_;
 };

@@ -1,5 +1,6 @@
 #include "common/transport/mesh_subscriber.h"
 
+#include <cmath>
 #include <stdexcept>
 #include <utility>
 
@@ -160,6 +161,7 @@ void MeshStreamSubscriber::OnSnapshot(std::span<const uint8_t> payload, uint64_t
       ++state_version_;
       confirmed_ = keep_confirmed;
       snapshot_applied_ns_ = MonotonicNs();
+      TakeObserved(snapshot_msg_.observed());
       ApplyPending();
       break;
     case MeshReplica::SnapshotResult::kHashMismatch:
@@ -170,6 +172,25 @@ void MeshStreamSubscriber::OnSnapshot(std::span<const uint8_t> payload, uint64_t
       ++stats_.malformed;
       break;
   }
+}
+
+namespace {
+
+bool FiniteVec(const v1::Vec3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
+
+}  // namespace
+
+void MeshStreamSubscriber::TakeObserved(const v1::ObserverSession& o) {
+  bool ok = o.tools_size() <= kMaxObservedTools && std::isfinite(o.sim_time()) && std::isfinite(o.wall_time());
+  for (const v1::ToolView& t : o.tools()) {
+    ok = ok && FiniteVec(t.tip()) && FiniteVec(t.blade_dir()) && FiniteVec(t.force()) &&
+         t.blade_length() >= 0 && t.blade_length() <= kMaxObservedBladeLength;
+  }
+  if (!ok) {
+    ++stats_.malformed_observed;  // the mesh stands; the previous session view stays
+    return;
+  }
+  observed_ = o;
 }
 
 void MeshStreamSubscriber::Stash(const v1::MeshDelta& delta) {
@@ -188,6 +209,7 @@ void MeshStreamSubscriber::HandleDelta(const v1::MeshDelta& delta) {
       ++stats_.hash_checks;
       ++state_version_;
       confirmed_ = true;
+      TakeObserved(delta.observed());
       break;
     case MeshReplica::DeltaResult::kStale:
       // The delta of the frame our snapshot came from proves the snapshot

@@ -35,6 +35,8 @@ struct MeshStreamSubscriberStats {
   uint64_t foreign_session = 0;    ///< Samples of another session (envelope or payload).
   uint64_t ignored = 0;            ///< Stale or unsynced deltas, snapshots behind our state.
   uint64_t status = 0;             ///< Status messages received.
+  uint64_t malformed_observed = 0; ///< Applied frames whose session view was refused (tool count,
+                                   ///< non-finite values, absurd blade length); the mesh stood.
   uint64_t samples = 0;            ///< Samples received of this session (any topic).
   uint64_t bytes_received = 0;     ///< Payload bytes of those samples.
 };
@@ -69,6 +71,10 @@ class MeshStreamSubscriber {
   [[nodiscard]] uint64_t state_version() const { return state_version_; }
   [[nodiscard]] const MeshStreamSubscriberStats& stats() const { return stats_; }
   [[nodiscard]] const std::optional<v1::SessionStatus>& last_status() const { return status_; }
+  /// The session (clock, cuts, tools) as of the replica's frame: taken from
+  /// each snapshot or delta applied, so it is as current as the mesh. Unset
+  /// until the first one carries a valid view.
+  [[nodiscard]] const std::optional<v1::ObserverSession>& observed() const { return observed_; }
   /// Monotonic ns of the last sample of this session, 0 if none yet.
   [[nodiscard]] int64_t last_sample_ns() const { return last_sample_ns_; }
   [[nodiscard]] const std::string& session() const { return session_; }
@@ -76,6 +82,8 @@ class MeshStreamSubscriber {
 
  private:
   static constexpr size_t kMaxPending = 64;
+  static constexpr int kMaxObservedTools = 4;
+  static constexpr double kMaxObservedBladeLength = 1.0;  // m
 
   void OnSnapshot(std::span<const uint8_t> payload, uint64_t seq);
   void OnDelta(std::span<const uint8_t> payload, uint64_t seq);
@@ -84,6 +92,7 @@ class MeshStreamSubscriber {
   void Stash(const v1::MeshDelta& delta);
   void ApplyPending();
   void LoseSync();
+  void TakeObserved(const v1::ObserverSession& observed);
   void CountForeign();
   bool Decodable(std::span<const uint8_t> payload, google::protobuf::MessageLite& msg,
                  EnvelopeKind kind);
@@ -99,6 +108,7 @@ class MeshStreamSubscriber {
   std::unique_ptr<WaitSet> waitset_;
 
   MeshReplica replica_;
+  std::optional<v1::ObserverSession> observed_;
   bool confirmed_ = false;
   int64_t snapshot_applied_ns_ = 0;
   std::chrono::milliseconds confirm_timeout_{1000};

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <utility>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -153,6 +154,14 @@ TEST(PaletteTest, BaseColoursClassifyAtEveryLightLevel) {
     EXPECT_FALSE(IsBackground(lit(kCutFaceRgb, 0), lit(kCutFaceRgb, 1), lit(kCutFaceRgb, 2))) << k;
     EXPECT_FALSE(IsBackground(lit(kTissueRgb, 0), lit(kTissueRgb, 1), lit(kTissueRgb, 2))) << k;
     EXPECT_FALSE(IsBackground(lit(kToolRgb, 0), lit(kToolRgb, 1), lit(kToolRgb, 2))) << k;
+    EXPECT_TRUE(IsForceColour(lit(kForceRgb, 0), lit(kForceRgb, 1), lit(kForceRgb, 2))) << k;
+    for (const Rgb& other : {kTissueRgb, kCutFaceRgb, kToolRgb, kBackgroundRgb}) {
+      EXPECT_FALSE(IsForceColour(lit(other, 0), lit(other, 1), lit(other, 2))) << k;
+    }
+  }
+  for (int i = 0; i <= 200; ++i) {
+    const Rgb c = StressColour(i / 200.0);
+    EXPECT_FALSE(IsForceColour(c[0], c[1], c[2])) << "stress map at " << i / 200.0;
   }
   EXPECT_TRUE(IsBackground(kBackgroundRgb[0], kBackgroundRgb[1], kBackgroundRgb[2]));
   EXPECT_FALSE(IsCutFaceColour(kBackgroundRgb[0], kBackgroundRgb[1], kBackgroundRgb[2]));
@@ -168,6 +177,39 @@ TEST_F(RenderTest, ToolAddsSteelPixels) {
   const Image with = RenderCube({}, options);
   EXPECT_GT(NonBackgroundFraction(with), NonBackgroundFraction(without));
   EXPECT_EQ(CountCutFacePixels(with), 0);
+}
+
+/// Pixels of the force colour in the image (left part: the gauge; rest: the arrow).
+std::pair<int, int> CountForcePixels(const Image& image) {
+  int gauge = 0, arrow = 0;
+  for (int y = 0; y < image.height; ++y) {
+    for (int x = 0; x < image.width; ++x) {
+      const uint8_t* p = image.pixel(x, y);
+      if (!IsForceColour(p[0], p[1], p[2])) continue;
+      (x < image.width / 10 ? gauge : arrow) += 1;
+    }
+  }
+  return {gauge, arrow};
+}
+
+TEST_F(RenderTest, ForceShowsAsAnArrowAndAGaugeThatGrowsWithIt) {
+  const auto [gauge0, arrow0] = CountForcePixels(RenderCube());
+  EXPECT_EQ(gauge0 + arrow0, 0) << "nothing on the tissue, tool or background is force-coloured";
+  RenderOptions options;
+  options.force = ForceOverlay{.at = Eigen::Vector3d(0.5, 0.5, 1.02), .force = Eigen::Vector3d(0.3, 0, 0.5),
+                               .full_scale = 2.0};
+  const auto [gauge1, arrow1] = CountForcePixels(RenderCube({}, options));
+  options.force->force *= 3.0;
+  const auto [gauge2, arrow2] = CountForcePixels(RenderCube({}, options));
+  EXPECT_GT(gauge1, 0);
+  EXPECT_GT(arrow1, 0);
+  EXPECT_GT(gauge2, 2 * gauge1);  // the bar fills in proportion
+  EXPECT_GT(arrow2, arrow1);
+  options.force->force.setZero();
+  const auto [gauge3, arrow3] = CountForcePixels(RenderCube({}, options));
+  EXPECT_EQ(gauge3 + arrow3, 0) << "no force: an empty gauge frame and no arrow";
+  options.force->full_scale = 0.0;
+  EXPECT_THROW((void)RenderCube({}, options), InputError);
 }
 
 TEST_F(RenderTest, BadInputThrowsNamingTheField) {

@@ -5,6 +5,7 @@
 #include "common/transport/mesh_stream.h"
 
 #include <chrono>
+#include <limits>
 #include <memory>
 #include <random>
 #include <string>
@@ -16,6 +17,7 @@
 #include "common/core/clock.h"
 #include "common/mesh/generators.h"
 #include "common/mesh/surface.h"
+#include "common/transport/proto_vec.h"
 #include "tests/support/fake_mesh.h"
 #include "tests/unit/transport/test_util.h"
 
@@ -433,6 +435,75 @@ TEST(MeshStreamTest, EncodesOnlyForReadersWithZeroOneAndFourReaders) {
       EXPECT_EQ(pub.stats().deltas, static_cast<uint64_t>(kFrames));
     }
   }
+}
+
+v1::ObserverSession ObservedAt(int i) {
+  v1::ObserverSession o;
+  o.set_sim_time(0.01 * i);
+  o.set_wall_time(0.011 * i);
+  o.set_cuts(static_cast<uint64_t>(i / 3));
+  o.set_topology_version(1);
+  v1::ToolView* t = o.add_tools();
+  SetVec3(Eigen::Vector3d(0.001 * i, 0.02, 0.03), t->mutable_tip());
+  SetVec3(Eigen::Vector3d(0, 0, 1), t->mutable_blade_dir());
+  t->set_blade_length(0.02);
+  SetVec3(Eigen::Vector3d(0, -0.1 * i, 0.5), t->mutable_force());
+  t->set_contact(i % 2 == 0);
+  return o;
+}
+
+// Every snapshot and delta carries the session as of its frame, so a viewer
+// holds the tool and the clock of the mesh it shows, and one that starts
+// from a snapshot alone has them at once.
+TEST(MeshStreamTest, ObservedSessionTravelsWithSnapshotsAndDeltas) {
+  StreamHarness h({.keyframe_interval_s = 1e-9});  // a snapshot every frame
+  FakeMesh m(4);
+  MeshStreamSubscriber late(h.participant(), h.session());
+  EXPECT_FALSE(h.sub().observed().has_value());
+  for (int i = 1; i <= 6; ++i) {
+    m.frame = static_cast<uint64_t>(i);
+    m.Poke({0.05, 0.05, 0.1}, 0.04, 0.001 * i);
+    h.pub().SetObserved(ObservedAt(i));
+    const std::vector<Sample> samples = h.Publish(m);
+    Feed(h.sub(), samples, h.session());
+    ASSERT_TRUE(h.sub().observed().has_value()) << "frame " << i;
+    EXPECT_EQ(h.sub().observed()->SerializeAsString(), ObservedAt(i).SerializeAsString()) << "frame " << i;
+    if (i == 5) {
+      // A viewer that joins now: the snapshot alone brings the session.
+      for (const Sample& s : samples) {
+        if (s.kind == EnvelopeKind::kSnapshot) late.Process(s.kind, h.session(), s.seq, s.bytes);
+      }
+      ASSERT_TRUE(late.observed().has_value());
+      EXPECT_DOUBLE_EQ(late.observed()->sim_time(), 0.05);
+      EXPECT_DOUBLE_EQ(late.observed()->tools(0).tip().x(), 0.005);
+    }
+  }
+}
+
+// A session view a viewer cannot draw (too many tools, non-finite values, an
+// absurd blade) is refused and counted; the mesh it came with still applies
+// and the previous view stays.
+TEST(MeshStreamTest, ObservedSessionThatCannotBeDrawnIsRefused) {
+  StreamHarness h;
+  FakeMesh m(4);
+  h.pub().SetObserved(ObservedAt(1));
+  Feed(h.sub(), h.Publish(m), h.session());
+  ASSERT_TRUE(h.sub().observed().has_value());
+  std::vector<v1::ObserverSession> bad(3, ObservedAt(2));
+  for (int k = 0; k < 4; ++k) *bad[0].add_tools() = bad[0].tools(0);  // five tools
+  bad[1].mutable_tools(0)->mutable_tip()->set_y(std::numeric_limits<double>::quiet_NaN());
+  bad[2].mutable_tools(0)->set_blade_length(1e9);
+  uint64_t deltas = h.sub().stats().deltas;
+  for (size_t k = 0; k < bad.size(); ++k) {
+    m.frame = 2 + k;
+    m.Poke({0.05, 0.05, 0.1}, 0.04, 0.001 * static_cast<double>(k + 1));
+    h.pub().SetObserved(bad[k]);
+    Feed(h.sub(), h.Publish(m), h.session());
+    EXPECT_EQ(h.sub().stats().deltas, ++deltas) << "case " << k;
+    EXPECT_EQ(h.sub().stats().malformed_observed, k + 1);
+    EXPECT_DOUBLE_EQ(h.sub().observed()->sim_time(), 0.01) << "case " << k;
+  }
+  EXPECT_TRUE(h.sub().current() || h.sub().replica().synced());
 }
 
 }  // namespace
