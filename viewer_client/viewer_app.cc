@@ -66,6 +66,10 @@ struct RunSummary {
   uint64_t first_seq = 0, first_hash = 0, last_seq = 0, last_hash = 0;
   double first_sim_time = 0;
   int64_t first_frame_mono_ns = 0;
+  int64_t frames_with_tool = 0;
+  uint64_t last_cuts = 0;
+  double last_session_clock = 0;  ///< s
+  double max_force_n = 0;
   std::string exit_reason = "signal";
 };
 
@@ -104,6 +108,11 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
   v.set_width(ReportCount(o.width));
   v.set_height(ReportCount(o.height));
   v.set_exit_reason(r.exit_reason);
+  v.set_frames_with_tool(ReportCount(r.frames_with_tool));
+  v.set_last_cuts(r.last_cuts);
+  v.set_last_session_clock(r.last_session_clock);
+  v.set_max_force_n(r.max_force_n);
+  v.set_malformed_observed(ReportCount(s.malformed_observed));
   return v;
 }
 
@@ -209,7 +218,16 @@ bool HeldMeshVerified(const transport::MeshReplica& mesh, RunSummary& r) {
 }
 
 /// Counts a rendered frame; the first one also gives the join latency.
-void NoteFrame(const transport::MeshReplica& mesh, int64_t start_ns, int64_t done_ns, RunSummary& r) {
+void NoteFrame(const transport::MeshReplica& mesh, const std::optional<v1::ObserverSession>& observed,
+               int64_t start_ns, int64_t done_ns, RunSummary& r) {
+  if (observed) {
+    r.last_cuts = observed->cuts();
+    r.last_session_clock = observed->sim_time();
+    if (observed->tools_size() > 0) {
+      ++r.frames_with_tool;
+      r.max_force_n = std::max(r.max_force_n, transport::FromVec3(observed->tools(0).force()).norm());
+    }
+  }
   if (r.frames == 0) {
     r.first_seq = mesh.seq();
     r.first_hash = mesh.hash();
@@ -318,7 +336,7 @@ int ViewerApp::Run() {
       continue;
     }
     const int64_t done_ns = sink.Draw(mesh, sub.observed(), r.frames, &r.render_ns);
-    NoteFrame(mesh, start_ns, done_ns, r);
+    NoteFrame(mesh, sub.observed(), start_ns, done_ns, r);
     if (o.max_frames && r.frames >= *o.max_frames) {
       r.exit_reason = "max_frames";
       break;

@@ -100,6 +100,11 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
     const std::string v = ReadTextFile(d + "/" + name);
     EXPECT_EQ(JsonNumber(v, "hash_mismatches"), 0) << name << ": " << v;
     EXPECT_GT(JsonNumber(v, "verified_frames"), 5) << name << ": " << v;
+    // The stream carried the session: the scalpel in every frame, the cut.
+    EXPECT_EQ(JsonNumber(v, "frames_with_tool"), JsonNumber(v, "verified_frames")) << name << ": " << v;
+    EXPECT_GE(JsonNumber(v, "last_cuts"), 1) << name << ": " << v;
+    EXPECT_GT(JsonNumber(v, "last_session_clock"), 0.0) << name << ": " << v;
+    EXPECT_EQ(JsonNumber(v, "malformed_observed"), 0) << name << ": " << v;
   }
   EXPECT_LT(JsonNumber(ReadTextFile(d + "/late.json"), "join_latency_s"), 5.0);
 
