@@ -25,6 +25,10 @@ target_link_libraries(cutsim_lcm INTERFACE ${LCM_LIBRARY})
 # OpenSSL's libcrypto (libssl-dev): HMAC-SHA256 of tool messages (tool_auth.h).
 find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
 
+# Browser observers' HTTP/WebSocket server: Boost.Beast over Boost.Asio
+# (header-only in Boost 1.74).
+find_package(Boost 1.74 REQUIRED)
+
 # gmsh (libgmsh-dev): .msh reading/writing and surface tetrahedralisation.
 find_path(GMSH_INCLUDE_DIR gmsh.h REQUIRED)
 find_library(GMSH_LIBRARY gmsh REQUIRED)

@@ -35,6 +35,9 @@ packages=(
   libgmsh-dev gmsh
   # offscreen rendering and images
   libosmesa6-dev libpng-dev
+  # browser observers: HTTP/WebSocket server (Boost.Beast), and the headless
+  # browser their tests drive
+  libboost-dev chromium
   # video frames from the viewer (optional at run time; tests of the encoder use it)
   ffmpeg
   # tests and benchmarks
@@ -59,13 +62,28 @@ for p in "${packages[@]}"; do
   fi
 done
 
-if [ ${#missing[@]} -eq 0 ]; then
-  exit 0
+# Node.js and npm fetch the observer page's WebGL library (three.js) and its
+# test driver; any Node.js ≥ 18 will do, Debian's when none is present.
+if ! command -v npm >/dev/null 2>&1; then
+  missing+=(nodejs npm)
 fi
 
-echo "install-deps: installing ${missing[*]}" >&2
-SUDO=""
-if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "install-deps: installing ${missing[*]}" >&2
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# The page's npm packages, pinned by web/observer/package-lock.json; again
+# only when the lockfile changed since the last install.
+web="$(cd "$(dirname "$0")/.." && pwd)/web/observer"
+if [ -f "$web/package-lock.json" ] && \
+   { [ ! -f "$web/node_modules/.package-lock.json" ] || [ "$web/package-lock.json" -nt "$web/node_modules/.package-lock.json" ]; }; then
+  echo "install-deps: npm ci in web/observer" >&2
+  (cd "$web" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+fi
+exit 0
+

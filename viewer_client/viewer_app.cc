@@ -8,6 +8,7 @@
 #include <fstream>
 #include <memory>
 #include <sstream>
+#include <tuple>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
@@ -22,8 +23,9 @@
 #include "common/transport/channels.h"
 #include "common/transport/dds.h"
 #include "common/transport/mesh_stream.h"
-#include "common/transport/report_json.h"
 #include "common/transport/proto_vec.h"
+#include "common/transport/report_json.h"
+#include "common/web/browser_bridge.h"
 #include "cutsim/v1/report.pb.h"
 
 namespace cutsim::viewer {
@@ -281,6 +283,13 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--frame-log", options_.frame_log,
                  "Write one line per rendered frame: index seq hash sim_time mono_ns");
   app.add_option("--log-level", options_.log_level, "trace, debug, info, warn, error, off");
+  app.add_option("--serve", options_.serve,
+                 "Serve the session to browsers at HOST:PORT (loopback unless --token-file is given)");
+  app.add_option("--token-file", options_.token_file,
+                 "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL");
+  options_.web_root = CUTSIM_WEB_ROOT;
+  app.add_option("--web-root", options_.web_root, "The observer page's files (web/observer, npm packages installed)")
+      ->capture_default_str();
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -310,6 +319,19 @@ int ViewerApp::Run() {
   FrameSink sink(o);
   transport::DdsParticipant participant(o.dds_domain, DdsConfigUri(o.dds_config));
   transport::MeshStreamSubscriber sub(participant, o.session);
+  std::unique_ptr<web::BrowserBridge> bridge;
+  if (!o.serve.empty()) {
+    web::ObserverServerOptions so;
+    std::tie(so.address, so.port) = web::ParseHostPort(o.serve, "--serve");
+    if (!o.token_file.empty()) so.token = web::LoadObserverToken(o.token_file);
+    so.files = web::ObserverPageFiles(o.web_root);
+    bridge = std::make_unique<web::BrowserBridge>(std::move(so), o.session);
+    // On stdout, for scripts: the address a browser opens.
+    std::printf("observers: %s\n", bridge->server().Url().c_str());
+    std::fflush(stdout);
+  }
+  // Rendering offscreen is for frames and videos; a pure bridge skips it.
+  const bool render = bridge == nullptr || !o.frames_dir.empty() || !o.video.empty();
   Log().info("watching session '{}' on DDS domain {} at {} fps", o.session, o.dds_domain, o.fps);
   sink.StartVideo();
 
@@ -326,6 +348,7 @@ int ViewerApp::Run() {
       // Bounded WaitSet wait: samples are processed as they come, and the
       // loop still notices the next tick and signals.
       sub.Poll(std::chrono::nanoseconds(std::min<int64_t>(next_tick - now, 50'000'000)));
+      if (bridge) bridge->Relay(sub);
       continue;
     }
     next_tick += period_ns;
@@ -335,6 +358,7 @@ int ViewerApp::Run() {
       ++r.frames_skipped;
       continue;
     }
+    if (!render) continue;
     const int64_t done_ns = sink.Draw(mesh, sub.observed(), r.frames, &r.render_ns);
     NoteFrame(mesh, sub.observed(), start_ns, done_ns, r);
     if (o.max_frames && r.frames >= *o.max_frames) {

@@ -31,6 +31,9 @@ struct ViewerOptions {
   std::string summary;                   ///< JSON file
   std::string frame_log;                 ///< one line per rendered frame: index seq hash sim_time mono_ns
   std::string log_level = "info";
+  std::string serve;       ///< HOST:PORT of the browser observers' page; empty: none.
+  std::string token_file;  ///< Observers' token (required off loopback).
+  std::string web_root;    ///< The page's files (web/observer).
 };
 
 class ViewerApp {

@@ -1,0 +1,54 @@
+#pragma once
+/// @file
+/// The bridge between the observers' DDS stream and browsers: once per
+/// frame the viewer's subscriber applies, it encodes the frame for browsers
+/// (browser_frames.h) and hands it to the ObserverServer, which relays it to
+/// every connected browser. The simulation server sees one DDS reader
+/// however many browsers watch.
+
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "common/transport/mesh_subscriber.h"
+#include "common/web/browser_frames.h"
+#include "common/web/observer_server.h"
+
+namespace cutsim::web {
+
+/// The page's files under `web_root` (web/observer, with its npm packages
+/// installed), by the URL path each is served at.
+[[nodiscard]] std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesystem::path& web_root);
+
+/// The observers' token from a text file (surrounding whitespace ignored):
+/// 16 to 128 characters of A-Z, a-z, 0-9, '-' and '_'. Throws InputError
+/// naming the file otherwise.
+[[nodiscard]] std::string LoadObserverToken(const std::filesystem::path& file);
+
+/// Parses "HOST:PORT" (IPv6 as "[::1]:PORT"); throws InputError naming `field`.
+[[nodiscard]] std::pair<std::string, uint16_t> ParseHostPort(const std::string& text, const std::string& field);
+
+/// Relays a MeshStreamSubscriber's frames to browsers.
+class BrowserBridge {
+ public:
+  /// Starts the server (throws as ObserverServer does).
+  BrowserBridge(ObserverServerOptions options, std::string session);
+
+  /// Call after the subscriber polled: when it applied a new frame, encodes
+  /// it and queues it for every browser, and refreshes what a joining browser
+  /// gets first. Cheap when nothing changed.
+  void Relay(const transport::MeshStreamSubscriber& sub);
+
+  [[nodiscard]] const ObserverServer& server() const { return *server_; }
+  [[nodiscard]] uint64_t frames_relayed() const { return frames_relayed_; }
+
+ private:
+  std::string session_;
+  std::unique_ptr<ObserverServer> server_;
+  BrowserFrameEncoder encoder_;
+  uint64_t last_state_version_ = 0;
+  uint64_t frames_relayed_ = 0;
+};
+
+}  // namespace cutsim::web

@@ -1,0 +1,104 @@
+#pragma once
+/// @file
+/// The browser observers' server: HTTP for the page's fixed set of files and
+/// a read-only WebSocket (`/ws`) over which every connected browser receives
+/// the frames the caller broadcasts. Boost.Beast on one I/O thread of its
+/// own; the caller's thread only posts to it, so a slow browser never blocks
+/// the caller.
+///
+/// Read-only by design: nothing a browser sends is passed on. The server
+/// enforces:
+///  - a listening address on loopback unless a token is set; with a token,
+///    every page and WebSocket request must carry `?token=<token>`;
+///  - the `Origin` of a WebSocket upgrade, when present, must be this
+///    server's own (`http://<Host>`), so other sites' pages cannot connect;
+///  - a cap on clients, on request header size and on incoming WebSocket
+///    messages (a browser has nothing to send: any data message closes it,
+///    one above the cap with 1009, others with 1008);
+///  - a cap on the bytes queued for one client: a client that falls that far
+///    behind is closed instead of buffered for without bound.
+
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace cutsim::web {
+
+/// The server's settings.
+struct ObserverServerOptions {
+  std::string address = "127.0.0.1";  ///< Listening address (IPv4 or IPv6 literal).
+  uint16_t port = 0;                  ///< 0: any free port (see ObserverServer::port()).
+  /// Required on every request when non-empty; must be non-empty when
+  /// `address` is not a loopback address.
+  std::string token;
+  /// URL path → file served at it (read once, at construction). "/" serves
+  /// the entry mapped to "/index.html".
+  std::map<std::string, std::filesystem::path> files;
+  int max_clients = 32;                       ///< WebSocket clients at once.
+  size_t max_incoming_bytes = 1024;           ///< Largest WebSocket message a client may send.
+  size_t max_queued_bytes = 16u << 20;        ///< Bytes queued for one client before it is closed.
+  size_t max_request_header_bytes = 8192;     ///< HTTP request header limit.
+};
+
+/// Counters, read with ObserverServer::stats() (a consistent copy).
+struct ObserverServerStats {
+  int clients = 0;                    ///< WebSocket clients connected now.
+  uint64_t accepted = 0;              ///< WebSocket clients accepted in all.
+  uint64_t refused_cap = 0;           ///< Upgrades refused: client cap reached.
+  uint64_t refused_origin = 0;        ///< Upgrades refused: foreign Origin.
+  uint64_t refused_token = 0;         ///< Requests refused: missing or wrong token.
+  uint64_t bad_requests = 0;          ///< Malformed or oversized HTTP requests, unknown paths.
+  uint64_t closed_incoming = 0;       ///< Clients closed for sending a message.
+  uint64_t closed_slow = 0;           ///< Clients closed for falling behind (queue cap).
+  uint64_t pages_served = 0;          ///< HTTP files served.
+  uint64_t messages_sent = 0;         ///< WebSocket messages written.
+  uint64_t bytes_sent = 0;            ///< Their payload bytes.
+};
+
+/// One message for every browser: text (JSON) or binary.
+struct Outgoing {
+  std::shared_ptr<const std::string> payload;
+  bool binary = false;
+};
+
+struct ObserverServerImpl;  // the I/O thread's state (observer_server.cc)
+
+/// The HTTP + WebSocket server. Construction binds and starts the I/O
+/// thread; destruction closes every connection and joins it.
+class ObserverServer {
+ public:
+  /// Throws InputError naming the field (`--serve`, `--token-file`, or the
+  /// file) for a bad address, a non-loopback address without a token, a
+  /// missing file, or a port that cannot be bound.
+  explicit ObserverServer(ObserverServerOptions options);
+  ~ObserverServer();
+  ObserverServer(const ObserverServer&) = delete;
+  ObserverServer& operator=(const ObserverServer&) = delete;
+
+  /// The bound port (the chosen one when options.port was 0).
+  [[nodiscard]] uint16_t port() const { return port_; }
+  /// "http://address:port/" (with `?token=…` when a token is set).
+  [[nodiscard]] std::string Url() const;
+
+  /// Queues `messages` for every connected client, in order. Thread-safe,
+  /// never blocks.
+  void Broadcast(std::vector<Outgoing> messages);
+  /// What a client that connects from now on receives first, before any
+  /// broadcast (the latest snapshot and session frames). Thread-safe.
+  void SetJoinMessages(std::vector<Outgoing> messages);
+
+  [[nodiscard]] ObserverServerStats stats() const;
+
+ private:
+  std::unique_ptr<ObserverServerImpl> impl_;
+  uint16_t port_ = 0;
+};
+
+/// True for 127.0.0.0/8, ::1 and "localhost".
+[[nodiscard]] bool IsLoopbackAddress(const std::string& address);
+
+}  // namespace cutsim::web
