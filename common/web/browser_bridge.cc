@@ -18,6 +18,7 @@ std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesy
       {"/observer.js", web_root / "observer.js"},
       {"/observer.css", web_root / "observer.css"},
       {"/vendor/three.module.js", web_root / "node_modules/three/build/three.module.js"},
+      {"/vendor/three.core.js", web_root / "node_modules/three/build/three.core.js"},
       {"/vendor/OrbitControls.js", web_root / "node_modules/three/examples/jsm/controls/OrbitControls.js"},
   };
 }
@@ -70,9 +71,12 @@ void BrowserBridge::Relay(const transport::MeshStreamSubscriber& sub) {
   link.clients = server_->stats().clients;
   const auto session = BrowserFrameEncoder::Session(mesh.seq(), sub.observed(), link);
   const auto hello = BrowserFrameEncoder::Hello(session_);
-  server_->Broadcast({{encoder_.Frame(mesh), true}, {session, false}});
-  // A browser that joins gets the hello and this frame as a snapshot.
+  // A browser that joins gets the hello and this frame as a snapshot. Set
+  // before the broadcast: one that joins in between then sees this frame
+  // twice rather than an update of a topology it never had.
+  const auto frame = encoder_.Frame(mesh);
   server_->SetJoinMessages({{hello, false}, {encoder_.Snapshot(mesh), true}, {session, false}});
+  server_->Broadcast({{frame, true}, {session, false}});
   ++frames_relayed_;
 }
 

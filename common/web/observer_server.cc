@@ -200,11 +200,11 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
   void Handle(http::request<http::empty_body> req) {
     const auto [path, token] = SplitTarget(std::string_view(req.target().data(), req.target().size()));
     const ObserverServerOptions& o = server_.options;
-    if (!o.token.empty() && !SameSecret(token, o.token)) {
-      server_.Count([](ObserverServerStats& s) { ++s.refused_token; });
-      return Reply(req, http::status::forbidden, "token required\n", "text/plain");
-    }
     if (websocket::is_upgrade(req)) {
+      if (!o.token.empty() && !SameSecret(token, o.token)) {
+        server_.Count([](ObserverServerStats& s) { ++s.refused_token; });
+        return Reply(req, http::status::forbidden, "token required\n", "text/plain");
+      }
       const auto origin = req[http::field::origin];
       const std::string own = fmt::format("http://{}", std::string_view(req[http::field::host].data(),
                                                                         req[http::field::host].size()));

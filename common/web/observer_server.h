@@ -9,7 +9,8 @@
 /// Read-only by design: nothing a browser sends is passed on. The server
 /// enforces:
 ///  - a listening address on loopback unless a token is set; with a token,
-///    every page and WebSocket request must carry `?token=<token>`;
+///    every WebSocket upgrade must carry `?token=<token>` (the page's files
+///    hold no session data and are served to anyone who can connect);
 ///  - the `Origin` of a WebSocket upgrade, when present, must be this
 ///    server's own (`http://<Host>`), so other sites' pages cannot connect;
 ///  - a cap on clients, on request header size and on incoming WebSocket
@@ -32,8 +33,8 @@ namespace cutsim::web {
 struct ObserverServerOptions {
   std::string address = "127.0.0.1";  ///< Listening address (IPv4 or IPv6 literal).
   uint16_t port = 0;                  ///< 0: any free port (see ObserverServer::port()).
-  /// Required on every request when non-empty; must be non-empty when
-  /// `address` is not a loopback address.
+  /// Required on every WebSocket upgrade when non-empty; must be non-empty
+  /// when `address` is not a loopback address.
   std::string token;
   /// URL path → file served at it (read once, at construction). "/" serves
   /// the entry mapped to "/index.html".

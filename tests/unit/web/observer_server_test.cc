@@ -1,0 +1,239 @@
+// The browser observers' server against real sockets on loopback: pages and
+// unknown paths, the token off loopback, the Origin check, the client cap,
+// broadcast order with the join messages first, and the read-only rules (a
+// client that sends anything, or too much, is closed; one that stops reading
+// is closed instead of buffered for) while the others keep receiving.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <boost/asio/connect.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/websocket.hpp>
+
+#include "common/core/error.h"
+#include "common/web/observer_server.h"
+
+namespace cutsim::web {
+namespace {
+
+namespace net = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+using tcp = net::ip::tcp;
+using namespace std::chrono_literals;
+
+/// A page file in a temporary directory.
+class TempPage {
+ public:
+  TempPage() : dir_(std::filesystem::temp_directory_path() / ("cutsim_web_test_" + std::to_string(::getpid()))) {
+    std::filesystem::create_directories(dir_);
+    std::ofstream(dir_ / "index.html") << "<html>observer</html>";
+  }
+  ~TempPage() { std::filesystem::remove_all(dir_); }
+  [[nodiscard]] std::map<std::string, std::filesystem::path> files() const { return {{"/index.html", dir_ / "index.html"}}; }
+
+ private:
+  std::filesystem::path dir_;
+};
+
+ObserverServerOptions Options(const TempPage& page) {
+  ObserverServerOptions o;
+  o.files = page.files();
+  return o;
+}
+
+/// GET `target`; returns the status code and body.
+std::pair<int, std::string> Get(uint16_t port, const std::string& target) {
+  net::io_context ioc;
+  beast::tcp_stream stream(ioc);
+  stream.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
+  http::request<http::empty_body> req(http::verb::get, target, 11);
+  req.set(http::field::host, "127.0.0.1:" + std::to_string(port));
+  http::write(stream, req);
+  beast::flat_buffer buffer;
+  http::response<http::string_body> res;
+  http::read(stream, buffer, res);
+  return {static_cast<int>(res.result_int()), res.body()};
+}
+
+/// A WebSocket client on its own io_context.
+struct Client {
+  net::io_context ioc;
+  websocket::stream<tcp::socket> ws{ioc};
+
+  /// Connects and upgrades; returns false when the server refuses.
+  bool Open(uint16_t port, const std::string& target = "/ws", const std::string& origin = "") {
+    ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
+    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
+      if (!origin.empty()) req.set(http::field::origin, origin);
+    }));
+    beast::error_code ec;
+    ws.handshake("127.0.0.1:" + std::to_string(port), target, ec);
+    return !ec;
+  }
+  /// The next message, or nullopt when the connection ends.
+  std::optional<std::pair<std::string, bool>> Read() {
+    beast::flat_buffer buffer;
+    beast::error_code ec;
+    ws.read(buffer, ec);
+    if (ec) return std::nullopt;
+    return std::make_pair(beast::buffers_to_string(buffer.data()), ws.got_binary());
+  }
+};
+
+Outgoing Text(const std::string& s) { return {std::make_shared<const std::string>(s), false}; }
+Outgoing Binary(const std::string& s) { return {std::make_shared<const std::string>(s), true}; }
+
+/// Waits until `pred` holds (the server's I/O thread updates its counters).
+template <typename P>
+bool Eventually(P pred) {
+  const auto deadline = std::chrono::steady_clock::now() + 5s;
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(5ms);
+  }
+  return pred();
+}
+
+TEST(ObserverServerTest, ServesThePageAndNothingElse) {
+  TempPage page;
+  ObserverServer server(Options(page));
+  EXPECT_EQ(Get(server.port(), "/"), std::make_pair(200, std::string("<html>observer</html>")));
+  EXPECT_EQ(Get(server.port(), "/index.html").first, 200);
+  EXPECT_EQ(Get(server.port(), "/../index.html").first, 404);
+  EXPECT_EQ(Get(server.port(), "/etc/passwd").first, 404);
+  EXPECT_EQ(server.stats().pages_served, 2u);
+  EXPECT_EQ(server.Url(), "http://127.0.0.1:" + std::to_string(server.port()) + "/");
+}
+
+TEST(ObserverServerTest, OffLoopbackNeedsATokenAndTheStreamChecksIt) {
+  TempPage page;
+  ObserverServerOptions open = Options(page);
+  open.address = "0.0.0.0";
+  try {
+    ObserverServer refused(open);
+    FAIL() << "listening off loopback without a token was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.source().field, "--serve");
+  }
+  ObserverServerOptions o = Options(page);
+  o.token = "0123456789abcdef0123";
+  ObserverServer server(o);
+  // The page's files carry no session data; the stream needs the token.
+  EXPECT_EQ(Get(server.port(), "/").first, 200);
+  Client without, wrong, with;
+  EXPECT_FALSE(without.Open(server.port()));
+  EXPECT_FALSE(wrong.Open(server.port(), "/ws?token=0123456789abcdef0124"));
+  EXPECT_TRUE(with.Open(server.port(), "/ws?token=" + o.token));
+  EXPECT_EQ(server.stats().refused_token, 2u);
+}
+
+TEST(ObserverServerTest, ForeignOriginIsRefusedOwnOriginAccepted) {
+  TempPage page;
+  ObserverServer server(Options(page));
+  Client evil, own;
+  EXPECT_FALSE(evil.Open(server.port(), "/ws", "http://evil.example"));
+  EXPECT_TRUE(own.Open(server.port(), "/ws", "http://127.0.0.1:" + std::to_string(server.port())));
+  EXPECT_EQ(server.stats().refused_origin, 1u);
+}
+
+TEST(ObserverServerTest, ClientCapRefusesTheNextClient) {
+  TempPage page;
+  ObserverServerOptions o = Options(page);
+  o.max_clients = 2;
+  ObserverServer server(o);
+  Client a, b, c;
+  ASSERT_TRUE(a.Open(server.port()));
+  ASSERT_TRUE(b.Open(server.port()));
+  ASSERT_TRUE(Eventually([&] { return server.stats().clients == 2; }));
+  EXPECT_FALSE(c.Open(server.port()));
+  EXPECT_EQ(server.stats().refused_cap, 1u);
+}
+
+TEST(ObserverServerTest, JoinMessagesComeFirstThenEveryBroadcastInOrder) {
+  TempPage page;
+  ObserverServer server(Options(page));
+  server.SetJoinMessages({Text("hello"), Binary(std::string("\x01snap", 5))});
+  std::vector<std::unique_ptr<Client>> clients;
+  for (int i = 0; i < 3; ++i) {
+    clients.push_back(std::make_unique<Client>());
+    ASSERT_TRUE(clients.back()->Open(server.port()));
+  }
+  ASSERT_TRUE(Eventually([&] { return server.stats().clients == 3; }));
+  server.Broadcast({Binary("frame1"), Text("session1")});
+  server.Broadcast({Binary("frame2")});
+  for (auto& c : clients) {
+    EXPECT_EQ(c->Read(), std::make_optional(std::make_pair(std::string("hello"), false)));
+    EXPECT_EQ(c->Read(), std::make_optional(std::make_pair(std::string("\x01snap", 5), true)));
+    EXPECT_EQ(c->Read(), std::make_optional(std::make_pair(std::string("frame1"), true)));
+    EXPECT_EQ(c->Read(), std::make_optional(std::make_pair(std::string("session1"), false)));
+    EXPECT_EQ(c->Read(), std::make_optional(std::make_pair(std::string("frame2"), true)));
+  }
+}
+
+TEST(ObserverServerTest, AClientThatSendsIsClosedAndTheOthersGoOn) {
+  TempPage page;
+  ObserverServerOptions o = Options(page);
+  o.max_incoming_bytes = 1024;
+  ObserverServer server(o);
+  Client talker, flooder, watcher;
+  ASSERT_TRUE(talker.Open(server.port()));
+  ASSERT_TRUE(flooder.Open(server.port()));
+  ASSERT_TRUE(watcher.Open(server.port()));
+  ASSERT_TRUE(Eventually([&] { return server.stats().clients == 3; }));
+  talker.ws.text(true);
+  talker.ws.write(net::buffer(std::string("{\"type\":\"cut\"}")));
+  flooder.ws.binary(true);
+  beast::error_code ec;
+  flooder.ws.write(net::buffer(std::string(2u << 20, 'x')), ec);  // may fail midway: the server closes
+  EXPECT_EQ(talker.Read(), std::nullopt);
+  EXPECT_EQ(flooder.Read(), std::nullopt);
+  EXPECT_TRUE(Eventually([&] { return server.stats().clients == 1; }));
+  EXPECT_EQ(server.stats().closed_incoming, 2u);
+  server.Broadcast({Text("still here")});
+  EXPECT_EQ(watcher.Read(), std::make_optional(std::make_pair(std::string("still here"), false)));
+}
+
+TEST(ObserverServerTest, AClientThatStopsReadingIsClosedNotBufferedFor) {
+  TempPage page;
+  ObserverServerOptions o = Options(page);
+  o.max_queued_bytes = 1u << 20;
+  ObserverServer server(o);
+  Client stalled, reader;
+  ASSERT_TRUE(stalled.Open(server.port()));
+  ASSERT_TRUE(reader.Open(server.port()));
+  ASSERT_TRUE(Eventually([&] { return server.stats().clients == 2; }));
+  std::atomic<int> received{0};
+  std::thread drain([&] {
+    while (reader.Read()) ++received;
+  });
+  const std::string chunk(256u << 10, 'm');
+  constexpr int kMessages = 160;  // 40 MiB: far beyond what the kernel buffers for the stalled client
+  for (int i = 0; i < kMessages; ++i) {
+    // In step with the reader (at most two messages ahead of it, well under
+    // the cap), so only the stalled client falls behind.
+    ASSERT_TRUE(Eventually([&] { return received.load() >= i - 2; })) << i;
+    server.Broadcast({Binary(chunk)});
+  }
+  EXPECT_TRUE(Eventually([&] { return server.stats().closed_slow == 1; }));
+  EXPECT_TRUE(Eventually([&] { return received.load() == kMessages; })) << received.load();
+  EXPECT_EQ(server.stats().clients, 1);
+  // Shutdown (not close) wakes the drain thread's blocking read.
+  beast::error_code ec;
+  reader.ws.next_layer().shutdown(tcp::socket::shutdown_both, ec);
+  drain.join();
+}
+
+}  // namespace
+}  // namespace cutsim::web
