@@ -3,6 +3,7 @@
 // model" between frames), mesh frames out to any number of viewers over DDS.
 // Thin glue: the work is in common/.
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -249,6 +250,11 @@ v1::ObserverSession RealtimeLoop::ObservedSession(int64_t frame_start) const {
   v1::ObserverSession o;
   o.set_sim_time(p_.simulation.sim_time());
   o.set_wall_time(1e-9 * static_cast<double>(frame_start - start_ns_));
+  // The wall clock, unlike the monotonic one, is shared with a browser on
+  // the same host: it gives the glass-to-glass latency.
+  o.set_publish_unix_ns(
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+          .count());
   o.set_topology_version(p_.simulation.topology_version());
   if (!p_.simulation.has_tool()) return o;
   const sim::ToolReport tool = p_.simulation.Tool();

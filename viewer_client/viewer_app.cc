@@ -76,7 +76,7 @@ struct RunSummary {
 };
 
 v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
-                                const transport::MeshStreamSubscriberStats& s) {
+                                const transport::MeshStreamSubscriberStats& s, const web::BrowserBridge* bridge) {
   using transport::ReportCount;
   v1::ViewerSummary v;
   v.set_session(o.session);
@@ -115,6 +115,14 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
   v.set_last_session_clock(r.last_session_clock);
   v.set_max_force_n(r.max_force_n);
   v.set_malformed_observed(ReportCount(s.malformed_observed));
+  if (bridge != nullptr) {
+    const web::ObserverServerStats b = bridge->server().stats();
+    v.set_browser_frames(ReportCount(bridge->frames_relayed()));
+    v.set_browsers_accepted(ReportCount(b.accepted));
+    v.set_browsers_refused(ReportCount(b.refused_cap + b.refused_origin + b.refused_token));
+    v.set_browsers_closed(ReportCount(b.closed_incoming + b.closed_slow));
+    v.set_browser_bytes_sent(static_cast<double>(b.bytes_sent));
+  }
   return v;
 }
 
@@ -367,7 +375,7 @@ int ViewerApp::Run() {
     }
   }
   sink.Close();
-  const std::string json = transport::ReportJson(SummaryReport(o, r, sub.stats()));
+  const std::string json = transport::ReportJson(SummaryReport(o, r, sub.stats(), bridge.get()));
   // Always on stderr, whatever the log level (stdout stays free).
   std::fprintf(stderr, "cutsim-viewer: summary: %s\n", json.c_str());
   if (!o.summary.empty()) WriteFileAtomically(o.summary, json);
