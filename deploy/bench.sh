@@ -102,6 +102,24 @@ for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 9"; do
   cat "$out/session_${scene%.pbtxt}.json" 2>/dev/null || true
 done
 
+echo "== browser observers (glass-to-glass latency, bytes/s per observer, server CPU with 0 and 20 clients)"
+# Exit 77: no chromium, node packages or namespace, a skip.
+for run in "ligament.pbtxt ligament-cut.path 6 0" "ligament.pbtxt ligament-cut.path 6 20" \
+           "block.pbtxt block-cut.path 6 0" "organ.pbtxt organ-cut.path 9 0"; do
+  read -r scene path seconds clients <<<"$run"
+  name="observers_${scene%.pbtxt}_${clients}"
+  rc=0
+  bench/observer_session.sh "$PWD/$bin" "$PWD/$out/$name" "$scene" "$path" "$seconds" "$clients" \
+    >"$out/$name.json" 2>"$out/$name.log" || rc=$?
+  if [[ $rc -eq 77 ]]; then
+    echo "$name skipped (see $out/$name.log)"
+  elif [[ $rc -ne 0 ]]; then
+    echo "!! $name failed (exit $rc, see $out/$name.log)"
+    failed+=("$name")
+  fi
+  cat "$out/$name.json" 2>/dev/null || true
+done
+
 echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
   > "$out/implicit.json"

@@ -158,11 +158,13 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
 
   void Read() {
     ws_.async_read(read_buffer_, [self = shared_from_this()](beast::error_code ec, size_t) {
-      if (ec == websocket::error::closed || ec == net::error::operation_aborted) return;
       // Any message, or one above the cap (Beast fails the connection with
-      // 1009 itself), ends the session: a browser has nothing to say.
+      // 1009 itself), ends the session: a browser has nothing to say. Other
+      // errors are a browser leaving (a close frame, a reset, end of stream).
+      const bool too_big = ec == websocket::error::message_too_big;
+      if (ec && !too_big) return self->Abort();
       self->server_.Count([](ObserverServerStats& s) { ++s.closed_incoming; });
-      if (ec) return self->Abort();
+      if (too_big) return self->Abort();
       self->closing_ = true;
       self->ws_.async_close(websocket::close_code::policy_error,
                             [self](beast::error_code) { self->Abort(); });

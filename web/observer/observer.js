@@ -58,6 +58,7 @@ const ARROW_MAX_SCALE = 1.5;   // larger forces are drawn at 1.5 × full scale
 
 const PLOT_WINDOW_S = 10;
 const MAX_ERRORS = 100;
+const MAX_LATENCIES = 2000;
 const RECONNECT_MIN_MS = 500;
 const RECONNECT_MAX_MS = 5000;
 
@@ -88,6 +89,7 @@ const state = {
   connectedMs: null,         // performance.now() when the socket last opened
   closeCode: null,           // close code of the last closed socket
   lastFrameSimTime: null,    // sim_time of the mesh frame last drawn
+  latenciesMs: [],           // glass-to-glass latency of the last MAX_LATENCIES mesh frames drawn, ms
   errors: [],                // protocol and page errors, newest last
 };
 
@@ -158,6 +160,7 @@ const cutMaterial = new THREE.MeshLambertMaterial({
 });
 let surfaceMesh = null;   // THREE.Mesh of the current snapshot
 let meshSimTime = null;   // sim_time of the mesh frame now in surfaceMesh
+let meshSeq = null;       // seq of the mesh frame now in surfaceMesh
 let sceneRadius = null;   // half the diagonal of the first mesh's bounding box, m
 
 // The scalpel: a unit cylinder along +y from y = 0 to y = 1, scaled to the
@@ -369,7 +372,47 @@ function onBinaryMessage(buffer) {
   state.lastSeq = frame.seq;
   state.framesReceived += 1;
   meshSimTime = frame.simTime;
+  meshSeq = frame.seq;
   requestFrame(true);
+}
+
+// ---------------------------------------------------------------------------
+// Glass-to-glass latency: from the server publishing a mesh frame (its wall
+// clock, observed.publishUnixNs in the session message of the same seq) to
+// the end of the draw that first shows the frame (this page's wall clock).
+// The two clocks agree only when server and browser run on one host. The
+// session message follows its mesh frame, so a draw may come between the
+// two: then the draw's time is kept until the message arrives.
+
+let lastPublished = null;  // {seq, ms}: the newest session message's publish time
+let drawnSeq = null;       // seq of the mesh frame last drawn
+let drawnAwaiting = null;  // {seq, ms}: a drawn frame whose publish time has not arrived
+
+function recordLatency(ms) {
+  state.latenciesMs.push(ms);
+  if (state.latenciesMs.length > MAX_LATENCIES) state.latenciesMs.shift();
+}
+
+/** Notes the publish time of frame `seq` (wall clock, ms). */
+function notePublished(seq, ms) {
+  lastPublished = { seq, ms };
+  if (drawnAwaiting?.seq === seq) {
+    recordLatency(drawnAwaiting.ms - ms);
+    drawnAwaiting = null;
+  }
+}
+
+/** Notes that the draw just ended shows mesh frame `seq` (once per frame). */
+function noteDrawn(seq) {
+  if (seq === null || seq === drawnSeq) return;
+  drawnSeq = seq;
+  const now = Date.now();
+  if (lastPublished?.seq === seq) {
+    recordLatency(now - lastPublished.ms);
+    drawnAwaiting = null;
+  } else {
+    drawnAwaiting = { seq, ms: now };
+  }
 }
 
 // ---------------------------------------------------------------------------
@@ -425,6 +468,8 @@ function onSessionMessage(message) {
       clients: num(message.link.clients),
     };
   }
+  const publishNs = num(observed.publishUnixNs);
+  if (publishNs > 0 && message.seq !== undefined) notePublished(num(message.seq), publishNs / 1e6);
   const f = state.tool ? Math.hypot(state.tool.force.x, state.tool.force.y, state.tool.force.z) : 0;
   forceHistory.push({ t: simTime, f });
   while (forceHistory.length > 0 && forceHistory[0].t < simTime - PLOT_WINDOW_S) forceHistory.shift();
@@ -592,6 +637,7 @@ function drawFrame() {
   if (sceneDirty && surfaceMesh) {
     sceneDirty = false;
     renderer.render(scene, camera);
+    noteDrawn(meshSeq);
     const now = performance.now();
     state.rendered += 1;
     state.lastRenderMs = now;
