@@ -132,8 +132,9 @@ class RealtimeLoop {
   std::optional<sim::ToolPose> TakeToolPose(int64_t frame_start);
   void PublishLocalModel(bool pose_this_frame);
   void PublishViewerFrame(int64_t frame_start);
-  /// The session as observers see it at this frame (clock, cuts, tool).
-  [[nodiscard]] v1::ObserverSession ObservedSession(int64_t frame_start) const;
+  /// Fills `observed_`: the session as observers see it at this frame
+  /// (clock, cuts, tool), in place (protobuf keeps the tool message).
+  void FillObserved(int64_t frame_start);
   void PublishStatus(int64_t frame_start);
   void Pace(int64_t frame_start);
 
@@ -153,6 +154,7 @@ class RealtimeLoop {
   SessionCounters counters_;
   FrameStats frame_time_{1 << 16};
   LatencyStats latency_;
+  v1::ObserverSession observed_;  // reused every viewer frame
 };
 
 RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double decay_per_second,
@@ -246,8 +248,9 @@ void RealtimeLoop::PublishLocalModel(bool pose_this_frame) {
   last_cuts_ = tool.cuts;
 }
 
-v1::ObserverSession RealtimeLoop::ObservedSession(int64_t frame_start) const {
-  v1::ObserverSession o;
+void RealtimeLoop::FillObserved(int64_t frame_start) {
+  v1::ObserverSession& o = observed_;
+  o.Clear();
   o.set_sim_time(p_.simulation.sim_time());
   o.set_wall_time(1e-9 * static_cast<double>(frame_start - start_ns_));
   // The wall clock, unlike the monotonic one, is shared with a browser on
@@ -256,7 +259,7 @@ v1::ObserverSession RealtimeLoop::ObservedSession(int64_t frame_start) const {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
-  if (!p_.simulation.has_tool()) return o;
+  if (!p_.simulation.has_tool()) return;
   const sim::ToolReport tool = p_.simulation.Tool();
   o.set_cuts(tool.cuts);
   v1::ToolView* view = o.add_tools();
@@ -265,7 +268,6 @@ v1::ObserverSession RealtimeLoop::ObservedSession(int64_t frame_start) const {
   view->set_blade_length(tool.blade_length);
   transport::SetVec3(tool.force_on_tool, view->mutable_force());
   view->set_contact(tool.touching);
-  return o;
 }
 
 void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
@@ -274,7 +276,8 @@ void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
   if (next_viewer_ns_ < frame_start) next_viewer_ns_ = frame_start + viewer_period_ns_;
   // The simulation fills the publisher's reused frame in place: once warm
   // nothing allocates, and the mesh is copied once.
-  p_.publisher.SetObserved(ObservedSession(frame_start));
+  FillObserved(frame_start);
+  p_.publisher.SetObserved(observed_);
   p_.publisher.PublishFrame([this](transport::MeshFrame& frame) {
     p_.simulation.FillMeshView(frame);
     frame.frame = counters_.frames;

@@ -76,8 +76,9 @@ class MeshStreamPublisher {
 
   /// The session as observers see it (clock, cuts, tools), sent with every
   /// following snapshot and delta until set again, so a late joiner gets it
-  /// with its first snapshot. Copies; call before PublishFrame.
-  void SetObserved(const v1::ObserverSession& observed) { observed_ = observed; }
+  /// with its first snapshot. Copies into storage kept between frames;
+  /// call before PublishFrame.
+  void SetObserved(const v1::ObserverSession& observed) { observed_.CopyFrom(observed); }
 
   /// Publishes a status message (session is filled in). Never throws.
   void PublishStatus(const cutsim::v1::SessionStatus& status);
