@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <unordered_map>
 
 #include <Eigen/SparseCholesky>
 
@@ -149,6 +150,10 @@ void AddNodalPressureEntries(const fem::Model<T>& model, const T* x, PatchScratc
       }
     }
   };
+  // Each element's volume gradient, once: the patch terms below read it for
+  // every node of the element.
+  std::unordered_map<int32_t, fem::Mat34<double>> volume_gradient;
+  volume_gradient.reserve(scratch.tets.size());
   for (const int32_t t : scratch.tets) {
     double p_bar = 0;
     for (int c = 0; c < 4; ++c) p_bar += 0.25 * pressure[index(model.tet_node(t, c))].first;
@@ -157,6 +162,7 @@ void AddNodalPressureEntries(const fem::Model<T>& model, const T* x, PatchScratc
     const fem::Mat3<double> dm_inv = model.DmInv(t).template cast<double>();
     const fem::Mat34<double> g = fem::ShapeGradients(dm_inv);
     const fem::Mat3<double> F = fem::EdgeMatrix(xe) * dm_inv;
+    volume_gradient.emplace(t, fem::VolumeGradient(F, g, static_cast<double>(model.rest_volume(t))));
     for (int a = 0; a < 4; ++a) {
       for (int b = 0; b < 4; ++b) {
         if (a == b) continue;
@@ -176,8 +182,9 @@ void AddNodalPressureEntries(const fem::Model<T>& model, const T* x, PatchScratc
     grad.clear();
     for (int32_t s = model.incidence_begin(a); s < model.incidence_end(a); ++s) {
       const int32_t t = slots[s] / 12;
-      fem::Mat3<double> F;
-      const fem::Mat34<double> ge = ElementVolumeGradient(model, x, t, &F);
+      const auto it = volume_gradient.find(t);
+      if (it == volume_gradient.end()) continue;  // no unknown corner: adds nothing
+      const fem::Mat34<double>& ge = it->second;
       for (int c = 0; c < 4; ++c) {
         const int32_t col = column(model.tet_node(t, c));
         if (col >= 0) grad.emplace_back(col, 0.25 * ge.col(c));

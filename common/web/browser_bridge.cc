@@ -75,7 +75,9 @@ void BrowserBridge::Relay(const transport::MeshStreamSubscriber& sub) {
   // before the broadcast: one that joins in between then sees this frame
   // twice rather than an update of a topology it never had.
   const auto frame = encoder_.Frame(mesh);
-  server_->SetJoinMessages({{hello, false}, {encoder_.Snapshot(mesh), true}, {session, false}});
+  const bool frame_is_snapshot = !frame->empty() && static_cast<uint8_t>((*frame)[0]) == kSurfaceSnapshot;
+  const auto snapshot = frame_is_snapshot ? frame : encoder_.Snapshot(mesh);
+  server_->SetJoinMessages({{hello, false}, {snapshot, true}, {session, false}});
   server_->Broadcast({{frame, true}, {session, false}});
   ++frames_relayed_;
 }

@@ -30,33 +30,40 @@ double TotalEnergy(const Model<double>& m, const State<double>& s) {
   return StrainEnergy(m, s.x.data()) + KineticEnergy(m, s.v.data()) + GravityPotential(m, s.x.data());
 }
 
+// Both elements: the nodal-pressure element's forces are free of net force
+// and torque as well.
 TEST(FemDynamics, MomentumConservedWithoutBoundaryConditions) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 2, 2, 0.03, 0.02, 0.02);
-  Model<double> model(mesh, std::span(&kSeedDamped, 1));
-  State<double> state(model);
-  Perturb(state, model.num_nodes(), 1e-3, 1);
-  std::mt19937 rng(2);
-  std::uniform_real_distribution<double> u(-0.1, 0.1);
-  for (int i = 0; i < 3 * model.num_nodes(); ++i) state.v[static_cast<size_t>(i)] = u(rng);
-  const auto momenta = [&] {
-    Vec3<double> p = Vec3<double>::Zero(), L = Vec3<double>::Zero();
-    for (int n = 0; n < model.num_nodes(); ++n) {
-      const Vec3<double> x(state.x[3 * n], state.x[3 * n + 1], state.x[3 * n + 2]);
-      const Vec3<double> v(state.v[3 * n], state.v[3 * n + 1], state.v[3 * n + 2]);
-      p += model.node_mass(n) * v;
-      L += model.node_mass(n) * x.cross(v);
-    }
-    return std::pair(p, L);
-  };
-  const auto [p0, L0] = momenta();
-  StepOptions opt;
-  opt.num_threads = 2;
-  ASSERT_TRUE(Advance(model, state, 5e-3, opt).ok());
-  const auto [p1, L1] = momenta();
-  // Symplectic Euler conserves both exactly: internal forces are free of net
-  // force and torque at x_n, and x_{n+1} × v_{n+1} = x_n × v_{n+1}.
-  EXPECT_LT((p1 - p0).norm(), 1e-12 * (p0.norm() + 1e-6));
-  EXPECT_LT((L1 - L0).norm(), 1e-10 * (L0.norm() + 1e-9));
+  for (const ElementKind element : {ElementKind::kLinear, ElementKind::kNodalPressure}) {
+    ModelOptions options;
+    options.element = element;
+    Model<double> model(mesh, std::span(&kSeedDamped, 1), options);
+    State<double> state(model);
+    Perturb(state, model.num_nodes(), 1e-3, 1);
+    std::mt19937 rng(2);
+    std::uniform_real_distribution<double> u(-0.1, 0.1);
+    for (int i = 0; i < 3 * model.num_nodes(); ++i) state.v[static_cast<size_t>(i)] = u(rng);
+    const auto momenta = [&] {
+      Vec3<double> p = Vec3<double>::Zero(), L = Vec3<double>::Zero();
+      for (int n = 0; n < model.num_nodes(); ++n) {
+        const Vec3<double> x(state.x[3 * n], state.x[3 * n + 1], state.x[3 * n + 2]);
+        const Vec3<double> v(state.v[3 * n], state.v[3 * n + 1], state.v[3 * n + 2]);
+        p += model.node_mass(n) * v;
+        L += model.node_mass(n) * x.cross(v);
+      }
+      return std::pair(p, L);
+    };
+    const auto [p0, L0] = momenta();
+    StepOptions opt;
+    opt.num_threads = 2;
+    ASSERT_TRUE(Advance(model, state, 5e-3, opt).ok());
+    const auto [p1, L1] = momenta();
+    // Symplectic Euler conserves both exactly: internal forces are free of net
+    // force and torque at x_n, and x_{n+1} × v_{n+1} = x_n × v_{n+1}.
+    const char* name = element == ElementKind::kLinear ? "linear" : "nodal pressure";
+    EXPECT_LT((p1 - p0).norm(), 1e-12 * (p0.norm() + 1e-6)) << name;
+    EXPECT_LT((L1 - L0).norm(), 1e-10 * (L0.norm() + 1e-9)) << name;
+  }
 }
 
 TEST(FemDynamics, EnergyBoundedUndampedAndDissipatedDamped) {

@@ -1,9 +1,9 @@
 // The nodal-pressure element in the explicit force pass and step: the
 // vectorised forces equal the reference deviatoric + nodal terms and minus
 // the energy's gradient (double and float), rigid motions give no force,
-// symplectic Euler keeps momentum and energy as it does for the plain
-// element, the stable-step bound holds, and a compressed block keeps its
-// volume where the plain element does too but at a locked-up stiffness.
+// symplectic Euler keeps the energy as it does for the plain element (its
+// momentum: dynamics_test.cc), and the stable-step bound holds without being
+// vacuous.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -124,32 +124,6 @@ TEST(NodalPressureExplicit, RigidMotionsGiveNoForce) {
   ComputeInternalForces(model, state, ForceMode::kElastic, f.data(), 2);
   for (int32_t i = 0; i < 3 * model.num_nodes(); ++i) EXPECT_NEAR(f[static_cast<size_t>(i)], 0.0, 1e-9);
   EXPECT_NEAR(StrainEnergy(model, state.x.data()), 0.0, 1e-15);
-}
-
-TEST(NodalPressureExplicit, MomentumIsConserved) {
-  Model<double> model = MakeBlock<double>(0.49, ElementKind::kNodalPressure, 5.0);
-  State<double> state(model);
-  Perturb(state, model.num_nodes(), 1e-3, 4);
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> u(-0.1, 0.1);
-  for (int i = 0; i < 3 * model.num_nodes(); ++i) state.v[static_cast<size_t>(i)] = u(rng);
-  const auto momenta = [&] {
-    Vec3<double> p = Vec3<double>::Zero(), L = Vec3<double>::Zero();
-    for (int n = 0; n < model.num_nodes(); ++n) {
-      const Vec3<double> x(state.x[3 * n], state.x[3 * n + 1], state.x[3 * n + 2]);
-      const Vec3<double> v(state.v[3 * n], state.v[3 * n + 1], state.v[3 * n + 2]);
-      p += model.node_mass(n) * v;
-      L += model.node_mass(n) * x.cross(v);
-    }
-    return std::pair(p, L);
-  };
-  const auto [p0, L0] = momenta();
-  StepOptions opt;
-  opt.num_threads = 2;
-  ASSERT_TRUE(Advance(model, state, 5e-3, opt).ok());
-  const auto [p1, L1] = momenta();
-  EXPECT_LT((p1 - p0).norm(), 1e-12 * (p0.norm() + 1e-6));
-  EXPECT_LT((L1 - L0).norm(), 1e-10 * (L0.norm() + 1e-9));
 }
 
 // Symplectic Euler at a tenth of the bound keeps the energy of an undamped
