@@ -27,6 +27,7 @@
 #include "common/fem/state.h"
 #include "common/mesh/generators.h"
 #include "common/mesh/tet_mesh.h"
+#include "common/sim/session_metrics.h"
 
 namespace cutsim::fem {
 namespace {
@@ -225,6 +226,65 @@ void BM_NodalPressureCost(benchmark::State& st) {
   }
 }
 
+// One whole-mesh sample of the session's measures (common/sim/session_metrics.h:
+// von Mises per tet, the incision's rings, the largest stress outside)
+// against one elastic force pass, on the same 100k-tet box, deformation and
+// threads. The session samples 20 times per simulated second while the
+// explicit integrator runs one force pass per substep (thousands per
+// second), so a sample at ≤ kSessionSampleCostTarget force passes keeps the
+// measures under 1 % of the physics. The counter `ratio` is the median of
+// the per-pair ratios.
+constexpr double kSessionSampleCostTarget = 2.0;
+bool g_session_sample_cost_missed = false;
+
+void BM_SessionSample(benchmark::State& st) {
+  const int threads = static_cast<int>(st.range(0));
+  const auto& s = kSizes[2];
+  static const mesh::TetMesh mesh = MakeBox(s[0], s[1], s[2], 1e-3);
+  const Material mat = Material::FromYoungPoisson(3e4, 0.45, 1000.0);
+  const Model<double> model(mesh, std::span(&mat, 1));
+  State<double> state(model);
+  for (size_t i = 0; i < state.x.size(); ++i) state.x[i] *= 1.0 + 1e-3 * static_cast<double>(i % 7);
+  std::vector<double> out(state.x.size());
+  // An incision along a line of nodes through the middle, as a cut leaves.
+  std::vector<uint8_t> walls(static_cast<size_t>(model.num_nodes()), 0);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    const Eigen::Vector3d X = mesh.nodes.row(n).transpose();
+    if (std::abs(X.x() - 13e-3) < 0.6e-3 && X.z() > 12e-3) walls[static_cast<size_t>(n)] = 1;
+  }
+  sim::SessionMeter<double> meter({.incision_rings = 1, .threads = threads});
+  const sim::IncisionView incision{.wall_nodes = walls};
+  std::vector<double> ratios, force_s, sample_s;
+  using Clock = std::chrono::steady_clock;
+  for (auto _ : st) {
+    const auto t0 = Clock::now();
+    ComputeInternalForces(model, state, ForceMode::kElastic, out.data(), threads);
+    benchmark::DoNotOptimize(out.data());
+    const auto t1 = Clock::now();
+    meter.Sample(model, state.x.data(), incision, 0.0);
+    benchmark::DoNotOptimize(meter.metrics().stress_outside);
+    const auto t2 = Clock::now();
+    force_s.push_back(std::chrono::duration<double>(t1 - t0).count());
+    sample_s.push_back(std::chrono::duration<double>(t2 - t1).count());
+    ratios.push_back(sample_s.back() / force_s.back());
+  }
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  const double ratio = median(ratios);
+  st.counters["tets"] = model.num_tets();
+  st.counters["threads"] = threads;
+  st.counters["force_ms"] = 1e3 * median(force_s);
+  st.counters["sample_ms"] = 1e3 * median(sample_s);
+  st.counters["ratio"] = ratio;
+  st.counters["target"] = kSessionSampleCostTarget;
+  if (ratio > kSessionSampleCostTarget) {
+    g_session_sample_cost_missed = true;
+    st.SetLabel("target missed");
+  }
+}
+
 // STREAM triad a = b + s·c, 3 × 32 MiB of doubles (well beyond L3).
 void BM_Triad(benchmark::State& st) {
   const int threads = static_cast<int>(st.range(0));
@@ -247,6 +307,9 @@ void BM_Triad(benchmark::State& st) {
 void RegisterAll() {
   for (int t : {1, 2}) {
     benchmark::RegisterBenchmark("BM_Triad", BM_Triad)->Arg(t)->UseRealTime();
+  }
+  for (int t : {1, 2}) {
+    benchmark::RegisterBenchmark("BM_SessionSample", BM_SessionSample)->Arg(t)->UseRealTime();
   }
   for (int which = 0; which < 3; ++which) {
     for (int on : {0, 1}) {
@@ -282,6 +345,11 @@ int main(int argc, char** argv) {
   if (cutsim::fem::g_nodal_pressure_cost_missed) {
     std::fprintf(stderr, "fem_bench: the nodal-pressure force pass costs more than %.2fx the plain one\n",
                  cutsim::fem::kNodalPressureCostTarget);
+    return 1;
+  }
+  if (cutsim::fem::g_session_sample_cost_missed) {
+    std::fprintf(stderr, "fem_bench: a session-measure sample costs more than %.2fx a force pass\n",
+                 cutsim::fem::kSessionSampleCostTarget);
     return 1;
   }
   return 0;

@@ -18,6 +18,7 @@
 #include "common/core/log.h"
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpoint.h"
+#include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 #include "common/transport/channels.h"
@@ -259,6 +260,7 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
+  sim::SessionMetricsToProto(p_.simulation.Metrics(), o.mutable_metrics());
   if (!p_.simulation.has_tool()) return;
   const sim::ToolReport tool = p_.simulation.Tool();
   o.set_cuts(tool.cuts);
@@ -357,6 +359,7 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_topology_version(ReportCount(s.topology_version));
   r.set_components(ReportCount(s.components));
   r.set_status(s.status);
+  sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   return r;
 }
 

@@ -1,5 +1,7 @@
 #include "server/recorder.h"
 
+#include <algorithm>
+#include <cmath>
 #include <csignal>
 #include <fstream>
 #include <iterator>
@@ -9,6 +11,7 @@
 
 #include "common/core/error.h"
 #include "common/core/log.h"
+#include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/transport/codec.h"
 #include "common/transport/proto_vec.h"
@@ -139,6 +142,7 @@ uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
   end.set_cuts(simulation.has_tool() ? simulation.Tool().cuts : 0);
   end.set_mesh_hash(FinalMeshHash(simulation, kRecordQuantum, &view_));
   end.set_sim_time(simulation.sim_time());
+  sim::SessionMetricsToProto(simulation.Metrics(), end.mutable_metrics());
   Write(end_channel_, end);
   return end.mesh_hash();
 }
@@ -223,6 +227,25 @@ class Replayer {
     if (end.frames() != result_.frames) {
       Fail(fmt::format("{} frames replayed, {} recorded", result_.frames, end.frames()));
     }
+    if (end.has_metrics()) SameMetrics(end.metrics());
+  }
+
+  /// The re-run's measures against the recorded ones. The replay is
+  /// deterministic on the recording's build class, so they agree to
+  /// rounding; the tolerance only absorbs the text of a double.
+  void SameMetrics(const v1::SessionMetrics& recorded) {
+    v1::SessionMetrics now;
+    sim::SessionMetricsToProto(simulation_.Metrics(), &now);
+    const auto* descriptor = v1::SessionMetrics::descriptor();
+    const auto* reflection = v1::SessionMetrics::GetReflection();
+    for (int i = 0; i < descriptor->field_count(); ++i) {
+      const auto* field = descriptor->field(i);
+      const double a = reflection->GetDouble(now, field);
+      const double b = reflection->GetDouble(recorded, field);
+      if (!(std::abs(a - b) <= 1e-12 * std::max(std::abs(a), std::abs(b)))) {
+        Fail(fmt::format("metrics.{}: {:.17g} replayed, {:.17g} recorded", field->name(), a, b));
+      }
+    }
   }
 
   /// Keeps the first mismatch.
@@ -236,6 +259,7 @@ class Replayer {
     result_.topology_version = simulation_.topology_version();
     result_.cuts = simulation_.has_tool() ? simulation_.Tool().cuts : 0;
     result_.sim_time = simulation_.sim_time();
+    result_.metrics = simulation_.Metrics();
     result_.mesh_hash = FinalMeshHash(simulation_, quantum, &view_);
     if (result_.mismatch.empty() && result_.mesh_hash != result_.recorded_mesh_hash) {
       Fail(fmt::format("final mesh hash {:016x}, recorded {:016x}", result_.mesh_hash,

@@ -99,6 +99,7 @@ struct ReplayResult {
   std::string session;
   std::string scene;
   double sim_time = 0.0;
+  sim::SessionMetrics metrics;  ///< the re-run's measures
 };
 
 /// Replays `path` (see the file comment). `scene_override` (if not empty)

@@ -13,6 +13,7 @@
 #include "common/core/error.h"
 #include "common/core/log.h"
 #include "common/sim/checkpoint.h"
+#include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 #include "common/transport/report_json.h"
@@ -28,7 +29,7 @@ namespace {
 void OnSignal(int) { g_stop = 1; }
 void OnStatsSignal(int) { g_print_stats = 1; }
 
-v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s) {
+v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s, const sim::SessionMetrics& metrics) {
   using transport::ReportCount;
   v1::HeadlessSummary r;
   r.set_scene(s.scene);
@@ -69,6 +70,7 @@ v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s) {
   r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
   r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_tangent_assemblies(ReportCount(s.implicit.tangent_assemblies));
+  sim::SessionMetricsToProto(metrics, r.mutable_metrics());
   return r;
 }
 
@@ -87,6 +89,7 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   r.set_mesh_hash(transport::HexHash(result.mesh_hash));
   r.set_recorded_mesh_hash(transport::HexHash(result.recorded_mesh_hash));
   r.set_build(BuildClass());
+  sim::SessionMetricsToProto(result.metrics, r.mutable_metrics());
   return r;
 }
 
@@ -292,7 +295,7 @@ int ServerApp::RunHeadless() {
     simulation->WriteVtu(options_.out);
     Log().info("wrote {}", options_.out);
   }
-  std::printf("%s\n", transport::ReportJson(HeadlessReport(simulation->Summary())).c_str());
+  std::printf("%s\n", transport::ReportJson(HeadlessReport(simulation->Summary(), simulation->Metrics())).c_str());
   return exit_code;
 }
 

@@ -72,6 +72,7 @@ struct RunSummary {
   uint64_t last_cuts = 0;
   double last_session_clock = 0;  ///< s
   double max_force_n = 0;
+  v1::SessionMetrics metrics;     ///< as of the last rendered frame
   std::string exit_reason = "signal";
 };
 
@@ -115,6 +116,7 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
   v.set_last_session_clock(r.last_session_clock);
   v.set_max_force_n(r.max_force_n);
   v.set_malformed_observed(ReportCount(s.malformed_observed));
+  *v.mutable_metrics() = r.metrics;
   if (bridge != nullptr) {
     const web::ObserverServerStats b = bridge->server().stats();
     v.set_browser_frames(ReportCount(bridge->frames_relayed()));
@@ -233,6 +235,7 @@ void NoteFrame(const transport::MeshReplica& mesh, const std::optional<v1::Obser
   if (observed) {
     r.last_cuts = observed->cuts();
     r.last_session_clock = observed->sim_time();
+    r.metrics = observed->metrics();
     if (observed->tools_size() > 0) {
       ++r.frames_with_tool;
       r.max_force_n = std::max(r.max_force_n, transport::FromVec3(observed->tools(0).force()).norm());

@@ -16,9 +16,11 @@
 #include "common/sim/cut_pipeline.h"
 #include "common/sim/dynamics.h"
 #include "common/sim/integrator_choice.h"
+#include "common/sim/metrics_proto.h"
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
 #include "common/sim/scene_mesh.h"
+#include "common/sim/session_metrics.h"
 #include "common/sim/settle.h"
 #include "common/sim/surface_tracker.h"
 #include "common/sim/tool_state.h"
@@ -53,7 +55,8 @@ class Engine final : public Simulation {
   }
 
   /// One frame: the tool moves and finds its contact, the tissue steps
-  /// under the contact force, then the cut test runs.
+  /// under the contact force, the cut test runs, and the session's
+  /// measures take the frame in.
   SimStatus AdvanceFrame(double frame_time) override {
     if (run_.status != SimStatus::kOk) return run_.status;
     if (frame_time <= 0) frame_time = frame_dt();
@@ -63,6 +66,7 @@ class Engine final : public Simulation {
     FindContact();
     const fem::StepResult step = StepDynamics(start, frame_time);
     if (CheckStep(step)) TryCut();
+    Measure(frame_time);
     run_.wall_time += watch.ElapsedSeconds();
     return run_.status;
   }
@@ -82,6 +86,8 @@ class Engine final : public Simulation {
   }
   uint64_t topology_version() const override { return fem_.model().topology_version(); }
   const std::vector<CutStepTiming>& CutTimings() const override { return cuts_ ? cuts_->timings() : no_timings_; }
+
+  const SessionMetrics& Metrics() const override { return meter_.metrics(); }
 
   void FillMeshView(MeshView& view) const override {
     FillFemView(fem_.model(), fem_.state().x.data(), view);
@@ -124,7 +130,9 @@ class Engine final : public Simulation {
       progress.topology_version = cuts_->cut_mesh().version();
       progress.events = cuts_->events();
     }
-    return MakeCheckpointBody(Identity(), progress, fem_.state(), fem_.model().num_nodes());
+    v1::CheckpointBody body = MakeCheckpointBody(Identity(), progress, fem_.state(), fem_.model().num_nodes());
+    SessionMetricsToProto(meter_.metrics(), body.mutable_metrics());
+    return body;
   }
 
   /// Checks everything first (CheckCheckpointBody), then replays the events
@@ -141,6 +149,7 @@ class Engine final : public Simulation {
                              .num_tets = model.num_tets(),
                              .node_capacity = model.node_capacity(),
                              .fresh = run_.frames == 0 && (!cuts_ || cuts_->events().empty())});
+    const SessionMetrics metrics = SessionMetricsFromProto(body.metrics(), source);
     for (cutting::TopologyEvent& e : events) {
       ReplayEvent(cuts_->cut_mesh(), e);
       cuts_->ApplyRecordedEvent(std::move(e), Targets());
@@ -150,6 +159,7 @@ class Engine final : public Simulation {
     if (cuts_) cuts_->set_cuts(body.cuts());
     if (tool_) tool_->MoveToPath(sim_time());
     RebuildSurface();
+    meter_.Restore(metrics, sim_time());
   }
 
  private:
@@ -255,6 +265,22 @@ class Engine final : public Simulation {
     if (const std::optional<CutSweep> sweep = cuts_->TryCut(contact, Targets())) tool_->EnterCut(*sweep);
   }
 
+  /// The session's measures (SessionMeter): the tool's every frame, the
+  /// whole mesh's at the meter's sample period.
+  void Measure(double frame_time) {
+    if (run_.status != SimStatus::kOk) return;
+    if (tool_) meter_.AddFrame(frame_time, Tool());
+    if (!meter_.SampleDue(sim_time())) return;
+    IncisionView incision{.wall_nodes = surface_.wall_nodes()};
+    if (tool_ && tool_->facet().touching) incision.contact_nodes = tool_->facet().nodes;
+    if (cuts_) {
+      incision.surface = &surface_.triangles();
+      incision.opened = surface_.opened();
+      incision.cut = &cuts_->cut_mesh();
+    }
+    meter_.Sample(fem_.model(), fem_.state().x.data(), incision, sim_time());
+  }
+
   CutTargets<T> Targets() {
     return {.model = fem_.model(),
             .state = fem_.state(),
@@ -280,6 +306,7 @@ class Engine final : public Simulation {
   std::optional<ToolState<T>> tool_;      // with a tool
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting
   RunCounters run_;
+  SessionMeter<T> meter_{{.threads = fem_.threads()}};
   const std::vector<CutStepTiming> no_timings_;
 };
 

@@ -32,7 +32,7 @@ class Simulation {
 
   /// Advances one frame of `frame_time` seconds (0: the scene's
   /// time_step.frame_dt) in stable substeps: tool contact, then dynamics,
-  /// then the cut test of seed §3.
+  /// then the cut test of seed §3, then the session's measures.
   virtual SimStatus AdvanceFrame(double frame_time = 0.0) = 0;
 
   /// Whether the scene has a tool, and when its scripted path ends (0: none).
@@ -48,6 +48,8 @@ class Simulation {
   [[nodiscard]] virtual uint64_t topology_version() const = 0;
   /// Per executed cut step, its phases' wall times (empty without cutting).
   [[nodiscard]] virtual const std::vector<CutStepTiming>& CutTimings() const = 0;
+  /// The session's measures so far (session_metrics.h).
+  [[nodiscard]] virtual const SessionMetrics& Metrics() const = 0;
   /// Copies the observable mesh into `view` (reusing its storage).
   virtual void FillMeshView(MeshView& view) const = 0;
 

@@ -74,6 +74,7 @@ class SurfaceTracker {
   [[nodiscard]] const mesh::TriangleBvh& bvh() const { return bvh_; }
   [[nodiscard]] const mesh::Positions& world() const { return world_; }
   [[nodiscard]] const mesh::Triangles& triangles() const { return surface_; }
+  [[nodiscard]] const std::vector<uint8_t>& opened() const { return opened_; }  ///< #S: slot opened by a cut
   [[nodiscard]] const std::vector<uint8_t>& debris_facets() const { return debris_facet_; }
   [[nodiscard]] const std::vector<uint8_t>& wall_nodes() const { return wall_node_; }
 

@@ -83,6 +83,23 @@ struct SimulationSummary {
   double cut_wall_time = 0.0;    ///< s spent in cut steps (criterion + split + FEM update)
 };
 
+/// Per-session measures for the instructor, from the physics
+/// (session_metrics.h). Force, travel and contact accumulate every frame;
+/// the whole-mesh measures come from samples at a fixed simulated-time
+/// period, so a replay of the same frames gives the same numbers.
+struct SessionMetrics {
+  double peak_force = 0.0;          ///< N, largest |f| on the tool in contact
+  double mean_force = 0.0;          ///< N, force_impulse / contact_time
+  double force_impulse = 0.0;       ///< N·s, ∫|f| dt over the time in contact
+  double path_length = 0.0;         ///< m, travel of the blade tip
+  double contact_time = 0.0;        ///< s (simulated), tool touching tissue
+  double cut_off_volume = 0.0;      ///< m³, rest volume of pieces separated from the anchored body
+  double opened_area = 0.0;         ///< m², rest area of the faces cuts opened (both walls)
+  double max_stress_outside = 0.0;  ///< Pa, largest von Mises outside the incision so far
+  double stress_outside = 0.0;      ///< Pa, the same at the latest sample
+  int64_t stress_samples = 0;       ///< whole-mesh samples taken
+};
+
 /// A tool pose: blade tip and unit direction from the tip toward the handle
 /// (common/core/tool_pose.h).
 using ToolPose = ::cutsim::ToolPose;

@@ -178,10 +178,22 @@ namespace {
 
 bool FiniteVec(const v1::Vec3& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
 
+/// Every measure is a finite, non-negative double.
+bool ValidMetrics(const v1::SessionMetrics& m) {
+  const auto* descriptor = v1::SessionMetrics::descriptor();
+  const auto* reflection = v1::SessionMetrics::GetReflection();
+  for (int i = 0; i < descriptor->field_count(); ++i) {
+    const double v = reflection->GetDouble(m, descriptor->field(i));
+    if (!std::isfinite(v) || v < 0.0) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 void MeshStreamSubscriber::TakeObserved(const v1::ObserverSession& o) {
-  bool ok = o.tools_size() <= kMaxObservedTools && std::isfinite(o.sim_time()) && std::isfinite(o.wall_time());
+  bool ok = o.tools_size() <= kMaxObservedTools && std::isfinite(o.sim_time()) && std::isfinite(o.wall_time()) &&
+            ValidMetrics(o.metrics());
   for (const v1::ToolView& t : o.tools()) {
     ok = ok && FiniteVec(t.tip()) && FiniteVec(t.blade_dir()) && FiniteVec(t.force()) &&
          t.blade_length() >= 0 && t.blade_length() <= kMaxObservedBladeLength;

@@ -36,7 +36,8 @@ struct MeshStreamSubscriberStats {
   uint64_t ignored = 0;            ///< Stale or unsynced deltas, snapshots behind our state.
   uint64_t status = 0;             ///< Status messages received.
   uint64_t malformed_observed = 0; ///< Applied frames whose session view was refused (tool count,
-                                   ///< non-finite values, absurd blade length); the mesh stood.
+                                   ///< non-finite values, absurd blade length, negative
+                                   ///< measures); the mesh stood.
   uint64_t samples = 0;            ///< Samples received of this session (any topic).
   uint64_t bytes_received = 0;     ///< Payload bytes of those samples.
 };

@@ -81,6 +81,13 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
   }
   EXPECT_GT(opened_faces, 0) << "the cuts opened no face";
   EXPECT_GT(JsonNumber(s, "models_published"), 10) << s;
+  // The session's measures: the scalpel travelled, pressed and cut.
+  EXPECT_GT(JsonNumber(s, "path_length"), 0.01) << s;
+  EXPECT_GT(JsonNumber(s, "contact_time"), 0.0) << s;
+  EXPECT_GT(JsonNumber(s, "peak_force"), 0.0) << s;
+  EXPECT_LE(JsonNumber(s, "mean_force"), JsonNumber(s, "peak_force")) << s;
+  EXPECT_GT(JsonNumber(s, "opened_area"), 0.0) << s;
+  EXPECT_GT(JsonNumber(s, "max_stress_outside"), 0.0) << s;
   // Link latency is sampled once per model computed from a pose taken in its
   // frame; the frames after the client's path ended (within its timeout)
   // publish models too, but answer no pose.
@@ -105,6 +112,10 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
     EXPECT_GE(JsonNumber(v, "last_cuts"), 1) << name << ": " << v;
     EXPECT_GT(JsonNumber(v, "last_session_clock"), 0.0) << name << ": " << v;
     EXPECT_EQ(JsonNumber(v, "malformed_observed"), 0) << name << ": " << v;
+    // The measures as streamed: under way, and never ahead of the server's final ones.
+    EXPECT_GT(JsonNumber(v, "path_length"), 0.0) << name << ": " << v;
+    EXPECT_LE(JsonNumber(v, "path_length"), JsonNumber(s, "path_length") * (1 + 1e-12)) << name << ": " << v;
+    EXPECT_LE(JsonNumber(v, "peak_force"), JsonNumber(s, "peak_force") * (1 + 1e-12)) << name << ": " << v;
   }
   EXPECT_LT(JsonNumber(ReadTextFile(d + "/late.json"), "join_latency_s"), 5.0);
 

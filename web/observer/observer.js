@@ -79,6 +79,7 @@ const state = {
   topologyVersion: 0,
   tool: null,                // {tip, bladeDir, bladeLength, force, contact}
   link: null,                // {frame_age_ms, bridge_gaps, clients}
+  metrics: null,             // the session's measures (SessionMetrics, SI units), or null before any
   vertexCount: 0,
   triangleCount: 0,
   openedCount: 0,
@@ -440,6 +441,20 @@ function toolView(t) {
   };
 }
 
+/** The session's measures from protobuf JSON (absent fields are 0). */
+function metricsView(m) {
+  return {
+    peakForce: num(m.peakForce),
+    meanForce: num(m.meanForce),
+    pathLength: num(m.pathLength),
+    contactTime: num(m.contactTime),
+    cutOffVolume: num(m.cutOffVolume),
+    openedArea: num(m.openedArea),
+    maxStressOutside: num(m.maxStressOutside),
+    stressOutside: num(m.stressOutside),
+  };
+}
+
 // |F| history for the force plot: {t: sim time, f: N}.
 const forceHistory = [];
 // performance.now() when the last link report arrived: the HUD ages the
@@ -460,6 +475,7 @@ function onSessionMessage(message) {
   state.topologyVersion = num(observed.topologyVersion);
   const tools = Array.isArray(observed.tools) ? observed.tools : [];
   state.tool = tools.length > 0 ? toolView(tools[0]) : null;
+  if (observed.metrics && typeof observed.metrics === 'object') state.metrics = metricsView(observed.metrics);
   if (message.link && typeof message.link === 'object') {
     linkReceivedMs = performance.now();
     state.link = {
@@ -561,6 +577,12 @@ const hud = {
   frames: document.getElementById('hud-frames'),
   dropped: document.getElementById('hud-dropped'),
   clients: document.getElementById('hud-clients'),
+  peakForce: document.getElementById('hud-peak-force'),
+  meanForce: document.getElementById('hud-mean-force'),
+  path: document.getElementById('hud-path'),
+  contact: document.getElementById('hud-contact'),
+  cutOff: document.getElementById('hud-cut-off'),
+  stress: document.getElementById('hud-stress'),
   plot: document.getElementById('force-plot'),
 };
 const plot = hud.plot.getContext('2d');
@@ -578,7 +600,20 @@ function updateHud() {
   hud.frames.textContent = String(state.framesReceived);
   hud.dropped.textContent = String(state.droppedFrames);
   hud.clients.textContent = state.link ? String(state.link.clients) : '–';
+  updateMetricsHud();
   drawForcePlot();
+}
+
+/** The measures in the units an instructor reads: N, mm, s, cm³ (mL), kPa. */
+function updateMetricsHud() {
+  const m = state.metrics;
+  if (!m) return;
+  hud.peakForce.textContent = `${m.peakForce.toFixed(3)} N`;
+  hud.meanForce.textContent = `${m.meanForce.toFixed(3)} N`;
+  hud.path.textContent = `${(m.pathLength * 1e3).toFixed(1)} mm`;
+  hud.contact.textContent = `${m.contactTime.toFixed(2)} s`;
+  hud.cutOff.textContent = `${(m.cutOffVolume * 1e6).toFixed(3)} cm³`;
+  hud.stress.textContent = `${(m.maxStressOutside / 1e3).toFixed(2)} kPa (now ${(m.stressOutside / 1e3).toFixed(2)})`;
 }
 
 /** |F| over the last PLOT_WINDOW_S seconds of session time, auto-scaled. */

@@ -482,17 +482,20 @@ TEST(MeshStreamTest, ObservedSessionTravelsWithSnapshotsAndDeltas) {
 
 // A session view a viewer cannot draw (too many tools, non-finite values, an
 // absurd blade) is refused and counted; the mesh it came with still applies
-// and the previous view stays.
+// and the previous view stays. Measures that no session can have (infinite,
+// negative) are refused the same way.
 TEST(MeshStreamTest, ObservedSessionThatCannotBeDrawnIsRefused) {
   StreamHarness h;
   FakeMesh m(4);
   h.pub().SetObserved(ObservedAt(1));
   Feed(h.sub(), h.Publish(m), h.session());
   ASSERT_TRUE(h.sub().observed().has_value());
-  std::vector<v1::ObserverSession> bad(3, ObservedAt(2));
+  std::vector<v1::ObserverSession> bad(5, ObservedAt(2));
   for (int k = 0; k < 4; ++k) *bad[0].add_tools() = bad[0].tools(0);  // five tools
   bad[1].mutable_tools(0)->mutable_tip()->set_y(std::numeric_limits<double>::quiet_NaN());
   bad[2].mutable_tools(0)->set_blade_length(1e9);
+  bad[3].mutable_metrics()->set_peak_force(std::numeric_limits<double>::infinity());
+  bad[4].mutable_metrics()->set_path_length(-1.0);
   uint64_t deltas = h.sub().stats().deltas;
   for (size_t k = 0; k < bad.size(); ++k) {
     m.frame = 2 + k;

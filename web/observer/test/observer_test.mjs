@@ -430,6 +430,24 @@ async function main() {
           { cuts: s.cuts, openedCount: s.openedCount, counts });
       });
 
+      // 4b. The session's measures arrive and read as a cut does: the tip
+      // travelled, touched, pushed, and stressed the tissue; the HUD shows them.
+      await check('session-measures-shown', async () => {
+        await waitState(first, '(s) => s.metrics && s.metrics.contactTime > 0 && s.metrics.maxStressOutside > 0', 5000);
+        const s = await state(first);
+        const m = s.metrics;
+        const text = await first.evaluate(() => ({
+          peak: document.getElementById('hud-peak-force').textContent,
+          path: document.getElementById('hud-path').textContent,
+          stress: document.getElementById('hud-stress').textContent,
+        }));
+        const ok = m.pathLength > 0 && m.peakForce > 0 && m.meanForce > 0 && m.meanForce <= m.peakForce &&
+          m.contactTime > 0 && m.contactTime <= s.simTime && m.maxStressOutside >= m.stressOutside &&
+          /\d mm$/.test(text.path) && /\d N$/.test(text.peak) && /kPa/.test(text.stress);
+        report('session-measures-shown', ok, `measures ${JSON.stringify(m)}, HUD ${JSON.stringify(text)}`,
+          { metrics: m, hud: text });
+      });
+
       // 5. A page opened now draws the session at once and keeps up. The
       // limit applies from the moment the page starts to connect (the
       // bridge's part: the held snapshot at once; the page's: draw it); the
