@@ -19,6 +19,7 @@
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpoint.h"
 #include "common/sim/metrics_proto.h"
+#include "server/session_report.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 #include "common/transport/channels.h"
@@ -360,6 +361,7 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_components(ReportCount(s.components));
   r.set_status(s.status);
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
+  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   return r;
 }
 
@@ -413,6 +415,10 @@ int ServerApp::RunRealtime() {
   Log().info("session ended: {}", json);
   std::printf("%s\n", json.c_str());
   if (!options_.stats_json.empty()) WriteFileAtomically(options_.stats_json, json);
+  if (!options_.session_report.empty()) {
+    WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, options_.session, scene.scene.name()));
+    Log().info("wrote the session report {}", options_.session_report);
+  }
   if (!options_.out.empty()) simulation->WriteVtu(options_.out);
   return exit_code;
 }

@@ -15,6 +15,7 @@
 #include "common/sim/scene_loader.h"
 #include "common/transport/codec.h"
 #include "common/transport/proto_vec.h"
+#include "server/session_report.h"
 
 namespace cutsim::server {
 extern volatile std::sig_atomic_t g_stop;  // server_app.cc: SIGINT/SIGTERM
@@ -143,6 +144,7 @@ uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
   end.set_mesh_hash(FinalMeshHash(simulation, kRecordQuantum, &view_));
   end.set_sim_time(simulation.sim_time());
   sim::SessionMetricsToProto(simulation.Metrics(), end.mutable_metrics());
+  if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, end.mutable_score());
   Write(end_channel_, end);
   return end.mesh_hash();
 }
@@ -227,23 +229,37 @@ class Replayer {
     if (end.frames() != result_.frames) {
       Fail(fmt::format("{} frames replayed, {} recorded", result_.frames, end.frames()));
     }
-    if (end.has_metrics()) SameMetrics(end.metrics());
+    if (end.has_metrics()) SameMeasures("metrics", end.metrics(), ToProto(simulation_.Metrics()));
+    if (end.has_score()) {
+      const auto score = simulation_.Score();
+      if (!score) {
+        Fail("the recording has a score; the re-run's scene has no planned incision");
+      } else {
+        v1::IncisionScore now;
+        sim::IncisionScoreToProto(*score, &now);
+        SameMeasures("score", end.score(), now);
+      }
+    }
   }
 
-  /// The re-run's measures against the recorded ones. The replay is
-  /// deterministic on the recording's build class, so they agree to
-  /// rounding; the tolerance only absorbs the text of a double.
-  void SameMetrics(const v1::SessionMetrics& recorded) {
-    v1::SessionMetrics now;
-    sim::SessionMetricsToProto(simulation_.Metrics(), &now);
-    const auto* descriptor = v1::SessionMetrics::descriptor();
-    const auto* reflection = v1::SessionMetrics::GetReflection();
+  static v1::SessionMetrics ToProto(const sim::SessionMetrics& m) {
+    v1::SessionMetrics p;
+    sim::SessionMetricsToProto(m, &p);
+    return p;
+  }
+
+  /// The re-run's measures (or score) against the recorded ones, field by
+  /// field (every field is a double). The replay is deterministic on the
+  /// recording's build class, so they agree to rounding.
+  void SameMeasures(const char* what, const google::protobuf::Message& recorded, const google::protobuf::Message& now) {
+    const auto* descriptor = recorded.GetDescriptor();
+    const auto* reflection = recorded.GetReflection();
     for (int i = 0; i < descriptor->field_count(); ++i) {
       const auto* field = descriptor->field(i);
       const double a = reflection->GetDouble(now, field);
       const double b = reflection->GetDouble(recorded, field);
       if (!(std::abs(a - b) <= 1e-12 * std::max(std::abs(a), std::abs(b)))) {
-        Fail(fmt::format("metrics.{}: {:.17g} replayed, {:.17g} recorded", field->name(), a, b));
+        Fail(fmt::format("{}.{}: {:.17g} replayed, {:.17g} recorded", what, field->name(), a, b));
       }
     }
   }
@@ -260,6 +276,7 @@ class Replayer {
     result_.cuts = simulation_.has_tool() ? simulation_.Tool().cuts : 0;
     result_.sim_time = simulation_.sim_time();
     result_.metrics = simulation_.Metrics();
+    result_.report = MakeSessionReport(simulation_, result_.session, result_.scene);
     result_.mesh_hash = FinalMeshHash(simulation_, quantum, &view_);
     if (result_.mismatch.empty() && result_.mesh_hash != result_.recorded_mesh_hash) {
       Fail(fmt::format("final mesh hash {:016x}, recorded {:016x}", result_.mesh_hash,

@@ -41,6 +41,7 @@
 #include "common/sim/simulation.h"
 #include "common/transport/lcm_log.h"
 #include "common/transport/mesh_stream.h"
+#include "cutsim/v1/report.pb.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::server {
@@ -100,6 +101,7 @@ struct ReplayResult {
   std::string scene;
   double sim_time = 0.0;
   sim::SessionMetrics metrics;  ///< the re-run's measures
+  v1::SessionReport report;     ///< the re-run's session report (measures, score, series)
 };
 
 /// Replays `path` (see the file comment). `scene_override` (if not empty)

@@ -19,6 +19,7 @@
 #include "common/transport/report_json.h"
 #include "cutsim/v1/report.pb.h"
 #include "server/recorder.h"
+#include "server/session_report.h"
 
 namespace cutsim::server {
 volatile std::sig_atomic_t g_stop = 0;
@@ -29,7 +30,8 @@ namespace {
 void OnSignal(int) { g_stop = 1; }
 void OnStatsSignal(int) { g_print_stats = 1; }
 
-v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s, const sim::SessionMetrics& metrics) {
+v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
+  const sim::SimulationSummary s = simulation.Summary();
   using transport::ReportCount;
   v1::HeadlessSummary r;
   r.set_scene(s.scene);
@@ -70,7 +72,8 @@ v1::HeadlessSummary HeadlessReport(const sim::SimulationSummary& s, const sim::S
   r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
   r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_tangent_assemblies(ReportCount(s.implicit.tangent_assemblies));
-  sim::SessionMetricsToProto(metrics, r.mutable_metrics());
+  sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
+  if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   return r;
 }
 
@@ -90,6 +93,7 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   r.set_recorded_mesh_hash(transport::HexHash(result.recorded_mesh_hash));
   r.set_build(BuildClass());
   sim::SessionMetricsToProto(result.metrics, r.mutable_metrics());
+  if (result.report.has_score()) *r.mutable_score() = result.report.score();
   return r;
 }
 
@@ -137,6 +141,13 @@ void AddRealtimeOptions(CLI::App& app, ServerOptions& o) {
                  "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
       ->check(CLI::Range(1.0, 10000.0));
   app.add_option("--stats-json", o.stats_json, "Also write the exit statistics to this file");
+}
+
+/// The session report, in every mode.
+void AddReportOptions(CLI::App& app, ServerOptions& o) {
+  app.add_option("--session-report", o.session_report,
+                 "At the end, write the session's measures and score to this JSON file and their plot beside it "
+                 "(.svg)");
 }
 
 /// Recording, replay and access control of the tool stream.
@@ -189,6 +200,7 @@ int ServerApp::ParseArgs(int argc, char** argv) {
   AddRealtimeOptions(app, options_);
   AddRecordAndAccessOptions(app, options_);
   AddCheckpointOptions(app, options_);
+  AddReportOptions(app, options_);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -229,6 +241,10 @@ int ServerApp::RunReplay() {
   const ReplayResult r = ReplayRecording(options_.replay, options_.scene);
   const std::string json = transport::ReportJson(MakeReplayReport(options_.replay, r));
   std::printf("%s\n", json.c_str());
+  if (!options_.session_report.empty()) {
+    WriteSessionReport(options_.session_report, r.report);
+    Log().info("wrote the session report {}", options_.session_report);
+  }
   if (!r.match) {
     Log().error("replay of {} does NOT match the recording: {}", options_.replay, r.mismatch);
     return 4;
@@ -295,7 +311,11 @@ int ServerApp::RunHeadless() {
     simulation->WriteVtu(options_.out);
     Log().info("wrote {}", options_.out);
   }
-  std::printf("%s\n", transport::ReportJson(HeadlessReport(simulation->Summary(), simulation->Metrics())).c_str());
+  if (!options_.session_report.empty()) {
+    WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
+    Log().info("wrote the session report {}", options_.session_report);
+  }
+  std::printf("%s\n", transport::ReportJson(HeadlessReport(*simulation)).c_str());
   return exit_code;
 }
 

@@ -33,6 +33,7 @@ struct ServerOptions {
   double frame_rate = 0.0;         ///< physics frames per second; 0: the scene's frame_dt
   double client_timeout = 1.0;     ///< s without tool poses: the haptic client is gone
   std::string stats_json;          ///< write the exit statistics here too
+  std::string session_report;      ///< --session-report: JSON + SVG plot of the measures and score at the end
   // Record, replay and access control.
   std::string record;              ///< --record: LCM log of the session's inputs (real-time mode)
   std::string replay;              ///< --replay: with --headless, re-run a recording and check it

@@ -153,6 +153,36 @@ void ValidateMaterial(cutsim::v1::Material& m, const std::string& s, int index) 
 
 }  // namespace
 
+/// The planned incision: 2 to kMaxPlanPoints finite points with a
+/// non-degenerate extent, a unit normal (defaulted to +z, normalised),
+/// depth > 0 and a tolerance > 0 (defaulted to 2 mm).
+void ValidatePlannedIncision(cutsim::v1::PlannedIncision& p, const std::string& s) {
+  constexpr int kMaxPlanPoints = 10000;
+  if (p.points_size() < 2 || p.points_size() > kMaxPlanPoints) {
+    FieldError(s, "planned_incision.points", fmt::format("needs 2 to {} points (got {})", kMaxPlanPoints, p.points_size()));
+  }
+  double length = 0.0;
+  for (int i = 0; i < p.points_size(); ++i) {
+    RequireFiniteVec(s, fmt::format("planned_incision.points[{}]", i), p.points(i));
+    if (i > 0) {
+      const auto& a = p.points(i - 1);
+      const auto& b = p.points(i);
+      length += std::hypot(b.x() - a.x(), b.y() - a.y(), b.z() - a.z());
+    }
+  }
+  if (!(length > 1e-6)) FieldError(s, "planned_incision.points", "the line must be longer than 1 µm");
+  if (!p.has_normal()) p.mutable_normal()->set_z(1.0);
+  RequireFiniteVec(s, "planned_incision.normal", p.normal());
+  const double n = Norm(p.normal());
+  if (!(n > 1e-9)) FieldError(s, "planned_incision.normal", "must not be zero");
+  p.mutable_normal()->set_x(p.normal().x() / n);
+  p.mutable_normal()->set_y(p.normal().y() / n);
+  p.mutable_normal()->set_z(p.normal().z() / n);
+  RequirePositive(s, "planned_incision.depth", p.depth());
+  if (p.tolerance() == 0.0) p.set_tolerance(0.002);
+  RequirePositive(s, "planned_incision.tolerance", p.tolerance());
+}
+
 void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   if (!scene.has_mesh()) FieldError(s, "mesh", "is required");
   ValidateMesh(*scene.mutable_mesh(), s);
@@ -253,6 +283,8 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
       RequireFiniteVec(s, f + ".blade_dir", k.blade_dir());
     }
   }
+
+  if (scene.has_planned_incision()) ValidatePlannedIncision(*scene.mutable_planned_incision(), s);
 
   if (scene.has_cutting() && scene.cutting().enabled()) {
     auto& c = *scene.mutable_cutting();

@@ -16,8 +16,10 @@ void SessionMeter<T>::AddFrame(double frame_time, const ToolReport& tool) {
   if (have_tip_) metrics_.path_length += (tool.pose.tip - last_tip_).norm();
   last_tip_ = tool.pose.tip;
   have_tip_ = true;
+  last_force_ = 0.0;
   if (!tool.touching) return;
   const double f = tool.force_on_tool.norm();
+  last_force_ = f;
   metrics_.peak_force = std::max(metrics_.peak_force, f);
   metrics_.contact_time += frame_time;
   metrics_.force_impulse += f * frame_time;
@@ -40,7 +42,7 @@ void SessionMeter<T>::Sample(const fem::Model<T>& model, const T* x, const Incis
     UpdatePieces(model, incision);
     pieces_version_ = model.topology_version();
   }
-  MarkIncision(model, incision);
+  MarkIncision(model, x, incision);
   von_mises_.resize(nt);
   fem::ComputeElementStresses<T>(model, x, {}, {}, std::span<T>(von_mises_), options_.threads);
   double largest = 0.0;
@@ -52,6 +54,7 @@ void SessionMeter<T>::Sample(const fem::Model<T>& model, const T* x, const Incis
   metrics_.stress_outside = largest;
   metrics_.max_stress_outside = std::max(metrics_.max_stress_outside, largest);
   ++metrics_.stress_samples;
+  if (series_.size() < kMaxForceSamples) series_.push_back({.t = sim_time, .force = last_force_});
 }
 
 template <typename T>
@@ -105,7 +108,7 @@ void SessionMeter<T>::UpdatePieces(const fem::Model<T>& model, const IncisionVie
 }
 
 template <typename T>
-void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const IncisionView& incision) {
+void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const T* x, const IncisionView& incision) {
   const int32_t nt = model.num_tets();
   const int32_t nn = model.num_nodes();
   node_mark_.assign(static_cast<size_t>(nn), 0);
@@ -114,6 +117,17 @@ void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const IncisionVie
   for (size_t n = 0; n < walls; ++n) node_mark_[n] = incision.wall_nodes[n] != 0 ? 1 : 0;
   for (const int32_t n : incision.contact_nodes) {
     if (n >= 0 && n < nn) node_mark_[static_cast<size_t>(n)] = 1;
+  }
+  if (incision.blade_touching && incision.blade_radius > 0.0) {
+    const Eigen::Vector3d a = incision.blade_tip;
+    const Eigen::Vector3d d = incision.blade_dir;
+    const double r2 = incision.blade_radius * incision.blade_radius;
+    for (int32_t n = 0; n < nn; ++n) {
+      const Eigen::Vector3d p(static_cast<double>(x[3 * n]), static_cast<double>(x[3 * n + 1]),
+                              static_cast<double>(x[3 * n + 2]));
+      const double s = std::clamp((p - a).dot(d), 0.0, incision.blade_length);
+      if ((p - a - s * d).squaredNorm() <= r2) node_mark_[static_cast<size_t>(n)] = 1;
+    }
   }
   // Ring 0: the tets on a seed node. Each further ring: the tets on a node
   // of the tets marked so far. Tets and nodes are marked in separate
@@ -139,8 +153,10 @@ void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const IncisionVie
 }
 
 template <typename T>
-void SessionMeter<T>::Restore(const SessionMetrics& metrics, double sim_time) {
+void SessionMeter<T>::Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time) {
   metrics_ = metrics;
+  series_.assign(series.begin(), series.begin() + static_cast<std::ptrdiff_t>(std::min(series.size(), kMaxForceSamples)));
+  last_force_ = 0.0;
   have_tip_ = false;
   last_sample_slot_ = static_cast<int64_t>(std::floor(sim_time / options_.sample_period + 1e-6));
   pieces_version_ = ~uint64_t{0};

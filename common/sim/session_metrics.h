@@ -11,9 +11,10 @@
 ///   (the pieces holding a fixed node; with none fixed, the largest piece);
 /// - the rest area of the faces cuts opened;
 /// - the largest von Mises stress outside the incision, over the anchored
-///   body. The incision is the tets that share a node with an opened face or
-///   with the facet the blade touches, grown by `incision_rings` rings of
-///   tets (tets sharing a node). The stress concentrates at the blade's
+///   body. The incision is the tets that share a node with an opened face,
+///   with the facet the blade touches, or lie within a radius of the blade
+///   in contact, grown by `incision_rings` rings of tets (tets sharing a
+///   node). The stress concentrates at the blade's
 ///   edge and along the cut's walls by construction; what an instructor
 ///   reads is the load the trainee puts on the tissue around them.
 ///
@@ -38,6 +39,14 @@ struct IncisionView {
   std::span<const uint8_t> wall_nodes;
   /// Nodes of the facet the blade touches (−1: no contact).
   std::array<int32_t, 3> contact_nodes{-1, -1, -1};
+  /// The blade while it touches the tissue: the nodes within `blade_radius`
+  /// of the segment tip → tip + blade_length·blade_dir (world) are seeds
+  /// too, since the blade's edge loads the tissue along its whole length.
+  bool blade_touching = false;
+  Eigen::Vector3d blade_tip = Eigen::Vector3d::Zero();  ///< m, world
+  Eigen::Vector3d blade_dir = Eigen::Vector3d::UnitZ(); ///< unit, tip → handle
+  double blade_length = 0.0;                            ///< m
+  double blade_radius = 0.0;                            ///< m
   /// Live surface triangles by slot (#S×3, dead rows −1) and their opened
   /// flags (#S); null / empty without cutting.
   const mesh::Triangles* surface = nullptr;
@@ -49,6 +58,9 @@ struct IncisionView {
 template <typename T>
 class SessionMeter {
  public:
+  /// At most this many force samples are kept (14.5 h at 20 Hz).
+  static constexpr size_t kMaxForceSamples = size_t{1} << 20;
+
   struct Options {
     double sample_period = 0.05;  ///< s of simulated time between whole-mesh samples
     int incision_rings = 1;       ///< rings of tets added around the incision's seed tets
@@ -70,16 +82,21 @@ class SessionMeter {
   void Sample(const fem::Model<T>& model, const T* x, const IncisionView& incision, double sim_time);
 
   [[nodiscard]] const SessionMetrics& metrics() const { return metrics_; }
-  /// After a checkpoint restore: carries the session's measures on.
-  void Restore(const SessionMetrics& metrics, double sim_time);
+  /// The force on the tool at each sample, for the session report's plot.
+  [[nodiscard]] const std::vector<ForceSample>& force_series() const { return series_; }
+  /// After a checkpoint restore: carries the session's measures and force
+  /// series on.
+  void Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time);
 
  private:
   void UpdatePieces(const fem::Model<T>& model, const IncisionView& incision);
-  void MarkIncision(const fem::Model<T>& model, const IncisionView& incision);
+  void MarkIncision(const fem::Model<T>& model, const T* x, const IncisionView& incision);
 
   Options options_;
   SessionMetrics metrics_;
   bool have_tip_ = false;
+  double last_force_ = 0.0;         // N, |f| at the last frame's end (0 out of contact)
+  std::vector<ForceSample> series_;
   Eigen::Vector3d last_tip_ = Eigen::Vector3d::Zero();
   int64_t last_sample_slot_ = -1;
   uint64_t pieces_version_ = ~uint64_t{0};

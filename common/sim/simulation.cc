@@ -45,6 +45,7 @@ class Engine final : public Simulation {
         dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())) {
     if (scene_.scene.settle()) SettleTissue();
     if (scene_.scene.has_tool()) SetUpTool();
+    if (scene_.scene.has_planned_incision()) scorer_.emplace(PlanOf(scene_.scene.planned_incision()));
     RebuildSurface();
     const fem::Model<T>& model = fem_.model();
     Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}, {} integrator",
@@ -88,6 +89,18 @@ class Engine final : public Simulation {
   const std::vector<CutStepTiming>& CutTimings() const override { return cuts_ ? cuts_->timings() : no_timings_; }
 
   const SessionMetrics& Metrics() const override { return meter_.metrics(); }
+  const std::vector<ForceSample>& ForceSeries() const override { return meter_.force_series(); }
+  const PlannedIncision* Plan() const override { return scorer_ ? &scorer_->plan() : nullptr; }
+  std::span<const CutPoint> ScoredCutPoints() const override {
+    return scorer_ ? std::span<const CutPoint>(scorer_->cut_points()) : std::span<const CutPoint>();
+  }
+  std::optional<IncisionScore> Score() const override {
+    if (!scorer_) return std::nullopt;
+    static const std::vector<uint8_t> kNone;
+    return scorer_->Score(fem_.model().rest_positions(), surface_.triangles(),
+                          cuts_ ? std::span<const uint8_t>(surface_.opened()) : std::span<const uint8_t>(kNone),
+                          meter_.metrics(), sim_time());
+  }
 
   void FillMeshView(MeshView& view) const override {
     FillFemView(fem_.model(), fem_.state().x.data(), view);
@@ -132,6 +145,7 @@ class Engine final : public Simulation {
     }
     v1::CheckpointBody body = MakeCheckpointBody(Identity(), progress, fem_.state(), fem_.model().num_nodes());
     SessionMetricsToProto(meter_.metrics(), body.mutable_metrics());
+    SeriesToProto(meter_.force_series(), ScoredCutPoints(), &body);
     return body;
   }
 
@@ -150,6 +164,7 @@ class Engine final : public Simulation {
                              .node_capacity = model.node_capacity(),
                              .fresh = run_.frames == 0 && (!cuts_ || cuts_->events().empty())});
     const SessionMetrics metrics = SessionMetricsFromProto(body.metrics(), source);
+    const SessionSeries series = SeriesFromProto(body, source);
     for (cutting::TopologyEvent& e : events) {
       ReplayEvent(cuts_->cut_mesh(), e);
       cuts_->ApplyRecordedEvent(std::move(e), Targets());
@@ -159,7 +174,8 @@ class Engine final : public Simulation {
     if (cuts_) cuts_->set_cuts(body.cuts());
     if (tool_) tool_->MoveToPath(sim_time());
     RebuildSurface();
-    meter_.Restore(metrics, sim_time());
+    meter_.Restore(metrics, series.force, sim_time());
+    if (scorer_) scorer_->Restore(series.cut_points);
   }
 
  private:
@@ -269,16 +285,42 @@ class Engine final : public Simulation {
   /// whole mesh's at the meter's sample period.
   void Measure(double frame_time) {
     if (run_.status != SimStatus::kOk) return;
-    if (tool_) meter_.AddFrame(frame_time, Tool());
+    if (tool_) {
+      const ToolReport tool = Tool();
+      meter_.AddFrame(frame_time, tool);
+      if (scorer_ && tool.cut_this_frame) ScoreCutPoint();
+    }
     if (!meter_.SampleDue(sim_time())) return;
     IncisionView incision{.wall_nodes = surface_.wall_nodes()};
-    if (tool_ && tool_->facet().touching) incision.contact_nodes = tool_->facet().nodes;
+    if (tool_ && tool_->facet().touching) {
+      incision.contact_nodes = tool_->facet().nodes;
+      incision.blade_touching = true;
+      incision.blade_tip = tool_->pose().tip;
+      incision.blade_dir = tool_->pose().blade_dir;
+      incision.blade_length = tool_->blade_length();
+      incision.blade_radius = tool_->indent_limit();  // one mean edge
+    }
     if (cuts_) {
       incision.surface = &surface_.triangles();
       incision.opened = surface_.opened();
       incision.cut = &cuts_->cut_mesh();
     }
     meter_.Sample(fem_.model(), fem_.state().x.data(), incision, sim_time());
+  }
+
+  /// The frame's cut step met the surface at the contact facet's
+  /// barycentric point: scored on the rest mesh.
+  void ScoreCutPoint() {
+    const ContactFacet& facet = tool_->facet();
+    if (facet.nodes[0] < 0) return;
+    const T* rest = fem_.model().rest_positions();
+    Eigen::Vector3d p = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 3; ++k) {
+      const auto n = static_cast<size_t>(facet.nodes[static_cast<size_t>(k)]);
+      p += facet.bary[k] * Eigen::Vector3d(static_cast<double>(rest[3 * n]), static_cast<double>(rest[3 * n + 1]),
+                                           static_cast<double>(rest[3 * n + 2]));
+    }
+    scorer_->AddCutPoint(sim_time(), p);
   }
 
   CutTargets<T> Targets() {
@@ -307,6 +349,7 @@ class Engine final : public Simulation {
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting
   RunCounters run_;
   SessionMeter<T> meter_{{.threads = fem_.threads()}};
+  std::optional<IncisionScorer> scorer_;  // with a planned incision
   const std::vector<CutStepTiming> no_timings_;
 };
 

@@ -8,12 +8,15 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "common/mesh/tet_mesh.h"
+#include "common/sim/incision_score.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/types.h"  // re-exported: the types the interface speaks
 
@@ -50,6 +53,13 @@ class Simulation {
   [[nodiscard]] virtual const std::vector<CutStepTiming>& CutTimings() const = 0;
   /// The session's measures so far (session_metrics.h).
   [[nodiscard]] virtual const SessionMetrics& Metrics() const = 0;
+  /// |f| on the tool at each sample of the measures (for the session report).
+  [[nodiscard]] virtual const std::vector<ForceSample>& ForceSeries() const = 0;
+  /// The scene's planned incision (null without one) and the score against
+  /// it so far (incision_score.h), with the cut points it scored.
+  [[nodiscard]] virtual const PlannedIncision* Plan() const = 0;
+  [[nodiscard]] virtual std::optional<IncisionScore> Score() const = 0;
+  [[nodiscard]] virtual std::span<const CutPoint> ScoredCutPoints() const = 0;
   /// Copies the observable mesh into `view` (reusing its storage).
   virtual void FillMeshView(MeshView& view) const = 0;
 

@@ -100,6 +100,13 @@ struct SessionMetrics {
   int64_t stress_samples = 0;       ///< whole-mesh samples taken
 };
 
+/// |f| on the tool at one whole-mesh sample of the session's measures (0
+/// out of contact).
+struct ForceSample {
+  double t = 0.0;      ///< s, simulated
+  double force = 0.0;  ///< N
+};
+
 /// A tool pose: blade tip and unit direction from the tip toward the handle
 /// (common/core/tool_pose.h).
 using ToolPose = ::cutsim::ToolPose;

@@ -234,7 +234,7 @@ TEST(SessionMeter, RestoreCarriesTheMeasuresOn) {
   Meter a({});
   for (int i = 0; i < 30; ++i) a.AddFrame(0.01, ToolAt({0.001 * i, 0, 0}, true, {0, 0, 0.1 * i}));
   Meter b({});
-  b.Restore(a.metrics(), 0.3);
+  b.Restore(a.metrics(), a.force_series(), 0.3);
   EXPECT_FALSE(b.SampleDue(0.3));  // the period's sample was taken before the save
   for (int i = 30; i < 60; ++i) {
     a.AddFrame(0.01, ToolAt({0.001 * i, 0, 0}, true, {0, 0, 0.1 * i}));

@@ -1,0 +1,26 @@
+#pragma once
+/// @file
+/// The session report (`--session-report FILE`): the session's measures,
+/// the score against the scene's planned incision, and the series behind
+/// them, as JSON (FILE, protobuf's JSON printer) plus a plot of the force
+/// and of the cut's deviation from the plan over time (FILE with .svg).
+
+#include <string>
+
+#include "common/sim/simulation.h"
+#include "cutsim/v1/report.pb.h"
+
+namespace cutsim::server {
+
+[[nodiscard]] v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std::string& session,
+                                                  const std::string& scene);
+
+/// The plot as an SVG document: |f| on the tool over time, and below it the
+/// deviation of each scored cut step with the plan's tolerance band.
+[[nodiscard]] std::string SessionPlotSvg(const v1::SessionReport& report);
+
+/// Writes FILE and FILE's .svg sibling, each through a temporary file and a
+/// rename. Throws InputError naming the file on any write error.
+void WriteSessionReport(const std::string& path, const v1::SessionReport& report);
+
+}  // namespace cutsim::server
