@@ -29,6 +29,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "common/transport/fault_injection.h"
 #include "common/transport/realtime_thread.h"
@@ -38,7 +39,14 @@ namespace cutsim::haptic_client {
 struct HapticAppOptions {
   std::string session = "default";
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
-  std::string device = "scripted";    ///< scripted | replay
+  std::string device = "scripted";    ///< scripted | replay | a plugin name or path (plugin_loader.h)
+  std::string device_dir;             ///< --device-dir, plugin folder; "" = next to the executable
+  std::string device_arg;             ///< --device-arg, passed to the plugin's open
+  std::string scene;                  ///< --scene, the device workspace from haptics.device_*
+  double workspace_scale = 0.0;       ///< --workspace-scale, 0 = the scene's (else 1)
+  std::vector<double> workspace_offset;  ///< --workspace-offset x y z, m; empty = the scene's (else 0)
+  int clutch_button = 1;              ///< --clutch-button, bit index; -1 = no clutch
+  double unplug_fade = 0.05;          ///< s, force ramp to zero when the device is lost
   std::string path;                   ///< --path, tool path for `scripted`
   std::string log;                    ///< --log, LCM log for `replay`
   std::string log_channel;            ///< --log-channel, default CUTSIM_<session>_TOOL
@@ -61,6 +69,9 @@ struct HapticAppOptions {
 
 /// Validates the options (throws `InputError` naming the flag).
 void ValidateOptions(const HapticAppOptions& options);
+
+/// True for the devices built into cutsim-haptic (scripted, replay).
+[[nodiscard]] bool IsBuiltInDevice(const std::string& name);
 
 /// Runs the station until the device is done, `duration` passes, or
 /// SIGINT/SIGTERM. Logs the stats and prints one JSON line on stdout.
