@@ -12,8 +12,13 @@
 ///   and a CSV writer thread. The servo loop talks to them only through
 ///   wait-free single-slot mailboxes (newest wins) and a preallocated
 ///   single-producer ring of CSV rows; it never blocks, allocates, throws,
-///   logs or makes a system call other than clock_gettime and
-///   clock_nanosleep.
+///   logs or makes a system call other than clock_gettime, clock_nanosleep
+///   and the device's own non-blocking calls (a device plugin's read and
+///   force update, docs/devices.md).
+/// * Devices: built in (scripted, replay) or plugins loaded with dlopen
+///   (plugin_loader.h, plugin_device.h); every device sits behind
+///   DeviceGuard (device_guard.h: workspace mapping, clutch, force clamp,
+///   the fade of a lost device).
 /// * Pacing: deadline k = t0 + k·period, slept to with clock_nanosleep
 ///   TIMER_ABSTIME (cutsim::SleepUntilNs), so jitter never accumulates. A tick
 ///   that wakes after the *next* deadline counts as a missed deadline and the
