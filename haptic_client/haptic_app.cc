@@ -305,8 +305,6 @@ void ValidateOptions(const HapticAppOptions& o) {
   }
 }
 
-bool IsBuiltInDevice(const std::string& name) { return name == "scripted" || name == "replay"; }
-
 int RunHapticApp(const HapticAppOptions& o) {
   ValidateOptions(o);
   const GuardOptions guard_options = MakeGuardOptions(o);

@@ -75,9 +75,6 @@ struct HapticAppOptions {
 /// Validates the options (throws `InputError` naming the flag).
 void ValidateOptions(const HapticAppOptions& options);
 
-/// True for the devices built into cutsim-haptic (scripted, replay).
-[[nodiscard]] bool IsBuiltInDevice(const std::string& name);
-
 /// Runs the station until the device is done, `duration` passes, or
 /// SIGINT/SIGTERM. Logs the stats and prints one JSON line on stdout.
 /// Returns the process exit code (0 on a normal end).
