@@ -1,5 +1,5 @@
-// The haptic link with real processes: cutsim-haptic (scripted or replay
-// device) against cutsim-fake-haptic-server (a stiff plane with a scripted
+// The haptic link with real processes: cutsim-haptic (scripted, replay or
+// plugin device) against cutsim-fake-haptic-server (a stiff plane with a scripted
 // cut) over udpm. ctest runs each case inside its own private network
 // namespace (deploy/netns-run.sh), so multicast stays on that namespace's
 // loopback; each case also has its own LCM port.
