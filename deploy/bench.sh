@@ -138,6 +138,11 @@ elif [[ $rc -ne 0 ]]; then
 fi
 cat "$out/haptic_session.json" 2>/dev/null || true
 
+echo "== haptic loop per device (jitter; the cost of a plugin call against a built-in one)"
+run device_loop "$out/device_loop.log" "$bin/cutsim-haptic-loop-bench" --devices \
+  --seconds "${DEVICE_SECONDS:-10}" > "$out/device_loop.json"
+cat "$out/device_loop.json" 2>/dev/null || true
+
 echo "== buffer-model accuracy against a 1 kHz FEM reference"
 run buffer_model_bench "$out/buffer_model.log" "$bin/buffer_model_bench" --scene scenes/ligament.pbtxt \
   > "$out/buffer_model.jsonl"

@@ -9,9 +9,12 @@
 /// A vendor driver implements the same four calls: `Start` may block and
 /// allocate (open the device, calibrate); `Read` and `SetForce` run inside
 /// the 1 kHz loop and must not allocate, block or throw; `Stop` zeroes the
-/// force and releases the device. No force-feedback driver ships in Debian,
-/// so cutsim ships two virtual devices: `ScriptedDevice` (a tool path) and
-/// `ReplayDevice` (a recorded tool stream).
+/// force and releases the device. Built in are two virtual devices:
+/// `ScriptedDevice` (a tool path) and `ReplayDevice` (a recorded tool
+/// stream); hardware comes through device plugins (plugin/cutsim_device.h,
+/// wrapped by `PluginDevice`). `DeviceGuard` (device_guard.h) sits between
+/// any device and the loop: workspace mapping, clutch, force clamp and the
+/// fade when a device is lost.
 
 #include <cstdint>
 #include <string>
@@ -25,9 +28,10 @@ namespace cutsim::haptic_client {
 /// What a device can do.
 struct DeviceInfo {
   std::string name;
-  double max_force = 8.0;         ///< N, continuous force the device can exert.
+  double max_force = 8.0;         ///< N, continuous force the device can exert (0: none, input only).
   double max_stiffness = 2000.0;  ///< N/m, stiffest spring it renders stably.
   double max_damping = 20.0;      ///< N·s/m.
+  double rate_hz = 0.0;           ///< Highest useful read rate, Hz (0 = any).
   Eigen::Vector3d workspace_min{-0.5, -0.5, -0.5};  ///< m, world-frame box the tip can reach.
   Eigen::Vector3d workspace_max{0.5, 0.5, 0.5};     ///< m.
 };
@@ -36,8 +40,10 @@ struct DeviceInfo {
 struct DeviceState {
   ToolPose pose;                                       ///< The tool in the world frame.
   Eigen::Vector3d velocity = Eigen::Vector3d::Zero();  ///< m/s, of the tip.
-  uint32_t buttons = 0;  ///< bit 0: cutting enabled.
+  uint32_t buttons = 0;  ///< bit 0: cutting enabled; bit 1: clutch (by default).
   bool done = false;     ///< A virtual device's script has ended (a real one: never).
+  /// The device stopped answering (unplugged): `pose` is the last good one.
+  bool lost = false;
 };
 
 class HapticDevice {

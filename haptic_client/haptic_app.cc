@@ -5,6 +5,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <string>
 
@@ -21,6 +22,10 @@
 #include "common/transport/report_json.h"
 #include "common/transport/tool_auth.h"
 #include "cutsim/v1/report.pb.h"
+#include "haptic_client/device_guard.h"
+#include "haptic_client/plugin_device.h"
+#include "haptic_client/plugin_loader.h"
+#include "haptic_client/scene_haptics.h"
 #include "haptic_client/servo_loop.h"
 #include "haptic_client/virtual_devices.h"
 
@@ -38,10 +43,50 @@ std::unique_ptr<HapticDevice> MakeDevice(const HapticAppOptions& o) {
     info.name = "scripted";
     return std::make_unique<ScriptedDevice>(haptics::ToolPath::Read(o.path), info);
   }
-  info.name = "replay";
-  const std::string channel =
-      o.log_channel.empty() ? transport::LcmChannelName(o.session, transport::LcmChannel::kTool) : o.log_channel;
-  return std::make_unique<ReplayDevice>(o.log, channel, info);
+  if (o.device == "replay") {
+    info.name = "replay";
+    const std::string channel =
+        o.log_channel.empty() ? transport::LcmChannelName(o.session, transport::LcmChannel::kTool) : o.log_channel;
+    return std::make_unique<ReplayDevice>(o.log, channel, info);
+  }
+  const std::filesystem::path dir = o.device_dir.empty() ? ExecutableDir() : std::filesystem::path(o.device_dir);
+  const std::filesystem::path path = ResolvePluginPath(o.device, dir);
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    ThrowInputError(SourceRef{.file = path.string(), .field = "--device"},
+                    fmt::format("unknown device \"{}\": not built in (scripted, replay) and no device plugin here "
+                                "(--device-dir picks the folder; --device PATH loads a plugin file)",
+                                o.device));
+  }
+  auto device = std::make_unique<PluginDevice>(PluginLibrary::Load(path), o.device_arg);
+  const DeviceInfo& d = device->info();
+  Log().info("device plugin {} ({}): workspace [{:.3f}, {:.3f}] x [{:.3f}, {:.3f}] x [{:.3f}, {:.3f}] m, max force "
+             "{} N{}, max stiffness {} N/m, rate {} Hz",
+             d.name, device->path(), d.workspace_min.x(), d.workspace_max.x(), d.workspace_min.y(),
+             d.workspace_max.y(), d.workspace_min.z(), d.workspace_max.z(), d.max_force,
+             d.max_force > 0.0 ? "" : " (input only: the force is rendered and recorded, not sent)", d.max_stiffness,
+             d.rate_hz);
+  if (d.rate_hz > 0.0 && d.rate_hz < o.rate) {
+    Log().warn("device {} updates at {} Hz, below the {} Hz loop: the loop holds its last reading between updates",
+               d.name, d.rate_hz, o.rate);
+  }
+  return device;
+}
+
+/// The workspace mapping and safety settings: the scene's, overridden by
+/// the command line.
+GuardOptions MakeGuardOptions(const HapticAppOptions& o) {
+  GuardOptions g;
+  if (!o.scene.empty()) {
+    const SceneWorkspace w = ReadSceneWorkspace(o.scene);
+    g.scale = w.scale;
+    g.offset = w.offset;
+  }
+  if (o.workspace_scale > 0.0) g.scale = o.workspace_scale;
+  if (o.workspace_offset.size() == 3) g.offset = {o.workspace_offset[0], o.workspace_offset[1], o.workspace_offset[2]};
+  g.clutch_mask = o.clutch_button < 0 ? 0U : (1U << o.clutch_button);
+  g.fade_s = o.unplug_fade;
+  return g;
 }
 
 haptics::RendererConfig MakeConfig(const HapticAppOptions& o, const DeviceInfo& info) {
@@ -134,11 +179,46 @@ v1::HapticFaultReport FaultReport(const transport::FaultStats& tool, const trans
   return r;
 }
 
+/// What happened to the device during the run.
+struct DeviceOutcome {
+  std::string name;
+  bool lost = false;
+  double lost_at_s = 0.0;
+  uint64_t clutch_engagements = 0;
+  uint64_t forces_clamped = 0;
+  uint64_t read_errors = 0;
+};
+
 struct RunOutcome {
   const char* end_reason;
   transport::RealtimeStatus realtime;
   uint64_t csv_rows;
+  DeviceOutcome device;
 };
+
+/// Collects the guard's and the plugin's counters and logs a lost device.
+DeviceOutcome SummariseDevice(const HapticDevice& device, const DeviceGuard& guard, int64_t loop_start_ns,
+                              const GuardOptions& options) {
+  DeviceOutcome d;
+  d.name = device.info().name;
+  const GuardStats& gs = guard.stats();
+  d.lost = gs.lost;
+  d.lost_at_s = gs.lost ? 1e-9 * static_cast<double>(gs.lost_ns - loop_start_ns) : 0.0;
+  d.clutch_engagements = gs.clutch_engagements;
+  d.forces_clamped = gs.force_clamped;
+  std::string why;
+  if (const auto* plugin = dynamic_cast<const PluginDevice*>(&device)) {
+    d.read_errors = plugin->stats().read_errors + plugin->stats().bad_poses;
+    why = plugin->last_error();
+  }
+  if (d.lost) {
+    Log().warn("device {} was lost {:.3f} s into the loop ({}); the force faded to zero over {:.0f} ms and the tool "
+               "held its last pose for the rest of the session",
+               d.name, d.lost_at_s, why.empty() ? "read failed" : why, 1e3 * options.fade_s);
+  }
+  if (d.read_errors > 0) Log().warn("device {}: {} failed or invalid reads (the last pose was held)", d.name, d.read_errors);
+  return d;
+}
 
 v1::HapticStats StatsReport(const HapticAppOptions& o, const RunOutcome& run, const ServoLoop& loop,
                             const haptics::RendererStats& rs, const transport::HapticClientLink& link) {
@@ -172,6 +252,12 @@ v1::HapticStats StatsReport(const HapticAppOptions& o, const RunOutcome& run, co
   *r.mutable_faults() = FaultReport(link.publish_fault_stats(), link.receive_fault_stats());
   r.set_csv_rows(ReportCount(run.csv_rows));
   r.set_csv_dropped(ReportCount(loop.csv_dropped()));
+  r.set_device(run.device.name);
+  r.set_device_lost(run.device.lost);
+  r.set_device_lost_at_s(run.device.lost_at_s);
+  r.set_clutch_engagements(ReportCount(run.device.clutch_engagements));
+  r.set_forces_clamped(ReportCount(run.device.forces_clamped));
+  r.set_device_read_errors(ReportCount(run.device.read_errors));
   return r;
 }
 
@@ -179,8 +265,8 @@ v1::HapticStats StatsReport(const HapticAppOptions& o, const RunOutcome& run, co
 
 void ValidateOptions(const HapticAppOptions& o) {
   transport::ValidateSessionName(o.session, "--session");
-  if (o.device != "scripted" && o.device != "replay") {
-    ThrowInputError(SourceRef{.field = "--device"}, fmt::format("unknown device \"{}\" (scripted or replay)", o.device));
+  if (o.device.empty()) {
+    ThrowInputError(SourceRef{.field = "--device"}, "empty (scripted, replay, or a device plugin's name or path)");
   }
   if (o.device == "scripted" && o.path.empty()) ThrowInputError(SourceRef{.field = "--path"}, "--device scripted needs --path FILE");
   if (o.device == "replay" && o.log.empty()) ThrowInputError(SourceRef{.field = "--log"}, "--device replay needs --log FILE");
@@ -202,12 +288,29 @@ void ValidateOptions(const HapticAppOptions& o) {
     ThrowInputError(SourceRef{.field = "--fault-direction"}, fmt::format("\"{}\": use both, tool or model", o.fault_direction));
   }
   if (o.rt_priority < 1 || o.rt_priority > 99) ThrowInputError(SourceRef{.field = "--rt-priority"}, "use 1 to 99");
+  if (!(std::isfinite(o.workspace_scale) && o.workspace_scale >= 0.0 && o.workspace_scale <= 1e3)) {
+    ThrowInputError(SourceRef{.field = "--workspace-scale"},
+                    fmt::format("{} is out of range [0, 1000] (0 = the scene's)", o.workspace_scale));
+  }
+  if (!o.workspace_offset.empty() &&
+      (o.workspace_offset.size() != 3 ||
+       !std::all_of(o.workspace_offset.begin(), o.workspace_offset.end(), [](double v) { return std::isfinite(v); }))) {
+    ThrowInputError(SourceRef{.field = "--workspace-offset"}, "needs three finite numbers x y z (m)");
+  }
+  if (o.clutch_button < -1 || o.clutch_button > 31) {
+    ThrowInputError(SourceRef{.field = "--clutch-button"}, fmt::format("{}: use a bit 0..31, or -1 for none", o.clutch_button));
+  }
+  if (!(std::isfinite(o.unplug_fade) && o.unplug_fade > 0.0 && o.unplug_fade <= 1.0)) {
+    ThrowInputError(SourceRef{.field = "--unplug-fade"}, fmt::format("{} s is out of range (0, 1] s", o.unplug_fade));
+  }
 }
 
 int RunHapticApp(const HapticAppOptions& o) {
   ValidateOptions(o);
+  const GuardOptions guard_options = MakeGuardOptions(o);
   std::unique_ptr<HapticDevice> device = MakeDevice(o);
-  haptics::HapticRenderer renderer(MakeConfig(o, device->info()));
+  DeviceGuard guard(*device, guard_options);
+  haptics::HapticRenderer renderer(MakeConfig(o, guard.info()));
   const auto authenticator = MakeAuthenticator(o);  // null: unsigned
   // The LCM threads run SCHED_FIFO below the servo loop, so a pose is sent
   // and a model taken in while other load runs. LCM's own udpm receive
@@ -218,7 +321,7 @@ int RunHapticApp(const HapticAppOptions& o) {
   transport::HapticClientLink link(bus, o.session, MakeLinkOptions(o, authenticator.get()));
   lcm_scope.Restore();
 
-  ServoLoop loop(o, *device, renderer, link);  // preallocates everything the loop touches
+  ServoLoop loop(o, guard, renderer, link);  // preallocates everything the loop touches
   std::signal(SIGINT, OnStopSignal);
   std::signal(SIGTERM, OnStopSignal);
   // Helper threads first (they inherit SCHED_OTHER), then our priority.
@@ -231,8 +334,9 @@ int RunHapticApp(const HapticAppOptions& o) {
 
   run.end_reason = loop.Run(g_stop);
 
-  device->SetForce(Eigen::Vector3d::Zero());
-  device->Stop();
+  guard.SetForce(Eigen::Vector3d::Zero());
+  guard.Stop();
+  run.device = SummariseDevice(*device, guard, loop.start_ns(), guard_options);
   if (run.realtime.fifo) (void)transport::SetCurrentThreadNormal();
   link.Stop();
   run.csv_rows = loop.FinishCsv();

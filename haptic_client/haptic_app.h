@@ -12,8 +12,13 @@
 ///   and a CSV writer thread. The servo loop talks to them only through
 ///   wait-free single-slot mailboxes (newest wins) and a preallocated
 ///   single-producer ring of CSV rows; it never blocks, allocates, throws,
-///   logs or makes a system call other than clock_gettime and
-///   clock_nanosleep.
+///   logs or makes a system call other than clock_gettime, clock_nanosleep
+///   and the device's own non-blocking calls (a device plugin's read and
+///   force update, docs/devices.md).
+/// * Devices: built in (scripted, replay) or plugins loaded with dlopen
+///   (plugin_loader.h, plugin_device.h); every device sits behind
+///   DeviceGuard (device_guard.h: workspace mapping, clutch, force clamp,
+///   the fade of a lost device).
 /// * Pacing: deadline k = t0 + k·period, slept to with clock_nanosleep
 ///   TIMER_ABSTIME (cutsim::SleepUntilNs), so jitter never accumulates. A tick
 ///   that wakes after the *next* deadline counts as a missed deadline and the
@@ -29,6 +34,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "common/transport/fault_injection.h"
 #include "common/transport/realtime_thread.h"
@@ -38,7 +44,14 @@ namespace cutsim::haptic_client {
 struct HapticAppOptions {
   std::string session = "default";
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
-  std::string device = "scripted";    ///< scripted | replay
+  std::string device = "scripted";    ///< scripted | replay | a plugin name or path (plugin_loader.h)
+  std::string device_dir;             ///< --device-dir, plugin folder; "" = next to the executable
+  std::string device_arg;             ///< --device-arg, passed to the plugin's open
+  std::string scene;                  ///< --scene, the device workspace from haptics.device_*
+  double workspace_scale = 0.0;       ///< --workspace-scale, 0 = the scene's (else 1)
+  std::vector<double> workspace_offset;  ///< --workspace-offset x y z, m; empty = the scene's (else 0)
+  int clutch_button = 1;              ///< --clutch-button, bit index; -1 = no clutch
+  double unplug_fade = 0.05;          ///< s, force ramp to zero when the device is lost
   std::string path;                   ///< --path, tool path for `scripted`
   std::string log;                    ///< --log, LCM log for `replay`
   std::string log_channel;            ///< --log-channel, default CUTSIM_<session>_TOOL

@@ -4,9 +4,13 @@
 // jitter / lateness quantiles as cutsim-haptic's JSON summary, so the two can
 // be compared under the same load. `--hog` adds a busy-loop thread (a
 // stand-in for the server's physics thread loading the other core).
+// `--devices` instead measures the loop with each device (device_bench.h):
+// jitter per built-in device and the plugin example, and the cost of a
+// plugin call against a built-in one.
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <string>
 #include <thread>
 
@@ -17,20 +21,36 @@
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
 #include "cutsim/v1/report.pb.h"
+#include "haptic_client/device_bench.h"
 #include "haptic_client/loop_stats.h"
+#include "haptic_client/plugin_loader.h"
 
 int main(int argc, char** argv) {
   double seconds = 20.0;
   double rate = 1000.0;
   bool hog = false;
   bool no_rt = false;
-  CLI::App app{"Bare clock_nanosleep loop timing (reference for cutsim-haptic)"};
+  bool devices = false;
+  cutsim::haptic_client::DeviceBenchOptions device_options;
+  device_options.plugin_dir = cutsim::haptic_client::ExecutableDir();
+  device_options.work_dir = std::filesystem::temp_directory_path();
+  CLI::App app{"Bare clock_nanosleep loop timing (reference for cutsim-haptic), or the loop per device"};
   app.add_option("--seconds", seconds, "Run time, s")->capture_default_str();
   app.add_option("--rate", rate, "Loop rate, Hz")->capture_default_str();
   app.add_flag("--hog", hog, "Run a busy-loop thread alongside");
   app.add_flag("--no-rt", no_rt, "Do not try SCHED_FIFO and mlockall");
+  app.add_flag("--devices", devices, "Loop jitter and call cost per device (--seconds each) instead");
+  app.add_option("--calls", device_options.calls, "--devices: ticks of the call-cost loop")->capture_default_str();
+  app.add_option("--device-dir", device_options.plugin_dir, "--devices: folder of the example plugin");
   CLI11_PARSE(app, argc, argv);
   cutsim::InitLogging("cutsim-haptic-loop-bench", "info");
+  if (devices) {
+    if (!no_rt) (void)cutsim::transport::TryEnableRealtime(cutsim::transport::kHapticLoopPriority, "device loop");
+    device_options.seconds = seconds;
+    device_options.rate = rate;
+    std::printf("%s\n", cutsim::haptic_client::RunDeviceBench(device_options).c_str());
+    return 0;
+  }
   using cutsim::haptic_client::Histogram;
 
   std::atomic<bool> stop{false};

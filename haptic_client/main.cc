@@ -15,10 +15,23 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   bool no_rt = false;
   bool no_passivity = false;
-  CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted or replayed device) over LCM"};
+  CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted, replayed or plugin device) over LCM"};
   app.add_option("--session", o.session, "Session name")->capture_default_str();
   app.add_option("--lcm-url", o.lcm_url, "LCM URL (ttl=1 to reach another machine)")->capture_default_str();
-  app.add_option("--device", o.device, "scripted | replay")->capture_default_str();
+  app.add_option("--device", o.device,
+                 "scripted | replay | NAME (plugin libcutsim_device_NAME.so in --device-dir) | PATH to a plugin")
+      ->capture_default_str();
+  app.add_option("--device-dir", o.device_dir, "Folder of device plugins (default: next to cutsim-haptic)");
+  app.add_option("--device-arg", o.device_arg, "Configuration string passed to the device plugin's open");
+  app.add_option("--scene", o.scene, "Scene whose haptics.device_scale/device_offset map the device to the tissue")
+      ->check(CLI::ExistingFile);
+  app.add_option("--workspace-scale", o.workspace_scale, "Tissue metres per device metre (0 = the scene's, else 1)")
+      ->capture_default_str();
+  app.add_option("--workspace-offset", o.workspace_offset, "Tissue position of the device origin x y z, m")
+      ->expected(3);
+  app.add_option("--clutch-button", o.clutch_button, "Button bit of the clutch (-1 = none)")->capture_default_str();
+  app.add_option("--unplug-fade", o.unplug_fade, "Force ramp to zero when the device is lost, s")
+      ->capture_default_str();
   app.add_option("--path", o.path, "Tool path file for --device scripted (minimum-jerk timing)");
   app.add_option("--log", o.log, "LCM log (lcm-logger or server recorder) for --device replay");
   app.add_option("--log-channel", o.log_channel, "Channel to replay (default CUTSIM_<session>_TOOL)");

@@ -51,6 +51,8 @@ class ServoLoop {
   /// A tool pose is sent every `tool_every()` ticks.
   [[nodiscard]] int tool_every() const { return tool_every_; }
   [[nodiscard]] uint64_t ticks() const { return ticks_; }
+  /// The first deadline (CLOCK_MONOTONIC ns), once `Run` has started.
+  [[nodiscard]] int64_t start_ns() const { return t0_; }
   [[nodiscard]] uint64_t missed_deadlines() const { return missed_; }
   [[nodiscard]] uint64_t csv_dropped() const { return ring_.dropped(); }
   [[nodiscard]] const LoopTiming& timing() const { return timing_; }

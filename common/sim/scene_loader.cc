@@ -307,6 +307,11 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   RequirePositive(s, "haptics.watchdog", h.watchdog());
   RequireNonNegative(s, "haptics.max_force", h.max_force());
   RequireNonNegative(s, "haptics.max_stiffness", h.max_stiffness());
+  if (h.device_scale() == 0.0) h.set_device_scale(1.0);
+  RequirePositive(s, "haptics.device_scale", h.device_scale());
+  RequireFinite(s, "haptics.device_offset.x", h.device_offset().x());
+  RequireFinite(s, "haptics.device_offset.y", h.device_offset().y());
+  RequireFinite(s, "haptics.device_offset.z", h.device_offset().z());
 
   if (scene.outputs().every_n_frames() < 0) FieldError(s, "outputs.every_n_frames", "must be >= 0");
 

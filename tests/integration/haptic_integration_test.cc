@@ -1,5 +1,5 @@
-// The haptic link with real processes: cutsim-haptic (scripted or replay
-// device) against cutsim-fake-haptic-server (a stiff plane with a scripted
+// The haptic link with real processes: cutsim-haptic (scripted, replay or
+// plugin device) against cutsim-fake-haptic-server (a stiff plane with a scripted
 // cut) over udpm. ctest runs each case inside its own private network
 // namespace (deploy/netns-run.sh), so multicast stays on that namespace's
 // loopback; each case also has its own LCM port.
@@ -404,6 +404,53 @@ TEST(HapticIntegrationTest, ReplayDeviceReplaysAnLcmLog) {
   const auto bad = RunProcess(Client("memq://", "other_session", csv, {"--device", "replay", "--log", log}), 30s);
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find(log), std::string::npos) << bad.err;
+}
+
+// A device plugin (the example spring) pressing on the server's plane is
+// unplugged mid-session: the client logs it, the tool holds its last pose,
+// and the loop, the link and the server go on until the end.
+TEST(HapticIntegrationTest, UnpluggedPluginDeviceAndTheSessionGoesOn) {
+  TempDir dir;
+  const std::string url = Url(6), session = Session("unplug"), csv = dir.path() + "/haptic.csv";
+  Subprocess server(FakeServer(url, session, {"--rate", "200", "--stiffness", "1000"}));
+  ASSERT_TRUE(WaitForStderr(server, "ready:", kReadyTimeout)) << server.Stderr();
+  const auto r = RunProcess(Client(url, session, csv,
+                                   {"--device", "example_spring", "--device-arg",
+                                    "z=-0.002,vx=0.01,unplug_after=500", "--duration", "1.5"}),
+                            30s);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string stats = JsonLine(r.out, "haptic_stats");
+  ASSERT_FALSE(stats.empty()) << r.out;
+  StopAndCollect(server);
+  EXPECT_EQ(testing::JsonString(stats, "end"), "duration") << stats;
+  EXPECT_EQ(testing::JsonString(stats, "device"), "example_spring") << stats;
+  EXPECT_NE(stats.find("\"device_lost\":true"), std::string::npos) << stats;
+  const double lost_at = Json(stats, "device_lost_at_s");
+  EXPECT_GE(lost_at, 0.49) << stats;  // after its 500 reads (later if deadlines were missed)
+  EXPECT_LT(lost_at, 1.3) << stats;
+  EXPECT_NE(r.err.find("device example_spring was lost"), std::string::npos) << r.err;
+  EXPECT_GT(Json(stats, "models_accepted"), 100.0) << stats;
+  const std::vector<Row> rows = ReadCsv(csv);
+  ASSERT_FALSE(rows.empty());
+  // Before: the tip moves with the hand and the plane pushes back.
+  bool pushed = false;
+  for (const Row& row : rows) {
+    if (row.t < lost_at - 0.1 && row.fz > 1.0) pushed = true;
+  }
+  EXPECT_TRUE(pushed) << "no contact force before the unplug";
+  // After: the loop went on (rows to the end) with the tool held still.
+  const Row* held = nullptr;
+  size_t after = 0;
+  for (const Row& row : rows) {
+    if (row.t < lost_at + 0.01) continue;
+    if (held == nullptr) held = &row;
+    ASSERT_EQ(row.x, held->x) << "t=" << row.t;
+    ASSERT_EQ(row.z, held->z) << "t=" << row.t;
+    ++after;
+  }
+  EXPECT_GT(static_cast<double>(after) + Json(stats, "missed_deadlines"), 0.8 * 1000.0 * (1.5 - lost_at - 0.01));
+  ASSERT_NE(held, nullptr);
+  EXPECT_GT(held->x, 0.004);  // the hand had moved 5 mm in 0.5 s
 }
 
 }  // namespace

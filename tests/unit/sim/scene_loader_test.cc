@@ -33,6 +33,15 @@ TEST(SceneLoaderTest, MinimalSceneGetsDefaults) {
   EXPECT_DOUBLE_EQ(s.scene.mesh().scale(), 1.0);
   EXPECT_EQ(s.scene.camera().width(), 640);
   EXPECT_DOUBLE_EQ(s.scene.haptics().watchdog(), 0.05);
+  EXPECT_DOUBLE_EQ(s.scene.haptics().device_scale(), 1.0);
+}
+
+TEST(SceneLoaderTest, DeviceWorkspaceIsChecked) {
+  EXPECT_NE(ErrorOf(std::string(kMinimal) + "haptics { device_scale: -1 }\n").find("haptics.device_scale"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(std::string(kMinimal) + "haptics { device_offset { y: inf } }\n").find("haptics.device_offset.y"),
+            std::string::npos);
+  EXPECT_EQ(ErrorOf(std::string(kMinimal) + "haptics { device_scale: 0.5 device_offset { x: 0.01 } }\n"), "");
 }
 
 TEST(SceneLoaderTest, SyntaxErrorNamesLineAndColumn) {
