@@ -109,6 +109,12 @@ TEST(ReplayTest, ShippedRecordingReplaysToTheRecordedHashTwice) {
     EXPECT_EQ(JsonString(r.out, "mesh_hash"), std::string(recorded)) << r.out;
     EXPECT_EQ(JsonNumber(r.out, "cut_frames"), static_cast<double>(cut_frames)) << r.out;
     EXPECT_EQ(JsonNumber(r.out, "topology_version"), static_cast<double>(end.topology_version()));
+    // The score against the ligament's planned incision is reproduced (the
+    // replay compares every field of it and of the measures: `match`).
+    ASSERT_TRUE(end.has_score()) << "the shipped recording should end with a score";
+    EXPECT_EQ(JsonNumber(r.out, "mean_deviation"), end.score().mean_deviation()) << r.out;
+    EXPECT_EQ(JsonNumber(r.out, "peak_force"), end.metrics().peak_force()) << r.out;
+    EXPECT_GE(end.score().cut_points(), 1.0);
     if (run == 0) first_hash = JsonString(r.out, "mesh_hash").value_or("");
     EXPECT_EQ(JsonString(r.out, "mesh_hash"), first_hash) << "replay is not deterministic run to run";
   }
@@ -130,6 +136,18 @@ TEST(ReplayTest, TamperedRecordingsAreReportedAsMismatches) {
   EXPECT_EQ(r.exit_code, 4) << r.out << r.err;
   EXPECT_NE(r.err.find("final mesh hash"), std::string::npos) << r.err;
   EXPECT_EQ(JsonBool(r.out, "match"), false) << r.out;
+
+  // (a') A different score: the replay's score differs, field named.
+  const std::string bad_score = dir.path() + "/bad-score.lcm";
+  WriteEdited(events, bad_score, [](transport::LcmLogEvent& e) {
+    if (!EndsWith(e.channel, "_REC_END")) return;
+    auto end = Parse<v1::RecordEnd>(e);
+    end.mutable_score()->set_max_deviation(end.score().max_deviation() + 1e-3);
+    Reencode(end, &e);
+  });
+  r = Replay(bad_score);
+  EXPECT_EQ(r.exit_code, 4) << r.out << r.err;
+  EXPECT_NE(r.err.find("score.max_deviation"), std::string::npos) << r.err;
 
   // (b) The tool kept 5 mm higher: it no longer cuts where the recording did.
   const std::string lifted = dir.path() + "/lifted.lcm";

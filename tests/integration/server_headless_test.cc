@@ -49,6 +49,37 @@ TEST(ServerHeadlessTest, RunsForDurationAndWritesVtu) {
   EXPECT_EQ(m.num_tets(), 10 * 2 * 2 * 6);
 }
 
+// The shipped ligament, cut by its scripted path, scored against its planned
+// incision: the summary carries the score, --session-report writes the same
+// score with its series as JSON and their plot as SVG.
+TEST(ServerHeadlessTest, SessionReportScoresTheLigamentCut) {
+  TempDir dir;
+  const std::string report = dir.path() + "/report.json";
+  const auto r = RunProcess({BinPath("cutsim-server"), "--headless", "--scene",
+                             std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt", "--session-report", report,
+                             "--no-progress", "--threads", "1"},
+                            300s);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_GE(JsonNumber(r.out, "cuts"), 1) << r.out;
+  EXPECT_GE(JsonNumber(r.out, "cut_points"), 1) << r.out;
+  // On the planned line (x = 15 mm; the path cuts at 15.1 mm), through the
+  // full 8 mm.
+  EXPECT_LT(JsonNumber(r.out, "mean_deviation"), 0.001) << r.out;
+  EXPECT_NEAR(JsonNumber(r.out, "depth_error"), 0.0, 0.001) << r.out;
+  std::ifstream in(report);
+  const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(JsonNumber(json, "mean_deviation"), JsonNumber(r.out, "mean_deviation")) << json;
+  EXPECT_NE(json.find("\"force_t\":["), std::string::npos) << json.substr(0, 400);
+  EXPECT_NE(json.find("\"cut_deviation\":["), std::string::npos) << json.substr(0, 400);
+  std::ifstream svg_in(dir.path() + "/report.svg");
+  const std::string svg((std::istreambuf_iterator<char>(svg_in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(svg.rfind("<svg", 0), 0u) << svg.substr(0, 200);
+  EXPECT_NE(svg.find("<polyline"), std::string::npos);
+  EXPECT_NE(svg.find("<circle"), std::string::npos);
+  EXPECT_NE(svg.find("tolerance"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(report + ".tmp"));
+}
+
 TEST(ServerHeadlessTest, BadSceneNamesFileAndLine) {
   TempDir dir;
   const std::string scene = Write(dir, "bad.pbtxt", std::string(kSmallBeam) + "\ngravity { z: oops }\n");
