@@ -227,14 +227,13 @@ void BM_NodalPressureCost(benchmark::State& st) {
 }
 
 // One whole-mesh sample of the session's measures (common/sim/session_metrics.h:
-// von Mises per tet, the incision's rings, the largest stress outside)
-// against one elastic force pass, on the same 100k-tet box, deformation and
-// threads. The session samples 20 times per simulated second while the
-// explicit integrator runs one force pass per substep (thousands per
-// second), so a sample at ≤ kSessionSampleCostTarget force passes keeps the
-// measures under 1 % of the physics. The counter `ratio` is the median of
-// the per-pair ratios.
-constexpr double kSessionSampleCostTarget = 2.0;
+// the incision's rings, von Mises per tet outside it, the largest) against
+// one elastic force pass, on the same 100k-tet box, deformation and
+// threads. The session samples 10 times per simulated second; at
+// ≤ kSessionSampleCostTarget force passes a sample stays a few per cent of
+// a real-time frame budget at this size. The counter `ratio` is the median
+// of the per-pair ratios.
+constexpr double kSessionSampleCostTarget = 4.0;
 bool g_session_sample_cost_missed = false;
 
 void BM_SessionSample(benchmark::State& st) {

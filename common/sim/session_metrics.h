@@ -58,11 +58,11 @@ struct IncisionView {
 template <typename T>
 class SessionMeter {
  public:
-  /// At most this many force samples are kept (14.5 h at 20 Hz).
+  /// At most this many force samples are kept (29 h at 10 Hz).
   static constexpr size_t kMaxForceSamples = size_t{1} << 20;
 
   struct Options {
-    double sample_period = 0.05;  ///< s of simulated time between whole-mesh samples
+    double sample_period = 0.1;   ///< s of simulated time between whole-mesh samples
     int incision_rings = 1;       ///< rings of tets added around the incision's seed tets
     int threads = 1;
   };
@@ -103,7 +103,6 @@ class SessionMeter {
   std::vector<uint8_t> cut_off_;    // #T: tet in a piece separated from the anchored body
   std::vector<uint8_t> node_mark_;  // #N scratch: node in the incision (grown ring by ring)
   std::vector<uint8_t> tet_mark_;   // #T scratch: tet in the incision
-  std::vector<T> von_mises_;        // #T scratch, Pa
 };
 
 extern template class SessionMeter<float>;
