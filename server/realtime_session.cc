@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "common/core/clock.h"
+#include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpoint.h"
@@ -97,14 +99,6 @@ struct AppliedTool {
 /// "file://<absolute path>", or "" (Cyclone's default) for no file.
 std::string DdsConfigUri(const std::string& file) {
   return file.empty() ? std::string() : "file://" + std::filesystem::absolute(file).string();
-}
-
-/// Writes `text` to `path` through a temporary file, so readers never see
-/// half a file.
-void WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  std::ofstream(tmp) << text << "\n";
-  std::filesystem::rename(tmp, path);
 }
 
 /// The frame loop of a real-time session and its statistics. Lives on the
@@ -401,17 +395,30 @@ int ServerApp::RunRealtime() {
   const int exit_code = loop.Run();
   link.StopReceiving();
 
+  // Every output is finished and checked; a lost one makes the exit non-zero
+  // (kExitOutputFailed) after the others are written.
+  bool outputs_ok = true;
   if (recorder) {
-    const uint64_t hash = recorder->Finish(*simulation);
-    Log().info("recorded {} frames to {} (final mesh hash {:016x})", recorder->frames(), options_.record, hash);
+    try {
+      const uint64_t hash = recorder->Finish(*simulation);
+      Log().info("recorded {} frames to {} (final mesh hash {:016x})", recorder->frames(), options_.record, hash);
+    } catch (const InputError& e) {
+      Log().error("recording lost: {}", e.what());
+      outputs_ok = false;
+    }
   }
-  if (exit_code == 0) (void)checkpointer.Save(*simulation);  // clean exit, SIGTERM included
+  if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
+  if (checkpointer.failures() > 0) {
+    Log().warn("{} of {} checkpoint saves to {} failed", checkpointer.failures(),
+               checkpointer.failures() + checkpointer.saves(), options_.checkpoint);
+  }
   const std::string json = transport::ReportJson(loop.Stats());
   Log().info("session ended: {}", json);
   std::printf("%s\n", json.c_str());
-  if (!options_.stats_json.empty()) WriteFileAtomically(options_.stats_json, json);
-  if (!options_.out.empty()) simulation->WriteVtu(options_.out);
-  return exit_code;
+  if (std::fflush(stdout) != 0) outputs_ok = false;
+  if (!options_.stats_json.empty()) outputs_ok &= WriteOutput([&] { WriteFileAtomically(options_.stats_json, json + "\n"); });
+  if (!options_.out.empty()) outputs_ok &= WriteOutput([&] { simulation->WriteVtu(options_.out); });
+  return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }
 
 }  // namespace cutsim::server
