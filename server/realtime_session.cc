@@ -145,6 +145,7 @@ class RealtimeLoop {
   int64_t next_status_ns_;
   AppliedTool tool_;
   uint64_t last_cuts_;
+  bool client_was_present_ = false;  // for the connected / gone log lines
   SessionCounters counters_;
   FrameStats frame_time_{1 << 16};
   LatencyStats latency_;
@@ -178,6 +179,15 @@ int RealtimeLoop::Run() {
     // after the step, and only then recording, viewers and status.
     const std::optional<sim::ToolPose> applied = TakeToolPose(frame_start);
     const bool client_present = frame_start - tool_.frame_ns < client_timeout_ns_;
+    if (client_present != client_was_present_) {
+      client_was_present_ = client_present;
+      if (client_present) {
+        Log().info("haptic client connected: tool poses arriving (seq {})", tool_.seq);
+      } else {
+        Log().warn("haptic client gone: no tool pose for {:.3g} s (--client-timeout); last seq {}",
+                   options_.client_timeout, tool_.seq);
+      }
+    }
     if (simulation.AdvanceFrame(frame_dt_) != sim::SimStatus::kOk) {
       Log().error("simulation stopped: {}", simulation.Summary().diagnosis);
       return 3;

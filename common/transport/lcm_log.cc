@@ -140,8 +140,10 @@ void LcmLogWriter::Flush() {
 void LcmLogWriter::Close() {
   if (file_ == nullptr) return;
   std::FILE* f = std::exchange(file_, nullptr);
-  const bool flushed = std::fflush(f) == 0;
-  int err = flushed ? 0 : errno;
+  // A write that failed earlier leaves the stream's error flag set even
+  // when the flush itself has nothing left to do.
+  const bool flushed = std::fflush(f) == 0 && std::ferror(f) == 0;
+  int err = flushed ? 0 : (errno != 0 ? errno : EIO);
   // fsync fails with EINVAL on devices and pipes, which have no disk to sync.
   if (flushed && ::fsync(::fileno(f)) != 0 && errno != EINVAL) err = errno;
   if (std::fclose(f) != 0 && err == 0) err = errno;

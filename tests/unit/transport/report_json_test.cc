@@ -101,7 +101,7 @@ TEST(ReportJsonTest, InvalidUtf8NamesBecomeReplacementCharacters) {
 TEST(ReportJsonTest, ValidUtf8KeepsValidTextAndReplacesEachBadByte) {
   EXPECT_EQ(ValidUtf8("plain ascii"), "plain ascii");
   EXPECT_EQ(ValidUtf8("\xF0\x9F\x94\xAA knife"), "\xF0\x9F\x94\xAA knife");
-  EXPECT_EQ(ValidUtf8("a\xFFb"), "a\xEF\xBF\xBD" "b");
+  EXPECT_EQ(ValidUtf8("a\xFF" "b"), "a\xEF\xBF\xBD" "b");
   EXPECT_EQ(ValidUtf8("\xE2\x82"), "\xEF\xBF\xBD\xEF\xBF\xBD");
 }
 
