@@ -85,7 +85,8 @@ void RequireCountFits(int64_t count, int64_t min_bytes_each, uint64_t bytes_left
   if (count < 0) ThrowInputError(where, fmt::format("{} {} is negative", what, count));
   if (min_bytes_each > 0 &&
       static_cast<uint64_t>(count) > bytes_left / static_cast<uint64_t>(min_bytes_each)) {
-    ThrowInputError(where, fmt::format("{} {} cannot fit in the {} bytes left in the file (each needs at least {})",
+    ThrowInputError(where, fmt::format("{} {} cannot fit in the {} bytes left in the file (each needs at least {}): "
+                                       "truncated file or wrong count",
                                        what, count, bytes_left, min_bytes_each));
   }
 }

@@ -85,8 +85,8 @@ TetMesh ReadTetGen(const std::string& path) {
     if (num_attr < 0 || num_markers < 0 || num_markers > 1 || num_attr > 1000) {
       tk.Fail("bad attribute/marker counts in header");
     }
-    CheckMeshSize(n, 0, node_path);
     tk.RequireCountFits(n, 2 * (4 + num_attr + num_markers), "node count");
+    CheckMeshSize(n, 0, node_path);
     mesh.nodes.resize(n, 3);
     origin.node_ids.resize(static_cast<size_t>(n));
     for (int64_t i = 0; i < n; ++i) {
@@ -114,8 +114,8 @@ TetMesh ReadTetGen(const std::string& path) {
     if (t <= 0) tk.Fail(fmt::format("tetrahedron count {} must be positive", t));
     if (nodes_per != 4) tk.Fail(fmt::format("{}-node elements are not supported (only 4-node tetrahedra)", nodes_per));
     if (num_attr < 0 || num_attr > 1000) tk.Fail("bad attribute count in header");
-    CheckMeshSize(0, t, ele_path);
     tk.RequireCountFits(t, 2 * (5 + num_attr), "tetrahedron count");
+    CheckMeshSize(0, t, ele_path);
     mesh.tets.resize(t, 4);
     if (num_attr > 0) mesh.regions.resize(static_cast<size_t>(t));
     origin.tet_ids.resize(static_cast<size_t>(t));
@@ -195,8 +195,8 @@ TetMesh ReadMedit(const std::string& path) {
     } else if (key == "vertices") {
       const int64_t n = tk.NextInt("vertex count");
       if (n <= 0) tk.Fail("vertex count must be positive");
-      CheckMeshSize(n, 0, path);
       tk.RequireCountFits(n, 8, "vertex count");
+      CheckMeshSize(n, 0, path);
       mesh.nodes.resize(n, 3);
       for (int64_t i = 0; i < n; ++i) {
         for (int k = 0; k < 3; ++k) mesh.nodes(i, k) = tk.NextDouble(fmt::format("vertex {} coordinate", i + 1));
@@ -211,8 +211,8 @@ TetMesh ReadMedit(const std::string& path) {
     } else if (key == "tetrahedra") {
       const int64_t t = tk.NextInt("tetrahedron count");
       if (t <= 0) tk.Fail("tetrahedron count must be positive");
-      CheckMeshSize(0, t, path);
       tk.RequireCountFits(t, 10, "tetrahedron count");
+      CheckMeshSize(0, t, path);
       mesh.tets.resize(t, 4);
       mesh.regions.resize(static_cast<size_t>(t));
       origin.tet_lines.resize(static_cast<size_t>(t));
