@@ -1,6 +1,7 @@
 #include "common/sim/simulation.h"
 
 #include <cmath>
+#include <new>
 #include <optional>
 #include <string>
 #include <type_traits>
@@ -303,12 +304,24 @@ class Engine final : public Simulation {
 }  // namespace
 
 std::unique_ptr<Simulation> Simulation::Create(const LoadedScene& scene, const SimulationOptions& options) {
-  SceneMesh scene_mesh = BuildSceneMesh(scene);
-  const bool use_float = options.precision.empty()
-                             ? scene.scene.time_step().precision() == v1::TimeStepPolicy::PRECISION_FLOAT
-                             : options.precision == "float";
-  if (use_float) return std::make_unique<Engine<float>>(scene, std::move(scene_mesh), options);
-  return std::make_unique<Engine<double>>(scene, std::move(scene_mesh), options);
+  // Mesh sizes are capped before this point, so running out of memory here is
+  // the machine's limit: said with the scene and the mesh it was building.
+  int64_t nodes = -1, tets = -1;
+  try {
+    SceneMesh scene_mesh = BuildSceneMesh(scene);
+    nodes = scene_mesh.mesh.num_nodes();
+    tets = scene_mesh.mesh.num_tets();
+    const bool use_float = options.precision.empty()
+                               ? scene.scene.time_step().precision() == v1::TimeStepPolicy::PRECISION_FLOAT
+                               : options.precision == "float";
+    if (use_float) return std::make_unique<Engine<float>>(scene, std::move(scene_mesh), options);
+    return std::make_unique<Engine<double>>(scene, std::move(scene_mesh), options);
+  } catch (const std::bad_alloc&) {
+    ThrowInputError({.file = scene.path.string(), .field = "mesh"},
+                    nodes < 0 ? std::string("out of memory building the mesh")
+                              : fmt::format("out of memory setting up the simulation of {} nodes and {} tets", nodes,
+                                            tets));
+  }
 }
 
 }  // namespace cutsim::sim
