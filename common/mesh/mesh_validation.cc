@@ -170,6 +170,9 @@ void ValidateTetMesh(const TetMesh& mesh, std::string_view source_name, const Me
   if (const int64_t f = FindOvershardFace(mesh.tets); f >= 0) {
     ThrowTet(source_name, origin, f / 4, "a face of this tetrahedron is shared by more than two tetrahedra");
   }
+}
+
+void CheckWholeMesh(const TetMesh& mesh, std::string_view source_name, const MeshOrigin& origin) {
   CheckCoincidentNodes(mesh, source_name, origin);
   CheckFolds(mesh, source_name, origin);
 }

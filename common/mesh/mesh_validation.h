@@ -30,13 +30,20 @@ void CheckMeshSize(int64_t nodes, int64_t tets, std::string_view source_name);
 
 /// Throws `InputError` naming `source_name` and the offending node/element if
 /// `mesh` has: no tets, an index out of range, a NaN/Inf coordinate, a tet with
-/// zero or negative volume (|6V| ≤ 1e-12·ℓmax³ counts as zero), two nodes at
-/// the same position, a fold (two tets sharing a face on the same side of
-/// it, so they overlap), more nodes or tets than the caps above, a node used
+/// zero or negative volume (|6V| ≤ 1e-12·ℓmax³ counts as zero), more nodes
+/// or tets than the caps above, a node used
 /// by no tet, a tet listed twice (same node set), a `regions` vector of the
 /// wrong length, or a face shared by more than two tets. O(N + T).
 void ValidateTetMesh(const TetMesh& mesh, std::string_view source_name,
                      const MeshOrigin& origin = {});
+
+/// Throws `InputError` naming `source_name` and the node or element if the
+/// mesh is not one whole piece of tissue: two nodes at exactly the same
+/// position (a crack, as a cut mesh written out has), or a fold (two tets
+/// sharing a face lie on the same side of it, so they overlap). For meshes a
+/// scene starts from; a cut mesh read back for inspection legitimately has
+/// coincident nodes. O(N log N + T log T).
+void CheckWholeMesh(const TetMesh& mesh, std::string_view source_name, const MeshOrigin& origin = {});
 
 /// Flips every tet with negative signed volume (swaps its nodes 1 and 2), for
 /// files written with the opposite orientation. Zero-volume tets are left for

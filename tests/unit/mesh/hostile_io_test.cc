@@ -158,7 +158,7 @@ TEST(HostileMesh, CoincidentNodesAreRefusedNamingTheNode) {
       0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, -1;
   m.tets.resize(2, 4);
   m.tets << 0, 1, 2, 3, 4, 6, 5, 7;
-  const std::string what = ErrorOf([&] { ValidateTetMesh(m, "two.mesh"); });
+  const std::string what = ErrorOf([&] { CheckWholeMesh(m, "two.mesh"); });
   EXPECT_NE(what.find("node 5"), std::string::npos) << what;
   EXPECT_NE(what.find("coincident"), std::string::npos) << what;
 }
@@ -170,13 +170,14 @@ TEST(HostileMesh, FoldedMeshIsRefusedNamingTheTet) {
   m.nodes << 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0.2, 0.2, 0.5;
   m.tets.resize(2, 4);
   m.tets << 0, 1, 2, 3, 0, 1, 2, 4;
-  const std::string what = ErrorOf([&] { ValidateTetMesh(m, "fold.mesh"); });
+  const std::string what = ErrorOf([&] { CheckWholeMesh(m, "fold.mesh"); });
   EXPECT_NE(what.find("element 2"), std::string::npos) << what;
   EXPECT_NE(what.find("folded"), std::string::npos) << what;
   // Unfolded: the second tet below the face.
   m.nodes(4, 2) = -0.5;
   m.tets.row(1) << 0, 2, 1, 4;
   EXPECT_NO_THROW(ValidateTetMesh(m, "ok.mesh"));
+  EXPECT_NO_THROW(CheckWholeMesh(m, "ok.mesh"));
 }
 
 }  // namespace
