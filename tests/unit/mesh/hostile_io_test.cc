@@ -96,6 +96,24 @@ TEST(HostileMesh, MeditCountsAreCheckedAgainstTheFileSize) {
   EXPECT_NE(ErrorOf([&] { (void)ReadMedit(path); }).find("cannot fit"), std::string::npos);
 }
 
+// Found by the mesh fuzzer: libgmsh dereferences an element's node that the
+// file never defines and crashes. The node references are checked first.
+TEST(HostileMesh, MshElementNamingAnUndefinedNodeIsRefusedBeforeGmsh) {
+  TempDir dir;
+  const std::string path = dir.File("u.msh");
+  WriteText(path,
+            "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n$EndNodes\n"
+            "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
+  const std::string what = ErrorOf([&] { (void)ReadGmsh(path); });
+  EXPECT_NE(what.find("u.msh:12"), std::string::npos) << what;
+  EXPECT_NE(what.find("node 4"), std::string::npos) << what;
+  // The node count disagreeing with the lines (the fuzzer's input).
+  WriteText(path,
+            "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 1 00\n$EndNodes\n"
+            "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
+  EXPECT_NE(ErrorOf([&] { (void)ReadGmsh(path); }).find("$EndNodes"), std::string::npos);
+}
+
 TEST(HostileMesh, NonRegularFilesAreRefusedByEveryReader) {
   TempDir dir;
   for (const std::string ext : {".msh", ".mesh", ".vtu", ".node"}) {
