@@ -9,6 +9,7 @@
 #include <map>
 #include <mutex>
 #include <numeric>
+#include <set>
 #include <sstream>
 #include <unordered_map>
 
@@ -359,8 +360,20 @@ void CheckStl(const std::string& path, const std::string& text) {
     for (std::string line; std::getline(in, line);) {
       ++line_no;
       const auto tok = SplitWhitespace(line);
-      if (tok.empty() || (tok[0] != "vertex" && tok[0] != "normal" && tok[0] != "facet")) continue;
+      if (tok.empty()) continue;
+      // gmsh reads a "solid" file it cannot parse as ASCII as binary, with a
+      // triangle count taken from bytes 80–83: only well-formed ASCII passes.
+      static const std::set<std::string, std::less<>> kKeywords = {"solid", "facet", "outer", "vertex",
+                                                                   "endloop", "endfacet", "endsolid"};
+      if (!kKeywords.contains(tok[0])) {
+        ThrowInputError(SourceRef{.file = path, .line = line_no},
+                        fmt::format("'{}' is not an ASCII STL keyword (solid, facet, outer, vertex, ...)", tok[0]));
+      }
+      if (tok[0] != "vertex" && tok[0] != "facet") continue;
       const size_t first = tok[0] == "facet" ? 2 : 1;
+      if (tok[0] == "vertex" && tok.size() != 4) {
+        ThrowInputError(SourceRef{.file = path, .line = line_no}, "a vertex needs 3 coordinates");
+      }
       if (tok[0] == "vertex" && ++vertices > 3 * kMaxMeshTets) {
         ThrowInputError(SourceRef{.file = path, .line = line_no}, fmt::format("more than {} facets", kMaxMeshTets));
       }
@@ -372,6 +385,9 @@ void CheckStl(const std::string& path, const std::string& text) {
         }
         if (tok[0] == "vertex") RequireFinite(x, SourceRef{.file = path, .line = line_no}, "vertex coordinate");
       }
+    }
+    if (vertices == 0 || vertices % 3 != 0) {
+      ThrowFileError(path, fmt::format("{} vertices: an ASCII STL needs 3 per facet and at least one facet", vertices));
     }
     return;
   }

@@ -161,6 +161,20 @@ TEST(HostileSurface, StlWithANanVertexIsRefusedBeforeGmsh) {
             std::string::npos);
 }
 
+// Found by the surface fuzzer: gmsh reads a "solid" file it cannot parse as
+// ASCII as binary, taking a triangle count from bytes 80–83, and allocates
+// gigabytes. Only well-formed ASCII STL reaches gmsh.
+TEST(HostileSurface, MalformedAsciiStlIsRefusedBeforeGmshReadsItAsBinary) {
+  TempDir dir;
+  const std::string path = dir.File("m.stl");
+  WriteText(path, "solid t\n facet normal 0 0 0\n  o" + std::string(90, 'u') + "ter \nv l0 0");
+  const std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); });
+  EXPECT_NE(what.find("m.stl:3"), std::string::npos) << what;
+  EXPECT_NE(what.find("not an ASCII STL keyword"), std::string::npos) << what;
+  WriteText(path, "solid t\nendsolid t\n");
+  EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); }).find("at least one facet"), std::string::npos);
+}
+
 TEST(HostileMesh, GeneratorSizesAreCappedBeforeAnyArithmeticOverflows) {
   const std::string what = ErrorOf([] { (void)MakeBox({0, 0, 0}, {1, 1, 1}, 2147483647, 1, 1); });
   EXPECT_NE(what.find("limited to"), std::string::npos) << what;
