@@ -21,3 +21,14 @@ if(CUTSIM_SANITIZE)
                       -fno-omit-frame-pointer)
   add_link_options(-fsanitize=address,undefined)
 endif()
+
+# libFuzzer: every object is instrumented for coverage and checked by ASan and
+# UBSan; the fuzz_* executables add the libFuzzer driver (tests/fuzz).
+if(CUTSIM_FUZZ)
+  if(NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")
+    message(FATAL_ERROR "CUTSIM_FUZZ needs clang (the fuzz preset sets it; Debian package clang)")
+  endif()
+  add_compile_options(-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=undefined
+                      -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()

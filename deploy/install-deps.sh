@@ -42,8 +42,8 @@ packages=(
   libboost-dev chromium
   # video frames from the viewer (optional at run time; tests of the encoder use it)
   ffmpeg
-  # tests and benchmarks
-  libgtest-dev libgmock-dev libbenchmark-dev
+  # tests and benchmarks; clang builds the libFuzzer targets (tests/fuzz)
+  libgtest-dev libgmock-dev libbenchmark-dev clang
   python3 python3-meshio python3-numpy python3-matplotlib
   # multi-host tests: namespaces, veth, packet loss
   iproute2 nftables

@@ -30,6 +30,10 @@
 #include "haptic_client/virtual_devices.h"
 
 namespace cutsim::haptic_client {
+
+/// Exit status of a run that never received a model from a server.
+constexpr int kExitNoModel = 3;
+
 namespace {
 
 using transport::ReportCount;
@@ -345,6 +349,13 @@ int RunHapticApp(const HapticAppOptions& o) {
   std::fputs(json.c_str(), stdout);
   std::fputc('\n', stdout);
   std::fflush(stdout);
+  // A run that never heard a server rendered nothing: say so, and fail.
+  if (renderer.stats().models_accepted == 0) {
+    Log().error("no model was received from a server on session '{}' ({}): is the server running, with the "
+                "same --session, --lcm-url and key?",
+                o.session, o.lcm_url);
+    return kExitNoModel;
+  }
   return 0;
 }
 

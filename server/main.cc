@@ -1,6 +1,7 @@
 // cutsim-server: owns the tissue model and the topology of every cut.
 #include <cstdio>
 #include <exception>
+#include <new>
 
 #include "common/core/error.h"
 #include "server/server_app.h"
@@ -13,6 +14,10 @@ int main(int argc, char** argv) {
   } catch (const cutsim::InputError& e) {
     std::fprintf(stderr, "cutsim-server: error: %s\n", e.what());
     return 2;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "cutsim-server: fatal: out of memory (every input is size-checked: the machine has "
+                         "too little memory for this scene)\n");
+    return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "cutsim-server: fatal: %s\n", e.what());
     return 1;

@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "common/core/clock.h"
+#include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpoint.h"
@@ -101,14 +103,6 @@ std::string DdsConfigUri(const std::string& file) {
   return file.empty() ? std::string() : "file://" + std::filesystem::absolute(file).string();
 }
 
-/// Writes `text` to `path` through a temporary file, so readers never see
-/// half a file.
-void WriteFileAtomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp";
-  std::ofstream(tmp) << text << "\n";
-  std::filesystem::rename(tmp, path);
-}
-
 /// The frame loop of a real-time session and its statistics. Lives on the
 /// physics thread; once warm a frame allocates nothing (the publisher's mesh
 /// frame is reused, the statistics rings are preallocated).
@@ -153,6 +147,7 @@ class RealtimeLoop {
   int64_t next_status_ns_;
   AppliedTool tool_;
   uint64_t last_cuts_;
+  bool client_was_present_ = false;  // for the connected / gone log lines
   SessionCounters counters_;
   FrameStats frame_time_{1 << 16};
   LatencyStats latency_;
@@ -186,6 +181,15 @@ int RealtimeLoop::Run() {
     // after the step, and only then recording, viewers and status.
     const std::optional<sim::ToolPose> applied = TakeToolPose(frame_start);
     const bool client_present = frame_start - tool_.frame_ns < client_timeout_ns_;
+    if (client_present != client_was_present_) {
+      client_was_present_ = client_present;
+      if (client_present) {
+        Log().info("haptic client connected: tool poses arriving (seq {})", tool_.seq);
+      } else {
+        Log().warn("haptic client gone: no tool pose for {:.3g} s (--client-timeout); last seq {}",
+                   options_.client_timeout, tool_.seq);
+      }
+    }
     if (simulation.AdvanceFrame(frame_dt_) != sim::SimStatus::kOk) {
       Log().error("simulation stopped: {}", simulation.Summary().diagnosis);
       return 3;
@@ -406,21 +410,35 @@ int ServerApp::RunRealtime() {
   const int exit_code = loop.Run();
   link.StopReceiving();
 
+  // Every output is finished and checked; a lost one makes the exit non-zero
+  // (kExitOutputFailed) after the others are written.
+  bool outputs_ok = true;
   if (recorder) {
-    const uint64_t hash = recorder->Finish(*simulation);
-    Log().info("recorded {} frames to {} (final mesh hash {:016x})", recorder->frames(), options_.record, hash);
+    try {
+      const uint64_t hash = recorder->Finish(*simulation);
+      Log().info("recorded {} frames to {} (final mesh hash {:016x})", recorder->frames(), options_.record, hash);
+    } catch (const InputError& e) {
+      Log().error("recording lost: {}", e.what());
+      outputs_ok = false;
+    }
   }
-  if (exit_code == 0) (void)checkpointer.Save(*simulation);  // clean exit, SIGTERM included
+  if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
+  if (checkpointer.failures() > 0) {
+    Log().warn("{} of {} checkpoint saves to {} failed", checkpointer.failures(),
+               checkpointer.failures() + checkpointer.saves(), options_.checkpoint);
+  }
   const std::string json = transport::ReportJson(loop.Stats());
   Log().info("session ended: {}", json);
   std::printf("%s\n", json.c_str());
-  if (!options_.stats_json.empty()) WriteFileAtomically(options_.stats_json, json);
+  if (std::fflush(stdout) != 0) outputs_ok = false;
+  if (!options_.stats_json.empty()) outputs_ok &= WriteOutput([&] { WriteFileAtomically(options_.stats_json, json + "\n"); });
   if (!options_.session_report.empty()) {
-    WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, options_.session, scene.scene.name()));
-    Log().info("wrote the session report {}", options_.session_report);
+    outputs_ok &= WriteOutput([&] {
+      WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, options_.session, scene.scene.name()));
+    });
   }
-  if (!options_.out.empty()) simulation->WriteVtu(options_.out);
-  return exit_code;
+  if (!options_.out.empty()) outputs_ok &= WriteOutput([&] { simulation->WriteVtu(options_.out); });
+  return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }
 
 }  // namespace cutsim::server

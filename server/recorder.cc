@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
@@ -32,14 +33,18 @@ int64_t RealtimeUs() {
 }
 
 uint64_t FileHash(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) ThrowFileError(path.string(), "cannot read the scene file");
+  const std::string text = ReadInputFile(path.string(), "scene file", sim::kMaxSceneFileBytes);
   uint64_t h = 0xcbf29ce484222325ULL;  // FNV-1a 64
-  for (std::istreambuf_iterator<char> it(in), end; it != end; ++it) {
-    h ^= static_cast<uint8_t>(*it);
+  for (const char c : text) {
+    h ^= static_cast<uint8_t>(c);
     h *= 0x100000001b3ULL;
   }
   return h;
+}
+
+/// The event as a field of an error: "event <n>".
+std::string EventField(const transport::LcmLogEvent& e, std::string_view field = {}) {
+  return field.empty() ? fmt::format("event {}", e.eventnum) : fmt::format("event {}: {}", e.eventnum, field);
 }
 
 uint64_t TopologyDigest(const sim::Simulation& simulation, sim::MeshView* view) {
@@ -53,8 +58,7 @@ Msg Parse(const transport::LcmLogEvent& e, const std::filesystem::path& path) {
   Msg msg;
   transport::DecodeError err;
   if (!transport::DecodeInto(std::span<const uint8_t>(e.data), msg, e.channel, &err)) {
-    ThrowInputError({.file = path.string(), .line = e.eventnum + 1, .field = e.channel},
-                    "recording: " + err.Message());
+    ThrowInputError({.file = path.string(), .field = EventField(e, e.channel)}, "recording: " + err.Message());
   }
   return msg;
 }
@@ -106,6 +110,7 @@ SessionRecorder::SessionRecorder(const std::filesystem::path& path, const std::s
   header.set_scene_hash(FileHash(scene_path));
   header.set_frame_dt(simulation.frame_dt());
   Write(Channel(session, "HEADER"), header);
+  log_.Flush();
 }
 
 void SessionRecorder::Write(const std::string& channel, const google::protobuf::MessageLite& msg) {
@@ -118,6 +123,7 @@ void SessionRecorder::Write(const std::string& channel, const google::protobuf::
 
 void SessionRecorder::Frame(double frame_time, const std::optional<sim::ToolPose>& applied,
                             const sim::Simulation& simulation) {
+  if (!error_.empty()) return;
   frame_msg_.Clear();
   frame_msg_.set_frame(++frames_);
   frame_msg_.set_frame_time(frame_time);
@@ -133,7 +139,15 @@ void SessionRecorder::Frame(double frame_time, const std::optional<sim::ToolPose
     frame_msg_.set_topology_hash(TopologyDigest(simulation, &view_));
     last_version_ = version;
   }
-  Write(frame_channel_, frame_msg_);
+  try {
+    Write(frame_channel_, frame_msg_);
+    // Through to the kernel each frame: a full disk shows at once, and a
+    // crash loses at most this frame.
+    log_.Flush();
+  } catch (const InputError& e) {
+    error_ = e.what();
+    Log().error("recording stopped at frame {}: {}", frames_, error_);
+  }
 }
 
 uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
@@ -145,7 +159,9 @@ uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
   end.set_sim_time(simulation.sim_time());
   sim::SessionMetricsToProto(simulation.Metrics(), end.mutable_metrics());
   if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, end.mutable_score());
+  if (!error_.empty()) ThrowInputError({.file = "", .field = "--record"}, "recording incomplete: " + error_);
   Write(end_channel_, end);
+  log_.Close();
   return end.mesh_hash();
 }
 
@@ -158,10 +174,21 @@ namespace {
 v1::RecordHeader ReadHeader(transport::LcmLogReader& reader, const std::filesystem::path& path) {
   auto first = reader.Next();
   if (!first || !EndsWith(first->channel, "_REC_HEADER")) {
-    ThrowInputError({.file = path.string(), .line = 1},
+    ThrowInputError({.file = path.string(), .field = "event 0"},
                     "not a cutsim recording: the first event must be on CUTSIM_<session>_REC_HEADER");
   }
-  return Parse<v1::RecordHeader>(*first, path);
+  v1::RecordHeader header = Parse<v1::RecordHeader>(*first, path);
+  sim::CheckThreads(header.threads(), {.file = path.string(), .field = "RecordHeader.threads"});
+  if (header.frame_dt() != 0.0 && !(header.frame_dt() >= sim::kMinFrameDt && header.frame_dt() <= sim::kMaxFrameDt)) {
+    ThrowInputError({.file = path.string(), .field = "RecordHeader.frame_dt"},
+                    fmt::format("{:g} s is outside [{:g}, {:g}] s", header.frame_dt(), sim::kMinFrameDt,
+                                sim::kMaxFrameDt));
+  }
+  if (!(header.quantum() >= 0.0 && header.quantum() < 1.0)) {
+    ThrowInputError({.file = path.string(), .field = "RecordHeader.quantum"},
+                    fmt::format("{:g} m is outside [0, 1) m", header.quantum()));
+  }
+  return header;
 }
 
 /// The scene to replay: the override, else as recorded, else a file of the
@@ -202,10 +229,23 @@ class Replayer {
 
   /// Replays one RecordFrame event; false when the replay must stop.
   bool Frame(const transport::LcmLogEvent& e) {
-    if (ended_) ThrowInputError({.file = path_.string(), .line = e.eventnum + 1}, "frame after the end event");
+    if (ended_) ThrowInputError({.file = path_.string(), .field = EventField(e)}, "frame after the end event");
     const auto f = Parse<v1::RecordFrame>(e, path_);
+    // Frame times are the physics frame: positive, finite and within the
+    // scene limits, so a hostile time cannot make one frame run forever.
+    if (!(f.frame_time() >= sim::kMinFrameDt && f.frame_time() <= sim::kMaxFrameDt)) {
+      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.frame_time")},
+                      fmt::format("frame {}: {:g} s is outside [{:g}, {:g}] s", f.frame(), f.frame_time(),
+                                  sim::kMinFrameDt, sim::kMaxFrameDt));
+    }
+    if (f.has_tool() && !(std::isfinite(f.tip().x()) && std::isfinite(f.tip().y()) && std::isfinite(f.tip().z()) &&
+                          std::isfinite(f.blade_dir().x()) && std::isfinite(f.blade_dir().y()) &&
+                          std::isfinite(f.blade_dir().z()))) {
+      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.tip/blade_dir")},
+                      fmt::format("frame {}: the tool pose is NaN or infinite", f.frame()));
+    }
     if (f.frame() != result_.frames + 1) {
-      ThrowInputError({.file = path_.string(), .line = e.eventnum + 1, .field = "RecordFrame.frame"},
+      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.frame")},
                       fmt::format("frame {} follows frame {}: the recording is incomplete", f.frame(),
                                   result_.frames));
     }

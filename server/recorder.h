@@ -61,18 +61,25 @@ inline constexpr double kRecordQuantum = 1e-5;
 /// buffered write per frame (and a topology digest on frames that cut).
 class SessionRecorder {
  public:
-  /// Creates `path` and writes the header. Throws `InputError` naming the file.
+  /// Creates `path` and writes the header through to the kernel, so an
+  /// unwritable path or a full device fails here, at start. Throws
+  /// `InputError` naming the file.
   SessionRecorder(const std::filesystem::path& path, const std::string& session,
                   const std::string& scene_path, const sim::Simulation& simulation);
 
   /// Records one frame after `AdvanceFrame(frame_time)`; `applied` is the
-  /// tool pose set before it (nullopt: none this frame).
+  /// tool pose set before it (nullopt: none this frame). A failed write is
+  /// logged once and ends the recording; `error()` then says why.
   void Frame(double frame_time, const std::optional<sim::ToolPose>& applied,
              const sim::Simulation& simulation);
-  /// Writes the final mesh hash; returns it.
+  /// Writes the final mesh hash, then flushes, syncs and closes the file;
+  /// returns the hash. Throws `InputError` naming the file if the recording
+  /// failed at any point (it is then incomplete).
   uint64_t Finish(const sim::Simulation& simulation);
 
   [[nodiscard]] uint64_t frames() const { return frames_; }
+  /// Why the recording failed; empty while every write succeeded.
+  [[nodiscard]] const std::string& error() const { return error_; }
 
  private:
   void Write(const std::string& channel, const google::protobuf::MessageLite& msg);
@@ -85,6 +92,7 @@ class SessionRecorder {
   sim::MeshView view_;         // reused for digests
   uint64_t frames_ = 0;
   uint64_t last_version_ = 0;
+  std::string error_;
 };
 
 /// What a replay found.

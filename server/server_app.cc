@@ -6,12 +6,16 @@
 #include <cmath>
 #include <cstdio>
 #include <csignal>
+#include <filesystem>
+#include <functional>
 
 #include <CLI/CLI.hpp>
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
+#include "common/core/stop.h"
 #include "common/sim/checkpoint.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
@@ -27,7 +31,10 @@ volatile std::sig_atomic_t g_print_stats = 0;
 
 namespace {
 
-void OnSignal(int) { g_stop = 1; }
+void OnSignal(int) {
+  g_stop = 1;
+  RequestStop();
+}
 void OnStatsSignal(int) { g_print_stats = 1; }
 
 v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
@@ -105,14 +112,14 @@ void AddRunOptions(CLI::App& app, ServerOptions& o) {
   app.add_flag("--headless", o.headless,
                "Run as fast as possible with no transport, then print a JSON summary");
   app.add_option("--duration", o.duration, "Simulated seconds to run")
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::Range(1e-9, sim::kMaxSimSeconds));
   app.add_flag("--until-rest", o.until_rest,
                "Run until kinetic energy and residual force fall below the scene's rest tolerances");
   app.add_option("--max-time", o.max_time, "Cap on simulated seconds for --until-rest")
-      ->check(CLI::PositiveNumber);
+      ->check(CLI::Range(1e-9, sim::kMaxSimSeconds));
   app.add_option("--out", o.out, "Write the final state to this .vtu file");
   app.add_option("--threads", o.threads, "Worker threads (0 = scene/all cores)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Range(int64_t{0}, sim::kMaxThreads));
   app.add_option("--precision", o.precision, "Override the scene's precision")
       ->check(CLI::IsMember({"float", "double"}));
   app.add_option("--integrator", o.integrator, "Override the scene's integrator")
@@ -219,7 +226,29 @@ int ServerApp::Run() {
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnStatsSignal);
   if (!options_.replay.empty()) return RunReplay();
+  // Outputs are checked before any work, so a bad path fails now, not after
+  // an hour's session.
+  for (const auto& [path, what] : {std::pair{&options_.record, "recording (--record)"},
+                                   std::pair{&options_.checkpoint, "checkpoint (--checkpoint)"},
+                                   std::pair{&options_.stats_json, "statistics (--stats-json)"},
+                                   std::pair{&options_.session_report, "session report (--session-report)"},
+                                   std::pair{&options_.out, "final state (--out)"}}) {
+    if (!path->empty()) CheckOutputPath(*path, what);
+  }
+  if (options_.resume && !options_.checkpoint.empty() && std::filesystem::exists(options_.checkpoint)) {
+    (void)CheckInputFile(options_.checkpoint, "checkpoint (--checkpoint)", sim::kMaxCheckpointBytes);
+  }
   return options_.headless ? RunHeadless() : RunRealtime();
+}
+
+bool WriteOutput(const std::function<void()>& write) {
+  try {
+    write();
+    return true;
+  } catch (const std::exception& e) {
+    Log().error("output not written: {}", e.what());
+    return false;
+  }
 }
 
 std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const ServerOptions& o) {
@@ -266,7 +295,7 @@ int ServerApp::RunHeadless() {
   if (options_.duration) {
     end_time = *options_.duration;
   } else if (simulation->path_end_time() > 0 && !options_.until_rest) {
-    end_time = simulation->path_end_time();
+    end_time = simulation->path_end_time();  // bounded by the path reader (kMaxSimSeconds)
   } else if (!options_.until_rest) {
     ThrowInputError({.field = "--duration"},
                     "the scene has no tool path: give --duration and/or --until-rest");
@@ -303,20 +332,26 @@ int ServerApp::RunHeadless() {
     }
   }
   if (tty) std::fprintf(stderr, "\n");
-  if (exit_code == 0) (void)checkpointer.Save(*simulation);  // not over a good one after a blow-up
+  bool outputs_ok = true;
+  // Not over a good checkpoint after a blow-up.
+  if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
   if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !g_stop) {
     Log().warn("did not reach rest within {} s of simulated time", end_time);
   }
   if (!options_.out.empty()) {
-    simulation->WriteVtu(options_.out);
-    Log().info("wrote {}", options_.out);
+    outputs_ok &= WriteOutput([&] {
+      simulation->WriteVtu(options_.out);
+      Log().info("wrote {}", options_.out);
+    });
   }
   if (!options_.session_report.empty()) {
-    WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
-    Log().info("wrote the session report {}", options_.session_report);
+    outputs_ok &= WriteOutput([&] {
+      WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
+    });
   }
   std::printf("%s\n", transport::ReportJson(HeadlessReport(*simulation)).c_str());
-  return exit_code;
+  if (std::fflush(stdout) != 0) outputs_ok = false;
+  return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }
 
 }  // namespace cutsim::server

@@ -3,6 +3,7 @@
 /// The server application: command line, then a headless batch run (or, with
 /// the haptic link, a real-time session). Thin: the work is in common/.
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -50,6 +51,13 @@ struct ServerOptions {
 /// Throws `InputError` for an unreadable or malformed key.
 [[nodiscard]] std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(
     const ServerOptions& options);
+
+/// Exit status when the run itself succeeded but an output (recording,
+/// checkpoint, statistics, final state) could not be written completely.
+inline constexpr int kExitOutputFailed = 5;
+
+/// Runs `write`; logs and returns false if it throws.
+bool WriteOutput(const std::function<void()>& write);
 
 class ServerApp {
  public:

@@ -24,7 +24,7 @@ Material Material::FromYoungPoisson(double youngs_modulus, double poisson_ratio,
 namespace {
 
 void ValidateMaterial(const Material& m, const std::string& source, int64_t index) {
-  const SourceRef ref{.file = source, .line = index + 1, .field = "materials"};
+  const SourceRef ref{.file = source, .field = "materials[" + std::to_string(index) + "]"};
   const bool finite = std::isfinite(m.lambda) && std::isfinite(m.mu) && std::isfinite(m.psi) &&
                       std::isfinite(m.phi) && std::isfinite(m.density);
   if (!finite) ThrowInputError(ref, "material has a non-finite parameter");
@@ -50,7 +50,8 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
   padded_tets_ = (num_tets_ + kBlock - 1) / kBlock * kBlock;
   for (int32_t n = 0; n < num_nodes_; ++n) {
     if (!mesh.nodes.row(n).allFinite()) {
-      ThrowInputError({.file = src, .line = n + 1, .field = "nodes"}, "non-finite node coordinate");
+      ThrowInputError({.file = src, .field = "node " + std::to_string(n + 1)},
+                      "node coordinate is NaN or infinite (after mesh.scale and mesh.translate)");
     }
   }
   // Material per tet.
@@ -105,7 +106,7 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
     for (int c = 0; c < 4; ++c) {
       const int32_t node = mesh.tets(t, c);
       if (node < 0 || node >= num_nodes_) {
-        ThrowInputError({.file = src, .line = t + 1, .field = "tets"},
+        ThrowInputError({.file = src, .field = "tet " + std::to_string(t + 1)},
                         "node index " + std::to_string(node) + " out of range [0, " +
                             std::to_string(num_nodes_) + ")");
       }
@@ -118,7 +119,7 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
     if (per_region) {
       const int32_t r = mesh.regions[static_cast<size_t>(t)];
       if (r < 0 || r >= std::ssize(materials)) {
-        ThrowInputError({.file = src, .line = t + 1, .field = "regions"},
+        ThrowInputError({.file = src, .field = "region of tet " + std::to_string(t + 1)},
                         "region " + std::to_string(r) + " has no material");
       }
       mat = materials[static_cast<size_t>(r)];
@@ -134,8 +135,9 @@ Model<T>::Model(const mesh::TetMesh& mesh, std::span<const Material> materials,
     bool degenerate = false;
     ComputeElement(t, &degenerate);
     if (degenerate) {
-      ThrowInputError({.file = src, .line = t + 1, .field = "tets"},
-                      "tetrahedron has non-positive volume (inverted or degenerate)");
+      ThrowInputError({.file = src, .field = "tet " + std::to_string(t + 1)},
+                      "tetrahedron has non-positive volume (inverted or degenerate), or a volume outside floating "
+                      "point range (check mesh.scale)");
     }
     // Mass frozen at load: ρ·vol (docs/DESIGN.md), computed in double.
     element_mass_[t] = static_cast<T>(mat.density * mesh::SignedVolume(mesh, t));

@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 
 namespace cutsim::haptics {
 
@@ -18,6 +19,10 @@ ToolPath::ToolPath(std::vector<ToolKeyframe> keyframes, const std::string& sourc
     const std::string field = fmt::format("keyframe {}", i + 1);
     if (!std::isfinite(k.t) || !k.pose.tip.allFinite() || !k.pose.blade_dir.allFinite()) {
       ThrowInputError({.file = source_name, .field = field}, "values must be finite");
+    }
+    if (std::abs(k.t) > kMaxToolPathSeconds) {
+      ThrowInputError({.file = source_name, .field = field},
+                      fmt::format("time {:g} s is outside ±{:g} s", k.t, kMaxToolPathSeconds));
     }
     if (i > 0 && !(k.t > keyframes_[i - 1].t)) {
       ThrowInputError({.file = source_name, .field = field}, "times must increase strictly");
@@ -56,6 +61,10 @@ ToolPath ToolPath::Parse(const std::string& text, const std::string& source_name
     if (!std::isfinite(k.t) || !k.pose.tip.allFinite() || !k.pose.blade_dir.allFinite()) {
       ThrowInputError({.file = source_name, .line = line_no}, "values must be finite");
     }
+    if (std::abs(k.t) > kMaxToolPathSeconds) {
+      ThrowInputError({.file = source_name, .line = line_no},
+                      fmt::format("time {:g} s is outside ±{:g} s", k.t, kMaxToolPathSeconds));
+    }
     if (!frames.empty() && !(k.t > frames.back().t)) {
       ThrowInputError({.file = source_name, .line = line_no}, "times must increase strictly");
     }
@@ -69,11 +78,7 @@ ToolPath ToolPath::Parse(const std::string& text, const std::string& source_name
 }
 
 ToolPath ToolPath::Read(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) ThrowFileError(path.string(), "cannot open tool path");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return Parse(text.str(), path.string());
+  return Parse(ReadInputFile(path.string(), "tool path", kMaxToolPathBytes), path.string());
 }
 
 void ToolPath::Write(const std::filesystem::path& path) const {

@@ -15,6 +15,7 @@
 /// timing inside a segment is linear or minimum-jerk (a human-like speed
 /// profile: zero velocity and acceleration at each keyframe).
 
+#include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -24,6 +25,11 @@
 #include "common/core/tool_pose.h"
 
 namespace cutsim::haptics {
+
+/// Largest |t| of a keyframe, s (one day): a path cannot make a run endless.
+inline constexpr double kMaxToolPathSeconds = 86400.0;
+/// Largest tool path file, bytes (64 MiB).
+inline constexpr uint64_t kMaxToolPathBytes = uint64_t{64} << 20;
 
 /// A keyframe of a tool path: a pose and the time the tool reaches it.
 struct ToolKeyframe {

@@ -15,10 +15,22 @@ namespace cutsim::mesh {
 
 using Eigen::Vector3d;
 
+void CheckGeneratedSize(const SourceRef& where, double nodes, double tets) {
+  if (!(nodes <= static_cast<double>(kMaxMeshNodes)) || !(tets <= static_cast<double>(kMaxMeshTets))) {
+    ThrowInputError(where,
+                    fmt::format("would make {:.3g} nodes and {:.3g} tetrahedra: meshes are limited to {} nodes and {} "
+                                "tetrahedra",
+                                nodes, tets, kMaxMeshNodes, kMaxMeshTets));
+  }
+}
+
 TetMesh MakeBox(const Vector3d& lo, const Vector3d& hi, int nx, int ny, int nz) {
   if (nx < 1 || ny < 1 || nz < 1 || !((hi - lo).array() > 0.0).all()) {
     ThrowInputError(SourceRef{.field = "MakeBox"}, fmt::format("needs hi > lo and ≥ 1 cell per axis, got {}×{}×{}", nx, ny, nz));
   }
+  // Sizes in double first: (nx + 1)(ny + 1)(nz + 1) overflows any integer
+  // type for hostile cell counts.
+  CheckGeneratedSize(SourceRef{.field = "MakeBox"}, (nx + 1.0) * (ny + 1.0) * (nz + 1.0), 6.0 * nx * ny * nz);
   auto id = [&](int i, int j, int k) { return static_cast<int32_t>(i + (nx + 1) * (j + (ny + 1) * k)); };
   TetMesh mesh;
   mesh.nodes.resize(static_cast<Eigen::Index>(nx + 1) * (ny + 1) * (nz + 1), 3);
@@ -62,6 +74,9 @@ TetMesh MakeCylinder(double radius, double length, int segments, int rings, int 
                     fmt::format("needs radius, length > 0, segments ≥ 3, rings ≥ 1, slices ≥ 1 (got {}, {}, {}, {}, {})",
                                 radius, length, segments, rings, slices));
   }
+  // About segments·rings/2 nodes and segments·rings triangles per cross-section.
+  CheckGeneratedSize(SourceRef{.field = "MakeCylinder"}, (1.0 + 0.5 * segments * (rings + 1.0)) * (slices + 1.0),
+                     3.0 * segments * (rings + 1.0) * slices);
   // Cross-section in the (y, z) plane: centre node 0, then ring by ring.
   std::vector<double> y{0.0}, z{0.0};
   std::vector<int32_t> ring_start{0};

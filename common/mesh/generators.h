@@ -10,10 +10,16 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "common/core/error.h"
 #include "common/mesh/cleanup.h"
 #include "common/mesh/tet_mesh.h"
 
 namespace cutsim::mesh {
+
+/// Throws `InputError` at `where` if a generator would make more than
+/// kMaxMeshNodes nodes or kMaxMeshTets tets (estimates in double, so no
+/// integer overflows first). Every generator calls it before allocating.
+void CheckGeneratedSize(const SourceRef& where, double nodes, double tets);
 
 /// Axis-aligned box [lo, hi] with nx·ny·nz cells, each split into 6 tets
 /// around its lo→hi diagonal (Kuhn/Freudenthal), so faces conform.

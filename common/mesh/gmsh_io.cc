@@ -3,10 +3,13 @@
 // mutex and runs between its own initialize/finalize.
 
 #include <algorithm>
+#include <charconv>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <mutex>
 #include <numeric>
+#include <set>
 #include <sstream>
 #include <unordered_map>
 
@@ -14,6 +17,8 @@
 #include <gmsh.h>
 
 #include "common/core/error.h"
+#include "common/core/finite.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 #include "common/mesh/generators.h"
 #include "common/mesh/mesh_io.h"
@@ -58,6 +63,8 @@ std::string LastGmshError() {
   }
   return error.empty() ? std::string("unknown gmsh error") : error;
 }
+
+std::vector<std::string> SplitWhitespace(const std::string& line);
 
 // Runs `fn`, turning whatever gmsh throws (it throws std::string, int or
 // exceptions depending on the call) into an InputError naming `path`.
@@ -139,6 +146,7 @@ TetMesh ExtractTetsFromModel(const std::string& path) {
   index.reserve(used.size());
   for (size_t i = 0; i < used.size(); ++i) index.emplace(used[i], static_cast<int32_t>(i));
   mesh.nodes.resize(static_cast<Eigen::Index>(used.size()), 3);
+  CheckMeshSize(static_cast<int64_t>(used.size()), static_cast<int64_t>(tet_nodes.size() / 4), path);
   std::vector<uint8_t> seen(used.size(), 0);
   for (size_t i = 0; i < node_tags.size(); ++i) {
     if (auto it = index.find(node_tags[i]); it != index.end()) {
@@ -163,9 +171,90 @@ TetMesh ExtractTetsFromModel(const std::string& path) {
 
 }  // namespace
 
+namespace {
+
+// libgmsh trusts the node references of a .msh file: an element naming a
+// node the file never defines crashes it. For the ASCII 2.2 format (the one
+// written by hand and by WriteMsh) every section's count is checked against
+// its lines and every node an element names against the $Nodes section
+// before gmsh sees the file. Other versions and binary files go to gmsh as
+// they are.
+void CheckMsh22Ascii(const std::string& path, const std::string& text) {
+  std::istringstream in(text);
+  std::string line;
+  int64_t line_no = 0;
+  auto fail = [&](std::string_view msg) { ThrowInputError(SourceRef{.file = path, .line = line_no}, msg); };
+  auto next_line = [&](std::string_view what) {
+    if (!std::getline(in, line)) fail(fmt::format("unexpected end of file in {}", what));
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+  };
+  auto parse_int = [&](std::string_view tok, std::string_view what) {
+    int64_t v = 0;
+    const auto [end, ec] = std::from_chars(tok.data(), tok.data() + tok.size(), v);
+    if (ec != std::errc() || end != tok.data() + tok.size()) fail(fmt::format("bad {} '{}'", what, tok));
+    return v;
+  };
+  std::unordered_map<int64_t, bool> nodes;
+  bool format_checked = false;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line == "$MeshFormat") {
+      next_line("$MeshFormat");
+      const auto tok = SplitWhitespace(line);
+      if (tok.size() < 3 || tok[0] != "2.2" || tok[1] != "0") return;  // not ASCII 2.2: gmsh reads it
+      format_checked = true;
+    } else if (line == "$Nodes" && format_checked) {
+      next_line("$Nodes");
+      const int64_t n = parse_int(line, "node count");
+      RequireCountFits(n, 8, text.size(), SourceRef{.file = path, .line = line_no}, "node count");
+      nodes.reserve(static_cast<size_t>(n));
+      for (int64_t i = 0; i < n; ++i) {
+        next_line("$Nodes");
+        const auto tok = SplitWhitespace(line);
+        if (tok.size() != 4) fail("a node needs an id and 3 coordinates");
+        for (size_t k = 1; k < 4; ++k) {
+          double x = 0.0;
+          const auto [end, ec] = std::from_chars(tok[k].data(), tok[k].data() + tok[k].size(), x);
+          if (ec != std::errc() || end != tok[k].data() + tok[k].size()) {
+            fail(fmt::format("bad coordinate '{}'", tok[k]));
+          }
+          RequireFinite(x, SourceRef{.file = path, .line = line_no}, "node coordinate");
+        }
+        if (!nodes.emplace(parse_int(tok[0], "node id"), true).second) {
+          fail(fmt::format("node {} defined twice", tok[0]));
+        }
+      }
+      next_line("$Nodes");
+      if (line != "$EndNodes") fail("expected $EndNodes (node count does not match the lines)");
+    } else if (line == "$Elements" && format_checked) {
+      next_line("$Elements");
+      const int64_t n = parse_int(line, "element count");
+      RequireCountFits(n, 10, text.size(), SourceRef{.file = path, .line = line_no}, "element count");
+      for (int64_t i = 0; i < n; ++i) {
+        next_line("$Elements");
+        const auto tok = SplitWhitespace(line);
+        if (tok.size() < 4) fail("an element needs an id, a type, a tag count and nodes");
+        const int64_t tags = parse_int(tok[2], "tag count");
+        if (tags < 0 || static_cast<size_t>(tags) + 4 > tok.size()) fail("element tag count exceeds the line");
+        for (size_t k = 3 + static_cast<size_t>(tags); k < tok.size(); ++k) {
+          const int64_t node = parse_int(tok[k], "element node");
+          if (nodes.find(node) == nodes.end()) {
+            fail(fmt::format("element {} names node {}, which $Nodes does not define", tok[0], node));
+          }
+        }
+      }
+      next_line("$Elements");
+      if (line != "$EndElements") fail("expected $EndElements (element count does not match the lines)");
+    }
+  }
+}
+
+}  // namespace
+
 TetMesh ReadGmsh(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) ThrowFileError(path, "cannot open mesh file: no such file");
+  CheckMsh22Ascii(path, ReadInputFile(path, "mesh file"));
   GmshSession session;
   GmshCall(path, "open", [&] { gmsh::open(path); });
   return ExtractTetsFromModel(path);
@@ -255,9 +344,70 @@ std::vector<std::string> SplitWhitespace(const std::string& line) {
   return out;
 }
 
+// Refuses what gmsh must never see: non-finite vertices (gmsh aborts on
+// them) and binary files whose triangle count disagrees with their size.
+// ASCII files are those starting with "solid" whose size is not that of a
+// binary file of the count they would claim.
+void CheckStl(const std::string& path, const std::string& text) {
+  constexpr size_t kHeader = 80, kTriangle = 50;
+  uint32_t count = 0;
+  const bool sized_binary = text.size() >= kHeader + 4 &&
+                            (std::memcpy(&count, text.data() + kHeader, 4), true) &&
+                            text.size() == kHeader + 4 + kTriangle * static_cast<size_t>(count);
+  if (!sized_binary && text.compare(0, 5, "solid") == 0) {
+    std::istringstream in(text);
+    int64_t line_no = 0, vertices = 0;
+    for (std::string line; std::getline(in, line);) {
+      ++line_no;
+      const auto tok = SplitWhitespace(line);
+      if (tok.empty()) continue;
+      // gmsh reads a "solid" file it cannot parse as ASCII as binary, with a
+      // triangle count taken from bytes 80–83: only well-formed ASCII passes.
+      static const std::set<std::string, std::less<>> kKeywords = {"solid", "facet", "outer", "vertex",
+                                                                   "endloop", "endfacet", "endsolid"};
+      if (!kKeywords.contains(tok[0])) {
+        ThrowInputError(SourceRef{.file = path, .line = line_no},
+                        fmt::format("'{}' is not an ASCII STL keyword (solid, facet, outer, vertex, ...)", tok[0]));
+      }
+      if (tok[0] != "vertex" && tok[0] != "facet") continue;
+      const size_t first = tok[0] == "facet" ? 2 : 1;
+      if (tok[0] == "vertex" && tok.size() != 4) {
+        ThrowInputError(SourceRef{.file = path, .line = line_no}, "a vertex needs 3 coordinates");
+      }
+      if (tok[0] == "vertex" && ++vertices > 3 * kMaxMeshTets) {
+        ThrowInputError(SourceRef{.file = path, .line = line_no}, fmt::format("more than {} facets", kMaxMeshTets));
+      }
+      for (size_t k = first; k < tok.size() && k < first + 3; ++k) {
+        double x = 0.0;
+        const auto [end, ec] = std::from_chars(tok[k].data(), tok[k].data() + tok[k].size(), x);
+        if (ec != std::errc() || end != tok[k].data() + tok[k].size()) {
+          ThrowInputError(SourceRef{.file = path, .line = line_no}, fmt::format("bad number '{}'", tok[k]));
+        }
+        if (tok[0] == "vertex") RequireFinite(x, SourceRef{.file = path, .line = line_no}, "vertex coordinate");
+      }
+    }
+    if (vertices == 0 || vertices % 3 != 0) {
+      ThrowFileError(path, fmt::format("{} vertices: an ASCII STL needs 3 per facet and at least one facet", vertices));
+    }
+    return;
+  }
+  if (!sized_binary) {
+    ThrowFileError(path, fmt::format("not an ASCII STL (no 'solid') and not a binary STL ({} bytes for {} triangles)",
+                                     text.size(), count));
+  }
+  if (count > kMaxMeshTets) ThrowFileError(path, fmt::format("{} triangles: more than {}", count, kMaxMeshTets));
+  for (size_t t = 0; t < count; ++t) {
+    float xyz[9];
+    std::memcpy(xyz, text.data() + kHeader + 4 + kTriangle * t + 12, sizeof(xyz));  // after the normal
+    for (const float x : xyz) {
+      RequireFinite(x, SourceRef{.file = path, .field = fmt::format("triangle {}", t + 1)}, "vertex coordinate");
+    }
+  }
+}
+
 // Minimal Wavefront OBJ: 'v x y z' and polygonal 'f' lines (fan-triangulated).
 void ReadObj(const std::string& path, Positions& positions, Triangles& tris) {
-  std::istringstream in(internal::ReadFileOrThrow(path));
+  std::istringstream in(ReadInputFile(path, "surface file"));
   std::vector<double> v;
   std::vector<int32_t> f;
   int64_t line_no = 0;
@@ -269,11 +419,15 @@ void ReadObj(const std::string& path, Positions& positions, Triangles& tris) {
     if (tok[0] == "v") {
       if (tok.size() < 4) fail("vertex needs 3 coordinates");
       for (int k = 1; k <= 3; ++k) {
-        try {
-          v.push_back(std::stod(tok[static_cast<size_t>(k)]));
-        } catch (const std::exception&) {
-          fail(fmt::format("bad coordinate '{}'", tok[static_cast<size_t>(k)]));
-        }
+        const std::string& t = tok[static_cast<size_t>(k)];
+        double x = 0.0;
+        const auto [end, ec] = std::from_chars(t.data(), t.data() + t.size(), x);
+        if (ec != std::errc() || end != t.data() + t.size()) fail(fmt::format("bad coordinate '{}'", t));
+        RequireFinite(x, SourceRef{.file = path, .line = line_no}, fmt::format("vertex coordinate '{}'", t));
+        v.push_back(x);
+      }
+      if (static_cast<int64_t>(v.size() / 3) > kMaxMeshNodes) {
+        fail(fmt::format("more than {} vertices", kMaxMeshNodes));
       }
     } else if (tok[0] == "f") {
       if (tok.size() < 4) fail("face needs at least 3 vertices");
@@ -291,6 +445,7 @@ void ReadObj(const std::string& path, Positions& positions, Triangles& tris) {
         idx.push_back(static_cast<int32_t>(i - 1));
       }
       for (size_t k = 1; k + 1 < idx.size(); ++k) f.insert(f.end(), {idx[0], idx[k], idx[k + 1]});
+      if (static_cast<int64_t>(f.size() / 3) > kMaxMeshTets) fail(fmt::format("more than {} faces", kMaxMeshTets));
     }
   }
   if (f.empty()) ThrowFileError(path, "no faces");
@@ -334,8 +489,7 @@ TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length) {
 
 TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length,
                               const TetrahedralizeOptions& options) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) ThrowFileError(path, "cannot open surface file: no such file");
+  const std::string text = ReadInputFile(path, "surface file");
   std::string ext = std::filesystem::path(path).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   if (ext == ".obj") {
@@ -345,6 +499,7 @@ TetMesh TetrahedralizeSurface(const std::string& path, double max_edge_length,
     return TetrahedralizeSurface(positions, tris, max_edge_length, path, options);
   }
   if (ext != ".stl") ThrowFileError(path, fmt::format("unsupported surface format '{}' (expected .stl or .obj)", ext));
+  CheckStl(path, text);
   GmshSession session;
   GmshCall(path, "merge", [&] { gmsh::merge(path); });
   return FillSurfaces(path, max_edge_length, options);

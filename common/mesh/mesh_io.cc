@@ -11,6 +11,7 @@
 #include <fmt/ranges.h>
 
 #include "common/core/error.h"
+#include "common/core/finite.h"
 #include "common/core/log.h"
 #include "common/mesh/mesh_validation.h"
 #include "common/mesh/text_io.h"
@@ -81,7 +82,11 @@ TetMesh ReadTetGen(const std::string& path) {
     EndRecord(tk, header_line, "header");
     if (n <= 0) tk.Fail(fmt::format("node count {} must be positive", n));
     if (dim != 3) tk.Fail(fmt::format("dimension {} is not 3", dim));
-    if (num_attr < 0 || num_markers < 0 || num_markers > 1) tk.Fail("bad attribute/marker counts in header");
+    if (num_attr < 0 || num_markers < 0 || num_markers > 1 || num_attr > 1000) {
+      tk.Fail("bad attribute/marker counts in header");
+    }
+    tk.RequireCountFits(n, 2 * (4 + num_attr + num_markers), "node count");
+    CheckMeshSize(n, 0, node_path);
     mesh.nodes.resize(n, 3);
     origin.node_ids.resize(static_cast<size_t>(n));
     for (int64_t i = 0; i < n; ++i) {
@@ -108,7 +113,9 @@ TetMesh ReadTetGen(const std::string& path) {
     EndRecord(tk, header_line, "header");
     if (t <= 0) tk.Fail(fmt::format("tetrahedron count {} must be positive", t));
     if (nodes_per != 4) tk.Fail(fmt::format("{}-node elements are not supported (only 4-node tetrahedra)", nodes_per));
-    if (num_attr < 0) tk.Fail("negative attribute count");
+    if (num_attr < 0 || num_attr > 1000) tk.Fail("bad attribute count in header");
+    tk.RequireCountFits(t, 2 * (5 + num_attr), "tetrahedron count");
+    CheckMeshSize(0, t, ele_path);
     mesh.tets.resize(t, 4);
     if (num_attr > 0) mesh.regions.resize(static_cast<size_t>(t));
     origin.tet_ids.resize(static_cast<size_t>(t));
@@ -128,7 +135,10 @@ TetMesh ReadTetGen(const std::string& path) {
       }
       for (int64_t a = 0; a < num_attr; ++a) {
         const double attr = tk.NextDouble(fmt::format("element {} attribute", id));
-        if (a == 0) mesh.regions[static_cast<size_t>(e)] = static_cast<int32_t>(std::lround(attr));
+        if (a == 0) {
+          if (!(std::abs(attr) < 2e9)) tk.Fail(fmt::format("element {}: region attribute {} is out of range", id, attr));
+          mesh.regions[static_cast<size_t>(e)] = static_cast<int32_t>(std::lround(attr));
+        }
       }
       EndRecord(tk, line, fmt::format("element {}", id));
     }
@@ -185,6 +195,8 @@ TetMesh ReadMedit(const std::string& path) {
     } else if (key == "vertices") {
       const int64_t n = tk.NextInt("vertex count");
       if (n <= 0) tk.Fail("vertex count must be positive");
+      tk.RequireCountFits(n, 8, "vertex count");
+      CheckMeshSize(n, 0, path);
       mesh.nodes.resize(n, 3);
       for (int64_t i = 0; i < n; ++i) {
         for (int k = 0; k < 3; ++k) mesh.nodes(i, k) = tk.NextDouble(fmt::format("vertex {} coordinate", i + 1));
@@ -199,6 +211,8 @@ TetMesh ReadMedit(const std::string& path) {
     } else if (key == "tetrahedra") {
       const int64_t t = tk.NextInt("tetrahedron count");
       if (t <= 0) tk.Fail("tetrahedron count must be positive");
+      tk.RequireCountFits(t, 10, "tetrahedron count");
+      CheckMeshSize(0, t, path);
       mesh.tets.resize(t, 4);
       mesh.regions.resize(static_cast<size_t>(t));
       origin.tet_lines.resize(static_cast<size_t>(t));
@@ -211,7 +225,9 @@ TetMesh ReadMedit(const std::string& path) {
           }
           mesh.tets(e, k) = static_cast<int32_t>(v - 1);
         }
-        mesh.regions[static_cast<size_t>(e)] = static_cast<int32_t>(tk.NextInt(fmt::format("tetrahedron {} reference", e + 1)));
+        const int64_t ref = tk.NextInt(fmt::format("tetrahedron {} reference", e + 1));
+        if (ref < INT32_MIN || ref > INT32_MAX) tk.Fail(fmt::format("tetrahedron {}: reference {} is out of range", e + 1, ref));
+        mesh.regions[static_cast<size_t>(e)] = static_cast<int32_t>(ref);
       }
       have_tets = true;
     } else {
@@ -223,7 +239,7 @@ TetMesh ReadMedit(const std::string& path) {
         continue;
       }
       const int64_t n = tk.NextInt(fmt::format("{} count", key));
-      if (n < 0) tk.Fail("negative count");
+      tk.RequireCountFits(n, 2 * std::max(skip->second, 1), fmt::format("{} count", key));
       for (int64_t i = 0; i < n * skip->second; ++i) tk.Next(key);
       if (n > 0 && key != "corners" && key.find("required") == std::string::npos && key.find("normal") == std::string::npos &&
           key.find("tangent") == std::string::npos && key != "ridges") {
@@ -366,6 +382,7 @@ VtuData ReadVtu(const std::string& path) {
       fail_at(piece, fmt::format("<Piece> needs a valid {}", name));
     }
   }
+  CheckMeshSize(num_points, num_cells, path);
   auto section = [&](const char* open, const char* close) {
     const size_t b = text.find(open, piece), e = text.find(close, piece);
     return std::pair{b, e == std::string::npos ? b : e};
@@ -392,17 +409,22 @@ VtuData ReadVtu(const std::string& path) {
     const std::string name = Attribute(tag, "Name").value_or("");
     int components = 1;
     if (const auto c = Attribute(tag, "NumberOfComponents")) {
-      if (std::from_chars(c->data(), c->data() + c->size(), components).ec != std::errc() || components < 1) {
+      if (std::from_chars(c->data(), c->data() + c->size(), components).ec != std::errc() || components < 1 ||
+          components > 64) {
         fail_at(pos, "bad NumberOfComponents");
       }
     }
     std::vector<double> values;
+    const int64_t max_values = std::max<int64_t>(std::max(num_points, num_cells), 1) * std::max(components, 4);
     for (const char* p = text.data() + tag_end + 1; p < text.data() + end;) {
       while (p < text.data() + end && std::isspace(static_cast<unsigned char>(*p))) ++p;
       if (p >= text.data() + end) break;
       double v = 0.0;
       const auto [q, ec] = std::from_chars(p, text.data() + end, v);
       if (ec != std::errc()) fail_at(static_cast<size_t>(p - text.data()), fmt::format("bad number in array '{}'", name));
+      if (static_cast<int64_t>(values.size()) >= max_values) {
+        fail_at(pos, fmt::format("array '{}' has more values than the piece's counts allow", name));
+      }
       values.push_back(v);
       p = q;
     }
@@ -426,7 +448,13 @@ VtuData ReadVtu(const std::string& path) {
     } else if (inside(pos, cell_data)) {
       expect(num_cells);
       if (name == "region" && components == 1) {
-        data.mesh.regions.assign(values.begin(), values.end());
+        data.mesh.regions.resize(values.size());
+        for (size_t c = 0; c < values.size(); ++c) {
+          data.mesh.regions[c] = static_cast<int32_t>(
+              RequireIndex(values[c], INT32_MIN, INT32_MAX,
+                           SourceRef{.file = path, .line = line_at(pos), .field = fmt::format("region of cell {}", c + 1)},
+                           "region"));
+        }
       } else {
         data.cell_fields.push_back({name, components, std::move(values)});
       }
@@ -447,7 +475,9 @@ VtuData ReadVtu(const std::string& path) {
       ThrowInputError(SourceRef{.file = path, .field = fmt::format("cell {}", c + 1)}, "bad offsets/connectivity");
     }
     for (int k = 0; k < 4; ++k) {
-      data.mesh.tets(c, k) = static_cast<int32_t>(connectivity[static_cast<size_t>(4 * c + k)]);
+      data.mesh.tets(c, k) = static_cast<int32_t>(
+          RequireIndex(connectivity[static_cast<size_t>(4 * c + k)], 0, num_points - 1,
+                       SourceRef{.file = path, .field = fmt::format("cell {}", c + 1)}, "node index"));
     }
   }
   internal::FinishRead(data.mesh, path, {});

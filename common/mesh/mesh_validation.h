@@ -19,13 +19,31 @@ struct MeshOrigin {
   std::vector<int64_t> tet_lines;  ///< #T 1-based line of each tet in a text file.
 };
 
+/// Largest mesh any reader, generator or cut accepts: nodes and tets. Every
+/// reader and generator checks its counts against these before allocating.
+inline constexpr int64_t kMaxMeshNodes = 2'000'000;
+inline constexpr int64_t kMaxMeshTets = 10'000'000;
+
+/// Throws `InputError` naming `source_name` if `nodes` or `tets` is negative or
+/// exceeds kMaxMeshNodes / kMaxMeshTets.
+void CheckMeshSize(int64_t nodes, int64_t tets, std::string_view source_name);
+
 /// Throws `InputError` naming `source_name` and the offending node/element if
 /// `mesh` has: no tets, an index out of range, a NaN/Inf coordinate, a tet with
-/// zero or negative volume (|6V| ≤ 1e-12·ℓmax³ counts as zero), a node used
+/// zero or negative volume (|6V| ≤ 1e-12·ℓmax³ counts as zero), more nodes
+/// or tets than the caps above, a node used
 /// by no tet, a tet listed twice (same node set), a `regions` vector of the
 /// wrong length, or a face shared by more than two tets. O(N + T).
 void ValidateTetMesh(const TetMesh& mesh, std::string_view source_name,
                      const MeshOrigin& origin = {});
+
+/// Throws `InputError` naming `source_name` and the node or element if the
+/// mesh is not one whole piece of tissue: two nodes at exactly the same
+/// position (a crack, as a cut mesh written out has), or a fold (two tets
+/// sharing a face lie on the same side of it, so they overlap). For meshes a
+/// scene starts from; a cut mesh read back for inspection legitimately has
+/// coincident nodes. O(N log N + T log T).
+void CheckWholeMesh(const TetMesh& mesh, std::string_view source_name, const MeshOrigin& origin = {});
 
 /// Flips every tet with negative signed volume (swaps its nodes 1 and 2), for
 /// files written with the opposite orientation. Zero-volume tets are left for

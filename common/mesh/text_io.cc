@@ -11,37 +11,14 @@
 #include <fmt/format.h>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 
 namespace cutsim::mesh::internal {
 
-std::string ReadFileOrThrow(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) ThrowFileError(path, "cannot open mesh file: no such file");
-  if (std::filesystem::is_directory(path, ec)) ThrowFileError(path, "cannot open mesh file: is a directory");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) ThrowFileError(path, fmt::format("cannot open mesh file: {}", std::strerror(errno)));
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  if (in.bad()) ThrowFileError(path, "read error");
-  return std::move(ss).str();
-}
+std::string ReadFileOrThrow(const std::string& path) { return ReadInputFile(path, "mesh file"); }
 
 void WriteFileAtomically(const std::string& path, std::string_view content) {
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) ThrowFileError(path, fmt::format("cannot write: {}", std::strerror(errno)));
-    out.write(content.data(), static_cast<std::streamsize>(content.size()));
-    out.flush();
-    if (!out) {
-      std::error_code ec;
-      std::filesystem::remove(tmp, ec);
-      ThrowFileError(path, "write failed (disk full?)");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) ThrowFileError(path, fmt::format("cannot rename {} into place: {}", tmp, ec.message()));
+  cutsim::WriteFileAtomically(path, content);
 }
 
 Tokenizer::Tokenizer(std::string path, std::string text, bool hash_comments)
@@ -108,6 +85,11 @@ double Tokenizer::NextDouble(std::string_view what) {
     Fail(fmt::format("expected a number for {}, got '{}'", what, tok));
   }
   return value;
+}
+
+void Tokenizer::RequireCountFits(int64_t count, int64_t min_bytes_each, std::string_view what) const {
+  cutsim::RequireCountFits(count, min_bytes_each, bytes_left(),
+                           SourceRef{.file = path_, .line = token_line_ > 0 ? token_line_ : line_}, what);
 }
 
 void Tokenizer::Fail(std::string_view message) const {

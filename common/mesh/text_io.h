@@ -28,6 +28,11 @@ class Tokenizer {
   double NextDouble(std::string_view what);
   /// Line (1-based) of the last token returned.
   [[nodiscard]] int64_t line() const { return token_line_; }
+  /// Bytes not yet read, for checking a header's counts against the file.
+  [[nodiscard]] uint64_t bytes_left() const { return text_.size() - pos_; }
+  /// Throws (at the last token's line) unless `count` records of at least
+  /// `min_bytes_each` bytes fit in the rest of the file.
+  void RequireCountFits(int64_t count, int64_t min_bytes_each, std::string_view what) const;
   /// Skips the rest of the current line.
   void SkipLine();
   /// True if the next token is on the same line as the last one.

@@ -14,6 +14,7 @@
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 
 namespace cutsim::sim {
@@ -163,8 +164,9 @@ void CheckIdentity(const v1::CheckpointBody& b, const std::string& source, const
          fmt::format("checkpoint written in {} precision, this server runs {} (use --precision {})", b.precision(),
                      id.precision, b.precision()));
   }
-  if (!std::isfinite(b.sim_time()) || b.sim_time() < 0 || b.steps() < 0 || b.frames() < 0) {
-    Fail(source, "sim_time", "negative or non-finite time or counters");
+  if (!std::isfinite(b.sim_time()) || b.sim_time() < 0 || b.sim_time() > kMaxSimSeconds || b.steps() < 0 ||
+      b.frames() < 0) {
+    Fail(source, "sim_time", fmt::format("negative, non-finite or over {:g} s time, or negative counters", kMaxSimSeconds));
   }
   if (b.events_size() > 0 && target.cut == nullptr) {
     Fail(source, "events", "the scene has no cutting but the checkpoint has cuts");
@@ -185,6 +187,11 @@ std::vector<cutting::TopologyEvent> DryRunEvents(const v1::CheckpointBody& b, co
     events.push_back(EventFromProto(b.events(i), source, field));
     const cutting::TopologyEvent& e = events.back();
     if (e.version <= trial.version()) Fail(source, field + ".version", "versions must increase");
+    // Versions between events are replayed as empty events: bounded, so a
+    // forged version cannot make the restore loop for ever.
+    if (e.version > kMaxTopologyVersion) {
+      Fail(source, field + ".version", fmt::format("{} exceeds the limit {}", e.version, kMaxTopologyVersion));
+    }
     try {
       ReplayEvent(trial, e);
     } catch (const InputError& err) {
@@ -198,6 +205,9 @@ std::vector<cutting::TopologyEvent> DryRunEvents(const v1::CheckpointBody& b, co
         Fail(source, field + ".touched_nodes", fmt::format("node {} out of range", n));
       }
     }
+  }
+  if (b.topology_version() > kMaxTopologyVersion) {
+    Fail(source, "topology_version", fmt::format("{} exceeds the limit {}", b.topology_version(), kMaxTopologyVersion));
   }
   if (b.topology_version() < trial.version()) {
     Fail(source, "topology_version",
@@ -291,9 +301,7 @@ void WriteCheckpointFile(const std::filesystem::path& path, const v1::Checkpoint
 
 v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path) {
   const std::string source = path.string();
-  std::ifstream in(path, std::ios::binary);
-  if (!in) ThrowFileError(source, "cannot open the checkpoint");
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string bytes = ReadInputFile(source, "checkpoint", kMaxCheckpointBytes);
   v1::CheckpointFile file;
   if (bytes.empty() || !file.ParseFromString(bytes)) {
     ThrowInputError({.file = source}, "not a cutsim checkpoint (empty, truncated or not protobuf)");

@@ -108,6 +108,12 @@ void SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path);
 /// On an InputError nothing has been applied.
 void RestoreCheckpoint(Simulation& sim, const std::filesystem::path& path);
 
+/// Largest topology version a checkpoint may hold (events are replayed one
+/// version at a time on restore).
+inline constexpr uint64_t kMaxTopologyVersion = 10'000'000;
+/// Largest checkpoint file read, bytes (1 GiB).
+inline constexpr uint64_t kMaxCheckpointBytes = uint64_t{1} << 30;
+
 /// What the server does with `--checkpoint FILE --checkpoint-every S
 /// --resume`: restore at start when asked and the file exists, save every
 /// `every` wall seconds and at a clean exit. A failed periodic save is logged

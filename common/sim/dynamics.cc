@@ -4,6 +4,7 @@
 #include <type_traits>
 
 #include "common/core/log.h"
+#include "common/core/stop.h"
 
 namespace cutsim::sim {
 
@@ -65,6 +66,9 @@ fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, 
     remaining -= sub.dt;
     elapsed += sub.dt;
     if (sub.last) break;
+    // A stop request ends the frame after this sub-step: the state is the
+    // last completed sub-step's, so a shutdown never waits for a long frame.
+    if (StopRequested()) break;
   }
   if (tool) tool->ClearContactForce(state);
   return r;

@@ -215,6 +215,7 @@ void SceneFem<T>::SetStepOptions(const LoadedScene& scene, const SimulationOptio
   // a step takes microseconds and OpenMP's fork/barrier cost (worse on a
   // loaded machine) exceeds the work it would split.
   constexpr int32_t kParallelTets = 20000;
+  CheckThreads(options.threads, {.field = "threads"});
   threads_ = options.threads > 0                ? options.threads
              : s.time_step().threads() > 0      ? s.time_step().threads()
              : model_.num_tets() >= kParallelTets ? omp_get_num_procs()

@@ -2,14 +2,16 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
-#include <sstream>
+#include <numbers>
+#include <tuple>
 
 #include <fmt/format.h>
 #include <google/protobuf/io/tokenizer.h>
 #include <google/protobuf/text_format.h>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
+#include "common/mesh/generators.h"
 
 namespace cutsim::sim {
 namespace {
@@ -87,6 +89,8 @@ void ValidateMesh(cutsim::v1::MeshSource& mesh, const std::string& s) {
       if (b.nx() < 1 || b.ny() < 1 || b.nz() < 1) {
         FieldError(s, "mesh.box.nx/ny/nz", "cell counts must be >= 1");
       }
+      mesh::CheckGeneratedSize({.file = s, .field = "mesh.box.nx/ny/nz"},
+                               (b.nx() + 1.0) * (b.ny() + 1.0) * (b.nz() + 1.0), 6.0 * b.nx() * b.ny() * b.nz());
       break;
     }
     case MS::kCylinder: {
@@ -96,6 +100,9 @@ void ValidateMesh(cutsim::v1::MeshSource& mesh, const std::string& s) {
       if (c.segments() < 3) FieldError(s, "mesh.cylinder.segments", "must be >= 3");
       if (c.rings() < 1) FieldError(s, "mesh.cylinder.rings", "must be >= 1");
       if (c.slices() < 1) FieldError(s, "mesh.cylinder.slices", "must be >= 1");
+      mesh::CheckGeneratedSize({.file = s, .field = "mesh.cylinder.segments/rings/slices"},
+                               (1.0 + 0.5 * c.segments() * (c.rings() + 1.0)) * (c.slices() + 1.0),
+                               3.0 * c.segments() * (c.rings() + 1.0) * c.slices());
       break;
     }
     case MS::kSurface:
@@ -117,11 +124,18 @@ void ValidateMesh(cutsim::v1::MeshSource& mesh, const std::string& s) {
       if (o.edge_length() > smallest) {
         FieldError(s, "mesh.organ.edge_length", "must not exceed the smallest semi-axis");
       }
+      // A regular tet of edge h has volume h³/(6√2); the mesher's are smaller.
+      const double volume = 4.0 / 3.0 * std::numbers::pi * o.semi_axes().x() * o.semi_axes().y() * o.semi_axes().z();
+      const double tets = 2.0 * volume / (std::pow(o.edge_length(), 3) / (6.0 * std::numbers::sqrt2));
+      mesh::CheckGeneratedSize({.file = s, .field = "mesh.organ.edge_length"}, tets / 4.0, tets);
       break;
     }
   }
   if (mesh.scale() == 0.0) mesh.set_scale(1.0);
   RequirePositive(s, "mesh.scale", mesh.scale());
+  if (mesh.scale() < kMinScale || mesh.scale() > kMaxScale) {
+    FieldError(s, "mesh.scale", fmt::format("{:g} is outside [{:g}, {:g}]", mesh.scale(), kMinScale, kMaxScale));
+  }
   RequireFiniteVec(s, "mesh.translate", mesh.translate());
 }
 
@@ -220,6 +234,9 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
         break;
     }
     RequireFiniteVec(s, f + ".force", bc.force());
+    if (!v1::BoundaryCondition::Kind_IsValid(bc.kind())) {
+      FieldError(s, f + ".kind", fmt::format("unknown value {}", static_cast<int>(bc.kind())));
+    }
   }
 
   RequireFiniteVec(s, "gravity", scene.gravity());
@@ -228,13 +245,24 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   auto& ts = *scene.mutable_time_step();
   if (ts.safety_factor() == 0.0) ts.set_safety_factor(0.85);
   RequirePositive(s, "time_step.safety_factor", ts.safety_factor());
-  if (ts.safety_factor() > 1.0) {
-    FieldError(s, "time_step.safety_factor", "must be <= 1 (a fraction of the stable limit)");
+  if (ts.safety_factor() > 1.0 || ts.safety_factor() < kMinSafetyFactor) {
+    FieldError(s, "time_step.safety_factor",
+               fmt::format("{:g} is outside [{:g}, 1] (a fraction of the stable limit)", ts.safety_factor(),
+                           kMinSafetyFactor));
   }
   RequireNonNegative(s, "time_step.fixed_dt", ts.fixed_dt());
+  if (ts.fixed_dt() != 0.0 && ts.fixed_dt() < kMinFixedDt) {
+    FieldError(s, "time_step.fixed_dt",
+               fmt::format("{:g} s is below {:g} s (more than {:g} steps per simulated second)", ts.fixed_dt(),
+                           kMinFixedDt, kMaxStepsPerSimSecond));
+  }
   if (ts.frame_dt() == 0.0) ts.set_frame_dt(0.01);
   RequirePositive(s, "time_step.frame_dt", ts.frame_dt());
-  if (ts.threads() < 0) FieldError(s, "time_step.threads", "must be >= 0");
+  if (ts.frame_dt() < kMinFrameDt || ts.frame_dt() > kMaxFrameDt) {
+    FieldError(s, "time_step.frame_dt",
+               fmt::format("{:g} s is outside [{:g}, {:g}] s", ts.frame_dt(), kMinFrameDt, kMaxFrameDt));
+  }
+  CheckThreads(ts.threads(), {.file = s, .field = "time_step.threads"});
   if (!v1::TimeStepPolicy::Integrator_IsValid(ts.integrator())) {
     FieldError(s, "time_step.integrator", fmt::format("unknown value {}", static_cast<int>(ts.integrator())));
   }
@@ -277,6 +305,9 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
       const auto& k = tool.keyframes(i);
       const std::string f = fmt::format("tool.keyframes[{}]", i);
       RequireFinite(s, f + ".t", k.t());
+      if (std::abs(k.t()) > kMaxSimSeconds) {
+        FieldError(s, f + ".t", fmt::format("{:g} s is outside ±{:g} s", k.t(), kMaxSimSeconds));
+      }
       if (k.t() <= prev_t) FieldError(s, f + ".t", "times must increase strictly");
       prev_t = k.t();
       RequireFiniteVec(s, f + ".tip", k.tip());
@@ -303,25 +334,32 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
 
   auto& h = *scene.mutable_haptics();
   RequireNonNegative(s, "haptics.decay_per_second", h.decay_per_second());
-  if (h.watchdog() == 0.0) h.set_watchdog(0.05);
-  RequirePositive(s, "haptics.watchdog", h.watchdog());
-  RequireNonNegative(s, "haptics.max_force", h.max_force());
-  RequireNonNegative(s, "haptics.max_stiffness", h.max_stiffness());
   if (h.device_scale() == 0.0) h.set_device_scale(1.0);
   RequirePositive(s, "haptics.device_scale", h.device_scale());
   RequireFinite(s, "haptics.device_offset.x", h.device_offset().x());
   RequireFinite(s, "haptics.device_offset.y", h.device_offset().y());
   RequireFinite(s, "haptics.device_offset.z", h.device_offset().z());
+  // The haptic station sets its own limits (the scene never reaches it), so
+  // a scene that sets them would have no effect: refused, not ignored.
+  for (const auto& [field, value, flag] : {std::tuple{"haptics.watchdog", h.watchdog(), "--watchdog"},
+                                           std::tuple{"haptics.max_force", h.max_force(), "--max-force"},
+                                           std::tuple{"haptics.max_stiffness", h.max_stiffness(), "--max-stiffness"}}) {
+    if (value != 0.0) {
+      FieldError(s, field,
+                 fmt::format("is not read from the scene: set it on the haptic station (cutsim-haptic {})", flag));
+    }
+  }
+  if (scene.has_outputs()) {
+    FieldError(s, "outputs", "is not read from the scene: use cutsim-server --out (final state as .vtu)");
+  }
+  if (scene.has_camera()) {
+    FieldError(s, "camera", "is not read from the scene: the viewer frames the mesh's bounding box");
+  }
+}
 
-  if (scene.outputs().every_n_frames() < 0) FieldError(s, "outputs.every_n_frames", "must be >= 0");
-
-  auto& cam = *scene.mutable_camera();
-  if (cam.fov_deg() == 0.0) cam.set_fov_deg(40.0);
-  if (!(cam.fov_deg() > 1.0 && cam.fov_deg() < 179.0)) FieldError(s, "camera.fov_deg", "must lie in (1, 179)");
-  if (cam.width() == 0) cam.set_width(640);
-  if (cam.height() == 0) cam.set_height(480);
-  if (cam.width() < 16 || cam.height() < 16 || cam.width() > 8192 || cam.height() > 8192) {
-    FieldError(s, "camera.width/height", "must lie in [16, 8192]");
+void CheckThreads(int64_t threads, const SourceRef& where) {
+  if (threads < 0 || threads > kMaxThreads) {
+    ThrowInputError(where, fmt::format("{} threads: must lie in [0, {}] (0 = automatic)", threads, kMaxThreads));
   }
 }
 
@@ -344,13 +382,10 @@ LoadedScene ParseScene(const std::string& text, const std::string& source_name,
 }
 
 LoadedScene LoadScene(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) ThrowFileError(path.string(), "cannot open scene file");
-  std::ostringstream text;
-  text << in.rdbuf();
+  const std::string text = ReadInputFile(path.string(), "scene file", kMaxSceneFileBytes);
   std::filesystem::path base = path.parent_path();
   if (base.empty()) base = ".";
-  return ParseScene(text.str(), path.string(), base);
+  return ParseScene(text, path.string(), base);
 }
 
 }  // namespace cutsim::sim

@@ -8,9 +8,26 @@
 #include <filesystem>
 #include <string>
 
+#include "common/core/error.h"
 #include "cutsim/v1/scene.pb.h"
 
 namespace cutsim::sim {
+
+/// Limits a scene must respect (scenes/README.md, "Limits"). Each bounds the
+/// work a scene can ask for, so a valid-looking scene cannot run forever.
+inline constexpr int64_t kMaxThreads = 256;               ///< time_step.threads, --threads, recordings
+inline constexpr double kMinFrameDt = 1e-4;               ///< s, time_step.frame_dt
+inline constexpr double kMaxFrameDt = 1.0;                ///< s
+inline constexpr double kMinSafetyFactor = 0.01;          ///< time_step.safety_factor
+inline constexpr double kMaxStepsPerSimSecond = 1e7;      ///< explicit steps per simulated second
+inline constexpr double kMinFixedDt = 1.0 / kMaxStepsPerSimSecond;  ///< s, time_step.fixed_dt
+inline constexpr double kMinScale = 1e-6;                 ///< mesh.scale
+inline constexpr double kMaxScale = 1e6;
+inline constexpr double kMaxSimSeconds = 86400.0;         ///< s: --duration, --max-time, tool path ends
+inline constexpr uint64_t kMaxSceneFileBytes = uint64_t{16} << 20;  ///< 16 MiB
+
+/// Throws `InputError` at `where` unless 0 ≤ threads ≤ kMaxThreads.
+void CheckThreads(int64_t threads, const SourceRef& where);
 
 /// A loaded scene and where it came from.
 struct LoadedScene {

@@ -52,6 +52,9 @@ SceneMesh BuildSceneMesh(const LoadedScene& scene) {
     case MS::SOURCE_NOT_SET:
       ThrowInputError({.file = scene.path.string(), .field = "mesh"}, "no mesh source");
   }
+  if (src.source_case() == MS::kFile || src.source_case() == MS::kSurface) {
+    mesh::CheckWholeMesh(out.mesh, Resolve(scene, src.source_case() == MS::kFile ? src.file() : src.surface().file()));
+  }
   if (src.scale() != 1.0) out.mesh.nodes *= src.scale();
   out.mesh.nodes.rowwise() += ToEigen(src.translate()).transpose();
 

@@ -1,5 +1,7 @@
 #include "common/sim/simulation.h"
 
+#include <cmath>
+#include <new>
 #include <optional>
 #include <string>
 #include <type_traits>
@@ -187,20 +189,36 @@ class Engine final : public Simulation {
                                    const SimulationOptions& options) {
     const v1::TimeStepPolicy& ts = scene.scene.time_step();
     const v1::TimeStepPolicy::Integrator policy = IntegratorPolicy(ts.integrator(), options.integrator);
-    if (policy != v1::TimeStepPolicy::INTEGRATOR_AUTO) {
-      return ChooseIntegrator(policy, IntegratorCost{}, sizeof(T) == 8, scene.path.string());
-    }
     fem::State<T> probe = fem.state();  // the estimate leaves the run's state untouched
     const double stable_dt = static_cast<double>(fem::CurrentTimeStep(fem.model(), probe, fem.step_options()));
+    if (policy != v1::TimeStepPolicy::INTEGRATOR_AUTO) {
+      const IntegratorKind kind = ChooseIntegrator(policy, IntegratorCost{}, sizeof(T) == 8, scene.path.string());
+      if (kind != IntegratorKind::kImplicit) CheckStepBudget(scene, stable_dt);
+      return kind;
+    }
     const IntegratorCost cost = EstimateFrameCost(mesh.mesh.num_tets(), StiffnessNonzeros(mesh.mesh.tets, mesh.mesh.num_nodes()),
                                                   ts.frame_dt(), stable_dt);
     const IntegratorKind kind = ChooseIntegrator(policy, cost, sizeof(T) == 8, scene.path.string());
+    if (kind != IntegratorKind::kImplicit) CheckStepBudget(scene, stable_dt);
     Log().info("integrator AUTO: explicit {:.3g} ms/frame ({} substeps of {:.3g} s), implicit {:.3g} ms/frame "
                "({} nonzeros) → {}{}",
                1e3 * cost.explicit_seconds, static_cast<int64_t>(std::ceil(ts.frame_dt() / stable_dt)), stable_dt,
                1e3 * cost.implicit_seconds, cost.nnz, IntegratorName(kind),
                sizeof(T) == 8 ? "" : " (float precision: implicit needs double)");
     return kind;
+  }
+
+  /// Refuses an explicit run whose substep `dt` (s) would need more than
+  /// kMaxStepsPerSimSecond steps per simulated second: such a scene would run
+  /// for days, a frame at a time, without a word.
+  static void CheckStepBudget(const LoadedScene& scene, double dt) {
+    const double steps = 1.0 / dt;
+    if (std::isfinite(steps) && dt > 0.0 && steps <= kMaxStepsPerSimSecond) return;
+    ThrowInputError({.file = scene.path.string(), .field = "materials"},
+                    fmt::format("this scene needs ~{:.0e} steps per second of simulation (stable step {:.3g} s; the "
+                                "limit is {:.0e}): E or ν is out of range for explicit integration (or use "
+                                "INTEGRATOR_IMPLICIT)",
+                                std::isfinite(steps) && dt > 0.0 ? steps : HUGE_VAL, dt, kMaxStepsPerSimSecond));
   }
 
   /// The load-time stage: static equilibrium under the scene's loads.
@@ -356,12 +374,24 @@ class Engine final : public Simulation {
 }  // namespace
 
 std::unique_ptr<Simulation> Simulation::Create(const LoadedScene& scene, const SimulationOptions& options) {
-  SceneMesh scene_mesh = BuildSceneMesh(scene);
-  const bool use_float = options.precision.empty()
-                             ? scene.scene.time_step().precision() == v1::TimeStepPolicy::PRECISION_FLOAT
-                             : options.precision == "float";
-  if (use_float) return std::make_unique<Engine<float>>(scene, std::move(scene_mesh), options);
-  return std::make_unique<Engine<double>>(scene, std::move(scene_mesh), options);
+  // Mesh sizes are capped before this point, so running out of memory here is
+  // the machine's limit: said with the scene and the mesh it was building.
+  int64_t nodes = -1, tets = -1;
+  try {
+    SceneMesh scene_mesh = BuildSceneMesh(scene);
+    nodes = scene_mesh.mesh.num_nodes();
+    tets = scene_mesh.mesh.num_tets();
+    const bool use_float = options.precision.empty()
+                               ? scene.scene.time_step().precision() == v1::TimeStepPolicy::PRECISION_FLOAT
+                               : options.precision == "float";
+    if (use_float) return std::make_unique<Engine<float>>(scene, std::move(scene_mesh), options);
+    return std::make_unique<Engine<double>>(scene, std::move(scene_mesh), options);
+  } catch (const std::bad_alloc&) {
+    ThrowInputError({.file = scene.path.string(), .field = "mesh"},
+                    nodes < 0 ? std::string("out of memory building the mesh")
+                              : fmt::format("out of memory setting up the simulation of {} nodes and {} tets", nodes,
+                                            tets));
+  }
 }
 
 }  // namespace cutsim::sim

@@ -1,6 +1,7 @@
 #include "common/transport/lcm_bus.h"
 
 #include <algorithm>
+#include <charconv>
 #include <arpa/inet.h>
 #include <cstring>
 #include <fstream>
@@ -60,6 +61,69 @@ std::optional<UdpmTarget> ParseUdpm(std::string_view url) {
   }
   return target;
 }
+
+}  // namespace
+
+void ValidateLcmUrl(std::string_view url, std::string_view field) {
+  auto fail = [&](std::string_view why) {
+    ThrowInputError(SourceRef{.field = std::string(field)},
+                    fmt::format("invalid LCM URL \"{}\": {}; e.g. {} or memq://", url, why, kDefaultLcmUrl));
+  };
+  const size_t scheme_end = url.find("://");
+  if (url.empty() || scheme_end == std::string_view::npos || scheme_end == 0) {
+    fail("expected provider://address?options");
+  }
+  const std::string_view provider = url.substr(0, scheme_end);
+  std::string_view rest = url.substr(scheme_end + 3);
+  const size_t q = rest.find('?');
+  const std::string_view address = rest.substr(0, q);
+  const std::string_view options = q == std::string_view::npos ? std::string_view() : rest.substr(q + 1);
+  auto parse_int = [&](std::string_view text, int64_t lo, int64_t hi, std::string_view what) {
+    int64_t v = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+    if (text.empty() || ec != std::errc() || end != text.data() + text.size() || v < lo || v > hi) {
+      fail(fmt::format("{} \"{}\" is not an integer in [{}, {}]", what, text, lo, hi));
+    }
+    return v;
+  };
+  auto check_port = [&](std::string_view host_port, bool need_multicast) {
+    const size_t colon = host_port.rfind(':');
+    const std::string_view host = host_port.substr(0, colon);
+    if (colon != std::string_view::npos) parse_int(host_port.substr(colon + 1), 1, 65535, "port");
+    if (need_multicast && !host.empty()) {
+      in_addr addr{};
+      if (inet_aton(std::string(host).c_str(), &addr) == 0 || (ntohl(addr.s_addr) >> 28) != 0xE) {
+        fail(fmt::format("\"{}\" is not an IPv4 multicast group (224.0.0.0/4)", host));
+      }
+    }
+  };
+  if (provider == "udpm") {
+    check_port(address, /*need_multicast=*/true);
+    size_t start = 0;
+    while (start < options.size()) {
+      const size_t amp = options.find('&', start);
+      const std::string_view opt = options.substr(start, amp == std::string_view::npos ? amp : amp - start);
+      const size_t eq = opt.find('=');
+      const std::string_view key = opt.substr(0, eq);
+      const std::string_view value = eq == std::string_view::npos ? std::string_view() : opt.substr(eq + 1);
+      if (key == "ttl") {
+        parse_int(value, 0, 255, "ttl");
+      } else if (key == "recv_buf_size") {
+        parse_int(value, 1, int64_t{1} << 30, "recv_buf_size");
+      } else {
+        fail(fmt::format("unknown udpm option \"{}\" (ttl, recv_buf_size)", key));
+      }
+      if (amp == std::string_view::npos) break;
+      start = amp + 1;
+    }
+  } else if (provider == "tcpq") {
+    check_port(address, /*need_multicast=*/false);
+  } else if (provider != "memq" && provider != "file" && provider != "mpudpm") {
+    fail(fmt::format("unknown provider \"{}\" (udpm, mpudpm, memq, tcpq, file)", provider));
+  }
+}
+
+namespace {
 
 /// Interface of the longest-prefix IPv4 route for `group` in /proc/net/route
 /// (empty if none or unreadable).
@@ -200,12 +264,7 @@ const DecodeError& LcmSubscription::last_error() const {
 
 LcmBus::LcmBus(std::string_view url, size_t max_payload_bytes)
     : url_(url), max_payload_bytes_(max_payload_bytes) {
-  if (url_.empty() || url_.find("://") == std::string::npos) {
-    ThrowInputError(SourceRef{.field = "--lcm-url"},
-                    fmt::format("invalid LCM URL \"{}\": expected provider://address?options, "
-                                "e.g. {} or memq://",
-                                url_, kDefaultLcmUrl));
-  }
+  ValidateLcmUrl(url_);
   lcm_ = lcm_create(url_.c_str());
   if (lcm_ == nullptr) {
     ThrowInputError(SourceRef{.field = "--lcm-url"},

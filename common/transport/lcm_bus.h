@@ -48,6 +48,13 @@
 
 namespace cutsim::transport {
 
+/// Throws `InputError` naming `field` unless `url` is a URL LCM can open
+/// without aborting: provider://address?options; for udpm an IPv4 multicast
+/// group, a port in [1, 65535], ttl in [0, 255] and recv_buf_size > 0 (no
+/// other options); for tcpq a port in [1, 65535]; providers udpm, mpudpm,
+/// memq, tcpq, file. `LcmBus` calls it before `lcm_create`.
+void ValidateLcmUrl(std::string_view url, std::string_view field = "--lcm-url");
+
 class LcmBus;
 
 /// Counters of one subscription.

@@ -2,17 +2,24 @@
 /// @file
 /// Prints the applications' reports (cutsim/v1/report.proto) as one-line
 /// JSON with protobuf's printer: field names as in the .proto, every field
-/// present, strings escaped and non-finite doubles as "NaN" / "Infinity", so
-/// the output is always valid JSON.
+/// present, strings escaped (quotes, control characters, newlines), invalid
+/// UTF-8 replaced by U+FFFD, and non-finite doubles as the strings "NaN",
+/// "Infinity", "-Infinity", so the output is valid JSON for any input. Every
+/// JSON the applications print comes from here.
 
 #include <concepts>
 #include <cstdint>
 #include <limits>
 #include <string>
+#include <string_view>
 
 #include <google/protobuf/message.h>
 
 namespace cutsim::transport {
+
+/// `text` with every byte that is not part of a valid UTF-8 sequence
+/// (overlong forms and surrogates included) replaced by U+FFFD.
+[[nodiscard]] std::string ValidUtf8(std::string_view text);
 
 /// The report as compact one-line JSON (no trailing newline). Never throws;
 /// "{}" if the printer fails (it does not for the report messages).

@@ -18,6 +18,7 @@
 #include <openssl/params.h>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/core/log.h"
 
 namespace cutsim::transport {
@@ -101,16 +102,14 @@ SessionKey ParseSessionKey(std::string_view text, std::string_view source) {
 
 std::optional<SessionKey> LoadSessionKey(const std::string& key_file) {
   if (!key_file.empty()) {
-    std::ifstream in(key_file);
-    if (!in) ThrowFileError(key_file, "cannot read the session key file");
+    // A key is 64 hex digits: 4 KiB is generous, and /dev/zero is refused.
+    const std::string text = ReadInputFile(key_file, "session key file", 4096);
     struct stat st{};
     if (::stat(key_file.c_str(), &st) == 0 && (st.st_mode & (S_IRWXG | S_IRWXO)) != 0) {
       Log().warn("{}: the session key file is accessible to group or others (chmod 600 it)",
                  key_file);
     }
-    std::stringstream text;
-    text << in.rdbuf();
-    return ParseSessionKey(text.str(), key_file);
+    return ParseSessionKey(text, key_file);
   }
   if (const char* env = std::getenv(kSessionKeyEnv); env != nullptr && *env != '\0') {
     return ParseSessionKey(env, std::string("$") + kSessionKeyEnv);

@@ -11,6 +11,9 @@
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -173,6 +176,65 @@ TEST(ReplayTest, TamperedRecordingsAreReportedAsMismatches) {
   r = Replay(truncated);
   EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
   EXPECT_NE(r.err.find("no end event"), std::string::npos) << r.err;
+}
+
+// Hostile recordings are bad input (exit 2, the file and event named), never
+// a hang, a crash or a match: absurd frame times, a 2 GB event length, an
+// absurd thread count, a scene that is a device.
+TEST(ReplayTest, HostileRecordingsAreRefusedNamingTheEvent) {
+  const auto events = ReadAll(kRecording);
+  TempDir dir("cutsim-replay-hostile");
+  for (const double t : {std::numeric_limits<double>::quiet_NaN(), -0.01, 0.0, 1e300}) {
+    const std::string path = dir.path() + "/frame-time.lcm";
+    bool edited = false;
+    WriteEdited(events, path, [&](transport::LcmLogEvent& e) {
+      if (edited || !EndsWith(e.channel, "_REC_FRAME")) return;
+      auto f = Parse<v1::RecordFrame>(e);
+      f.set_frame_time(t);
+      Reencode(f, &e);
+      edited = true;
+    });
+    const auto r = Replay(path);
+    EXPECT_EQ(r.exit_code, 2) << t << ": " << r.out << r.err;
+    EXPECT_NE(r.err.find("RecordFrame.frame_time"), std::string::npos) << t << ": " << r.err;
+    EXPECT_EQ(r.out.find("\"match\":true"), std::string::npos) << r.out;
+  }
+  {
+    const std::string path = dir.path() + "/threads.lcm";
+    WriteEdited(events, path, [&](transport::LcmLogEvent& e) {
+      if (!EndsWith(e.channel, "_REC_HEADER")) return;
+      auto h = Parse<v1::RecordHeader>(e);
+      h.set_threads(70000);
+      Reencode(h, &e);
+    });
+    const auto r = Replay(path);
+    EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+    EXPECT_NE(r.err.find("RecordHeader.threads"), std::string::npos) << r.err;
+  }
+  {
+    // The second event claims 2 GB of data.
+    const std::string path = dir.path() + "/huge-event.lcm";
+    WriteEdited(events, path, [](transport::LcmLogEvent&) {});
+    std::string bytes;
+    {
+      std::ifstream in(path, std::ios::binary);
+      bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    const size_t second = 28 + events[0].channel.size() + events[0].data.size();
+    for (int i = 0; i < 4; ++i) bytes[second + 24 + static_cast<size_t>(i)] = i == 0 ? '\x7f' : '\xff';
+    std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
+    const auto r = Replay(path);
+    EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+    EXPECT_NE(r.err.find("event 1"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("2147483647"), std::string::npos) << r.err;
+  }
+  {
+    const auto r = RunProcess({BinPath("cutsim-server"), "--headless", "--replay", kRecording, "--scene", "/dev/zero",
+                               "--log-level", "warn"},
+                              60s);
+    EXPECT_EQ(r.exit_code, 2) << r.out << r.err;
+    EXPECT_NE(r.err.find("only regular files"), std::string::npos) << r.err;
+  }
 }
 
 // lcm-logplayer (Debian liblcm-bin) plays the recording on udpm; lcm-logger

@@ -222,6 +222,29 @@ TEST_F(CheckpointTest, BadEventsAreRefusedBeforeAnythingIsApplied) {
   ExpectSameTissue(original, *fresh);
 }
 
+TEST_F(CheckpointTest, HugeVersionsAndTimesAreRefusedWithoutReplayingThem) {
+  const v1::CheckpointBody body = CutSim().CheckpointState();
+  ASSERT_GE(body.events_size(), 1);
+  // A valid checksum over an event version of 2^62: the empty versions in
+  // between would be replayed one by one for ever.
+  v1::CheckpointBody bad = body;
+  bad.mutable_events(bad.events_size() - 1)->set_version(uint64_t{1} << 62);
+  bad.set_topology_version(uint64_t{1} << 62);
+  WriteCheckpointFile(dir_ / "huge-version.ckpt", bad);
+  auto fresh = Make(BlockScene());
+  InputError e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "huge-version.ckpt"); });
+  EXPECT_NE(e.source().field.find(".version"), std::string::npos) << e.what();
+  EXPECT_NE(std::string(e.what()).find("limit"), std::string::npos) << e.what();
+  bad = body;
+  bad.set_sim_time(1e300);
+  WriteCheckpointFile(dir_ / "huge-time.ckpt", bad);
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "huge-time.ckpt"); });
+  EXPECT_EQ(e.source().field, "sim_time") << e.what();
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, "/dev/zero"); });
+  EXPECT_NE(std::string(e.what()).find("only regular files"), std::string::npos) << e.what();
+  EXPECT_EQ(fresh->topology_version(), 0u);
+}
+
 TEST_F(CheckpointTest, ForeignScenesAreRefused) {
   const Simulation& original = CutSim();
   const auto file = dir_ / "block.ckpt";

@@ -31,9 +31,6 @@ TEST(SceneLoaderTest, MinimalSceneGetsDefaults) {
   EXPECT_DOUBLE_EQ(s.scene.time_step().safety_factor(), 0.85);
   EXPECT_DOUBLE_EQ(s.scene.time_step().frame_dt(), 0.01);
   EXPECT_DOUBLE_EQ(s.scene.mesh().scale(), 1.0);
-  EXPECT_EQ(s.scene.camera().width(), 640);
-  EXPECT_DOUBLE_EQ(s.scene.haptics().watchdog(), 0.05);
-  EXPECT_DOUBLE_EQ(s.scene.haptics().device_scale(), 1.0);
 }
 
 TEST(SceneLoaderTest, DeviceWorkspaceIsChecked) {

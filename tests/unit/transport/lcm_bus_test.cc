@@ -31,6 +31,25 @@ v1::ToolState Tool(const std::string& session, uint64_t seq) {
   return t;
 }
 
+TEST(LcmBusTest, BadUrlsAreInputErrorsNotAborts) {
+  for (const char* url : {"udpm://239.255.76.67:0", "udpm://239.255.76.67:65536", "udpm://239.255.76.67:-1",
+                          "udpm://239.255.76.67:7667?ttl=256", "udpm://239.255.76.67:7667?ttl=x",
+                          "udpm://10.0.0.1:7667", "udpm://239.255.76.67:7667?bogus=1", "tcpq://127.0.0.1:0",
+                          "nosuch://x", "udpm:/x", ""}) {
+    try {
+      ValidateLcmUrl(url);
+      ADD_FAILURE() << url << " accepted";
+    } catch (const InputError& e) {
+      EXPECT_EQ(e.source().field, "--lcm-url") << url;
+    }
+    EXPECT_THROW(LcmBus{url}, InputError) << url;
+  }
+  for (const char* url : {"udpm://239.255.76.67:7667?ttl=0", "udpm://239.255.76.67:7667?ttl=1&recv_buf_size=65536",
+                          "memq://", "udpm://"}) {
+    EXPECT_NO_THROW(ValidateLcmUrl(url)) << url;
+  }
+}
+
 TEST(LcmBusTest, PublishSubscribeRoundTripOverMemq) {
   LcmBus bus("memq://");
   const std::string session = testing::UniqueSession("lcm");

@@ -46,11 +46,16 @@ TEST(ReportJsonTest, OneLineWithProtoFieldNamesAndEveryField) {
   // Field names as written in the .proto, not lowerCamelCase.
   EXPECT_NE(json.find("\"frame_time_p99_ms\":0"), std::string::npos) << json;
   EXPECT_EQ(json.find("frameTimeP99Ms"), std::string::npos) << json;
-  // Zero counts, false and empty strings are printed too.
+  // Zero counts, false and empty strings are printed too; a message field
+  // (the measures, the score) is printed when the report carries it.
   const auto* d = v1::ServerSessionStats::descriptor();
   for (int i = 0; i < d->field_count(); ++i) {
+    if (d->field(i)->type() == google::protobuf::FieldDescriptor::TYPE_MESSAGE) continue;
     EXPECT_NE(json.find("\"" + d->field(i)->name() + "\":"), std::string::npos) << d->field(i)->name();
   }
+  v1::ServerSessionStats with_score;
+  with_score.mutable_score();
+  EXPECT_NE(ReportJson(with_score).find("\"score\":{\"cut_points\":0"), std::string::npos) << ReportJson(with_score);
 }
 
 TEST(ReportJsonTest, CountsAreJsonNumbersNotStrings) {
@@ -79,6 +84,30 @@ TEST(ReportJsonTest, NonFiniteNumbersAndOddStringsStayValidJson) {
   EXPECT_EQ(parsed.diagnosis(), s.diagnosis());
   EXPECT_TRUE(std::isnan(parsed.kinetic_energy()));
   EXPECT_TRUE(std::isinf(parsed.residual_force()));
+}
+
+TEST(ReportJsonTest, InvalidUtf8NamesBecomeReplacementCharacters) {
+  v1::ViewerSummary v = SampleSummary();
+  // A lone continuation byte, a truncated sequence, an overlong '/', a
+  // surrogate and a byte that never starts UTF-8, around valid text.
+  v.set_session(std::string("lab\x80-\xE2\x82-\xC0\xAF-\xED\xA0\x80-\xFF \"q\"\n\xC3\xA9"));
+  v.set_exit_reason(std::string("\0nul", 4));
+  const std::string json = ReportJson(v);
+  ASSERT_NE(json, "{}") << "the printer refused the message";
+  v1::ViewerSummary parsed;
+  ASSERT_TRUE(google::protobuf::util::JsonStringToMessage(json, &parsed).ok()) << json;
+  EXPECT_EQ(parsed.session().rfind("lab\xEF\xBF\xBD", 0), 0u) << parsed.session();
+  EXPECT_NE(parsed.session().find("\"q\"\n\xC3\xA9"), std::string::npos) << "valid text is kept";
+  EXPECT_EQ(parsed.session(), ValidUtf8(parsed.session())) << "the result is valid UTF-8";
+  EXPECT_EQ(parsed.exit_reason(), v.exit_reason());
+  EXPECT_EQ(parsed.frames(), v.frames());
+}
+
+TEST(ReportJsonTest, ValidUtf8KeepsValidTextAndReplacesEachBadByte) {
+  EXPECT_EQ(ValidUtf8("plain ascii"), "plain ascii");
+  EXPECT_EQ(ValidUtf8("\xF0\x9F\x94\xAA knife"), "\xF0\x9F\x94\xAA knife");
+  EXPECT_EQ(ValidUtf8("a\xFF" "b"), "a\xEF\xBF\xBD" "b");
+  EXPECT_EQ(ValidUtf8("\xE2\x82"), "\xEF\xBF\xBD\xEF\xBF\xBD");
 }
 
 TEST(ReportJsonTest, ReportCountSaturatesInsteadOfWrapping) {

@@ -1,0 +1,216 @@
+// Hostile mesh and surface files: every reader checks indices before use,
+// counts against the bytes present, values for finiteness and sizes against
+// the caps, and names the file and element.
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include "common/core/error.h"
+#include "common/mesh/generators.h"
+#include "common/mesh/mesh_io.h"
+#include "common/mesh/mesh_validation.h"
+#include "tests/unit/mesh/test_util.h"
+
+namespace cutsim::mesh {
+namespace {
+
+using testing::TempDir;
+
+void WriteText(const std::string& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
+
+template <typename Fn>
+std::string ErrorOf(Fn&& fn) {
+  try {
+    fn();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+/// A one-tet .vtu whose connectivity is `conn`.
+std::string OneTetVtu(const std::string& conn) {
+  return fmt::format(
+      "<VTKFile type=\"UnstructuredGrid\" version=\"1.0\">\n<UnstructuredGrid>\n"
+      "<Piece NumberOfPoints=\"4\" NumberOfCells=\"1\">\n<Points>\n"
+      "<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">0 0 0 1 0 0 0 1 0 0 0 1</DataArray>\n"
+      "</Points>\n<Cells>\n"
+      "<DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">{}</DataArray>\n"
+      "<DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">4</DataArray>\n"
+      "<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">10</DataArray>\n"
+      "</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n",
+      conn);
+}
+
+TEST(HostileMesh, VtuConnectivityIsCheckedBeforeTheTetsAreOriented) {
+  TempDir dir;
+  const std::string path = dir.File("t.vtu");
+  WriteText(path, OneTetVtu("0 1 2 3"));
+  EXPECT_EQ(ReadVtu(path).mesh.num_tets(), 1);
+  for (const char* conn : {"0 1 2 4", "0 1 2 -1", "0 1 2 nan", "0 1 2 1e20", "0 1 2 -1e20", "0 1 2 2.5",
+                           "0 1 2 2147483648", "0 1 2 inf"}) {
+    WriteText(path, OneTetVtu(conn));
+    const std::string what = ErrorOf([&] { (void)ReadVtu(path); });
+    EXPECT_NE(what.find("cell 1"), std::string::npos) << conn << ": " << what;
+    EXPECT_NE(what.find("node index"), std::string::npos) << conn << ": " << what;
+  }
+}
+
+TEST(HostileMesh, VtuHeaderCountsAreCapped) {
+  TempDir dir;
+  const std::string path = dir.File("t.vtu");
+  std::string text = OneTetVtu("0 1 2 3");
+  text.replace(text.find("NumberOfPoints=\"4\""), 18, "NumberOfPoints=\"100000000000\"");
+  WriteText(path, text);
+  EXPECT_NE(ErrorOf([&] { (void)ReadVtu(path); }).find("limited to"), std::string::npos);
+}
+
+TEST(HostileMesh, TetGenCountsAreCheckedAgainstTheFileSize) {
+  TempDir dir;
+  // 20 bytes claiming 10^8 nodes: refused before any allocation.
+  WriteText(dir.File("m.node"), "100000000 3 0 0\n1 0");
+  WriteText(dir.File("m.ele"), "1 4 0\n1 1 2 3 4\n");
+  const std::string what = ErrorOf([&] { (void)ReadTetGen(dir.File("m.node")); });
+  EXPECT_NE(what.find("m.node:1"), std::string::npos) << what;
+  EXPECT_NE(what.find("cannot fit"), std::string::npos) << what;
+  WriteText(dir.File("m.node"), "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n");
+  WriteText(dir.File("m.ele"), "2000000000 4 0\n1 1 2 3 4\n");
+  EXPECT_NE(ErrorOf([&] { (void)ReadTetGen(dir.File("m.node")); }).find("m.ele:1"), std::string::npos);
+}
+
+TEST(HostileMesh, MeditCountsAreCheckedAgainstTheFileSize) {
+  TempDir dir;
+  const std::string path = dir.File("m.mesh");
+  WriteText(path, "MeshVersionFormatted 2\nDimension 3\nVertices\n100000000\n0 0 0 1\n");
+  EXPECT_NE(ErrorOf([&] { (void)ReadMedit(path); }).find("cannot fit"), std::string::npos);
+  // A skipped section whose count times its width overflows.
+  WriteText(path, "MeshVersionFormatted 2\nDimension 3\nTriangles\n4611686018427387904\n");
+  EXPECT_NE(ErrorOf([&] { (void)ReadMedit(path); }).find("cannot fit"), std::string::npos);
+}
+
+// Found by the mesh fuzzer: libgmsh dereferences an element's node that the
+// file never defines and crashes. The node references are checked first.
+TEST(HostileMesh, MshElementNamingAnUndefinedNodeIsRefusedBeforeGmsh) {
+  TempDir dir;
+  const std::string path = dir.File("u.msh");
+  WriteText(path,
+            "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n$EndNodes\n"
+            "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
+  const std::string what = ErrorOf([&] { (void)ReadGmsh(path); });
+  EXPECT_NE(what.find("u.msh:12"), std::string::npos) << what;
+  EXPECT_NE(what.find("node 4"), std::string::npos) << what;
+  // The node count disagreeing with the lines (the fuzzer's input).
+  WriteText(path,
+            "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 1 00\n$EndNodes\n"
+            "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
+  EXPECT_NE(ErrorOf([&] { (void)ReadGmsh(path); }).find("$EndNodes"), std::string::npos);
+}
+
+TEST(HostileMesh, NonRegularFilesAreRefusedByEveryReader) {
+  TempDir dir;
+  for (const std::string ext : {".msh", ".mesh", ".vtu", ".node"}) {
+    const std::string p = dir.File("d" + ext);  // a directory named like a mesh
+    std::filesystem::create_directories(p);
+    const std::string what = ErrorOf([&] { (void)ReadMesh(p); });
+    EXPECT_NE(what.find("only regular files"), std::string::npos) << p << ": " << what;
+  }
+  EXPECT_NE(ErrorOf([] { (void)ReadVtu("/dev/zero"); }).find("character device"), std::string::npos);
+  EXPECT_NE(ErrorOf([] { (void)TetrahedralizeSurface("/dev/zero", 0.01); }).find("only regular files"),
+            std::string::npos);
+}
+
+TEST(HostileSurface, ObjWithANanVertexIsRefusedBeforeGmsh) {
+  TempDir dir;
+  const std::string path = dir.File("s.obj");
+  WriteText(path, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 2 3\nf 1 2 4\nf 2 3 4\nf 1 3 4\n");
+  const std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.1); });
+  EXPECT_NE(what.find("s.obj:4"), std::string::npos) << what;
+  EXPECT_NE(what.find("NaN or infinite"), std::string::npos) << what;
+}
+
+TEST(HostileSurface, StlWithANanVertexIsRefusedBeforeGmsh) {
+  TempDir dir;
+  const std::string ascii = dir.File("s.stl");
+  WriteText(ascii,
+            "solid x\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 nan 0\n"
+            "  endloop\n endfacet\nendsolid x\n");
+  std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(ascii, 0.1); });
+  EXPECT_NE(what.find("s.stl:6"), std::string::npos) << what;
+  // Binary: header, count 1, normal, three vertices (one NaN), attribute.
+  std::string bin(80, ' ');
+  const uint32_t count = 1;
+  bin.append(reinterpret_cast<const char*>(&count), 4);
+  float tri[12] = {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, std::nanf(""), 0};
+  bin.append(reinterpret_cast<const char*>(tri), sizeof(tri));
+  bin.append(2, '\0');
+  WriteText(dir.File("b.stl"), bin);
+  what = ErrorOf([&] { (void)TetrahedralizeSurface(dir.File("b.stl"), 0.1); });
+  EXPECT_NE(what.find("triangle 1"), std::string::npos) << what;
+  // A binary file whose triangle count disagrees with its size.
+  bin.resize(bin.size() - 10);
+  WriteText(dir.File("c.stl"), bin);
+  EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(dir.File("c.stl"), 0.1); }).find("binary STL"),
+            std::string::npos);
+}
+
+// Found by the surface fuzzer: gmsh reads a "solid" file it cannot parse as
+// ASCII as binary, taking a triangle count from bytes 80–83, and allocates
+// gigabytes. Only well-formed ASCII STL reaches gmsh.
+TEST(HostileSurface, MalformedAsciiStlIsRefusedBeforeGmshReadsItAsBinary) {
+  TempDir dir;
+  const std::string path = dir.File("m.stl");
+  WriteText(path, "solid t\n facet normal 0 0 0\n  o" + std::string(90, 'u') + "ter \nv l0 0");
+  const std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); });
+  EXPECT_NE(what.find("m.stl:3"), std::string::npos) << what;
+  EXPECT_NE(what.find("not an ASCII STL keyword"), std::string::npos) << what;
+  WriteText(path, "solid t\nendsolid t\n");
+  EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); }).find("at least one facet"), std::string::npos);
+}
+
+TEST(HostileMesh, GeneratorSizesAreCappedBeforeAnyArithmeticOverflows) {
+  const std::string what = ErrorOf([] { (void)MakeBox({0, 0, 0}, {1, 1, 1}, 2147483647, 1, 1); });
+  EXPECT_NE(what.find("limited to"), std::string::npos) << what;
+  EXPECT_THROW((void)MakeBox({0, 0, 0}, {1, 1, 1}, 1000, 1000, 1000), InputError);
+  EXPECT_THROW((void)MakeCylinder(1, 1, 2147483647, 2147483647, 2147483647), InputError);
+}
+
+TEST(HostileMesh, CoincidentNodesAreRefusedNamingTheNode) {
+  // Two tets sharing a face geometrically, but with the face's nodes doubled.
+  TetMesh m;
+  m.nodes.resize(8, 3);
+  m.nodes << 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1,  //
+      0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, -1;
+  m.tets.resize(2, 4);
+  m.tets << 0, 1, 2, 3, 4, 6, 5, 7;
+  const std::string what = ErrorOf([&] { CheckWholeMesh(m, "two.mesh"); });
+  EXPECT_NE(what.find("node 5"), std::string::npos) << what;
+  EXPECT_NE(what.find("coincident"), std::string::npos) << what;
+}
+
+TEST(HostileMesh, FoldedMeshIsRefusedNamingTheTet) {
+  // Both tets on the same side of their shared face (0, 1, 2): they overlap.
+  TetMesh m;
+  m.nodes.resize(5, 3);
+  m.nodes << 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0.2, 0.2, 0.5;
+  m.tets.resize(2, 4);
+  m.tets << 0, 1, 2, 3, 0, 1, 2, 4;
+  const std::string what = ErrorOf([&] { CheckWholeMesh(m, "fold.mesh"); });
+  EXPECT_NE(what.find("element 2"), std::string::npos) << what;
+  EXPECT_NE(what.find("folded"), std::string::npos) << what;
+  // Unfolded: the second tet below the face.
+  m.nodes(4, 2) = -0.5;
+  m.tets.row(1) << 0, 2, 1, 4;
+  EXPECT_NO_THROW(ValidateTetMesh(m, "ok.mesh"));
+  EXPECT_NO_THROW(CheckWholeMesh(m, "ok.mesh"));
+}
+
+}  // namespace
+}  // namespace cutsim::mesh
