@@ -262,6 +262,9 @@ class TraineeHttp : public std::enable_shared_from_this<TraineeHttp> {
     }
     server_.busy = true;
     stream_.expires_never();
+    // Small frames at 60 Hz: send each at once rather than wait for an ACK.
+    beast::error_code ignored;
+    stream_.socket().set_option(tcp::no_delay(true), ignored);
     std::make_shared<TraineeSession>(server_, std::move(stream_))->Run(std::move(req));
   }
 

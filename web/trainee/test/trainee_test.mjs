@@ -130,15 +130,19 @@ async function main() {
   let bench = null;
   if (args.bench > 0) {
     await page.evaluate(() => { window.trainee.stats.latencyMs = []; window.trainee.stats.pending = []; });
+    const a = await to(0.025, 0.02);
+    const b = await to(0.035, 0.02);
     for (let i = 0; i < args.bench; ++i) {
-      p = await to(0.03 + 0.005 * Math.sin(i / 10), 0.02);
-      await page.mouse.move(p.x, p.y);
+      const f = 0.5 + 0.5 * Math.sin(i / 10);
+      await page.mouse.move(a.x + f * (b.x - a.x), a.y);
       await sleep(8 + (i % 9));  // ~60–120 Hz, off the frame clock
     }
     await sleep(300);
     const lat = (await page.evaluate(() => window.trainee.stats.latencyMs)).slice().sort((a, b) => a - b);
     const q = (f) => lat[Math.min(lat.length - 1, Math.floor(f * lat.length))];
-    bench = { kind: 'trainee_latency', samples: lat.length, p50_ms: q(0.5), p99_ms: q(0.99), max_ms: lat[lat.length - 1] };
+    const r = (x) => Math.round(x * 100) / 100;
+    bench = { kind: 'trainee_latency', inputs: args.bench, samples: lat.length, p10_ms: r(q(0.1)), p50_ms: r(q(0.5)),
+      p90_ms: r(q(0.9)), p99_ms: r(q(0.99)), max_ms: r(lat[lat.length - 1]) };
     check('latency-measured', lat.length >= args.bench * 0.9, `${lat.length} of ${args.bench} inputs timed`);
   }
   // An oversized message closes the trainee's socket; the slot is free again.
