@@ -15,7 +15,9 @@
 ///   logs or makes a system call other than clock_gettime, clock_nanosleep
 ///   and the device's own non-blocking calls (a device plugin's read and
 ///   force update, docs/devices.md).
-/// * Devices: built in (scripted, replay) or plugins loaded with dlopen
+/// * Devices: built in (scripted, replay, browser: a trainee's page served
+///   on --serve by its own Boost.Beast I/O thread, browser_device.h) or
+///   plugins loaded with dlopen
 ///   (plugin_loader.h, plugin_device.h); every device sits behind
 ///   DeviceGuard (device_guard.h: workspace mapping, clutch, force clamp,
 ///   the fade of a lost device).
