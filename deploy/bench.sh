@@ -120,6 +120,18 @@ for run in "ligament.pbtxt ligament-cut.path 6 0" "ligament.pbtxt ligament-cut.p
   cat "$out/$name.json" 2>/dev/null || true
 done
 
+echo "== browser trainee (input-to-force latency of --device browser, p50/p99)"
+rc=0
+bench/trainee_latency.sh "$PWD/$bin" "$PWD/$out/trainee" "${TRAINEE_MOVES:-600}" >"$out/trainee_latency.json" \
+  2>"$out/trainee_latency.log" || rc=$?
+if [[ $rc -eq 77 ]]; then
+  echo "trainee latency skipped (see $out/trainee_latency.log)"
+elif [[ $rc -ne 0 ]]; then
+  echo "!! trainee_latency failed (exit $rc, see $out/trainee_latency.log)"
+  failed+=(trainee_latency)
+fi
+cat "$out/trainee_latency.json" 2>/dev/null || true
+
 echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
   > "$out/implicit.json"

@@ -9,9 +9,9 @@
 /// A vendor driver implements the same four calls: `Start` may block and
 /// allocate (open the device, calibrate); `Read` and `SetForce` run inside
 /// the 1 kHz loop and must not allocate, block or throw; `Stop` zeroes the
-/// force and releases the device. Built in are two virtual devices:
+/// force and releases the device. Built in are two virtual devices,
 /// `ScriptedDevice` (a tool path) and `ReplayDevice` (a recorded tool
-/// stream); hardware comes through device plugins (plugin/cutsim_device.h,
+/// stream), and `BrowserDevice` (browser_device.h: a trainee's page); hardware comes through device plugins (plugin/cutsim_device.h,
 /// wrapped by `PluginDevice`). `DeviceGuard` (device_guard.h) sits between
 /// any device and the loop: workspace mapping, clutch, force clamp and the
 /// fade when a device is lost.
@@ -56,6 +56,10 @@ class HapticDevice {
   virtual void Read(int64_t now_ns, DeviceState* state) noexcept = 0;
   /// Servo tick: the force to exert on the user's hand, N. Same rules as Read.
   virtual void SetForce(const Eigen::Vector3d& force) noexcept = 0;
+  /// Servo tick, after SetForce, once a model has arrived: the model's cut
+  /// count and contact, for a device that shows them (the browser's page).
+  /// Same rules as Read; by default nothing.
+  virtual void ShowModel(uint64_t /*cuts*/, bool /*contact*/) noexcept {}
   /// After the loop: zero force, release the device.
   virtual void Stop() noexcept = 0;
 };

@@ -50,6 +50,7 @@ class DeviceGuard final : public HapticDevice {
   void Start(int64_t start_ns) override;
   void Read(int64_t now_ns, DeviceState* state) noexcept override;
   void SetForce(const Eigen::Vector3d& force) noexcept override;
+  void ShowModel(uint64_t cuts, bool contact) noexcept override { device_.ShowModel(cuts, contact); }
   void Stop() noexcept override { device_.Stop(); }
 
   [[nodiscard]] const GuardStats& stats() const { return stats_; }

@@ -8,6 +8,8 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <tuple>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -21,7 +23,9 @@
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
 #include "common/transport/tool_auth.h"
+#include "common/web/trainee_server.h"
 #include "cutsim/v1/report.pb.h"
+#include "haptic_client/browser_device.h"
 #include "haptic_client/device_guard.h"
 #include "haptic_client/plugin_device.h"
 #include "haptic_client/plugin_loader.h"
@@ -41,7 +45,57 @@ using transport::ReportCount;
 std::atomic<bool> g_stop{false};
 extern "C" void OnStopSignal(int /*sig*/) { g_stop.store(true); }
 
+/// `--serve ADDRESS:PORT` split ("[::1]:8090" for IPv6).
+std::pair<std::string, uint16_t> SplitServe(const std::string& serve) {
+  const size_t colon = serve.rfind(':');
+  int port = -1;
+  if (colon != std::string::npos) {
+    try {
+      size_t used = 0;
+      port = std::stoi(serve.substr(colon + 1), &used);
+      if (used != serve.size() - colon - 1) port = -1;
+    } catch (const std::exception&) {
+      port = -1;
+    }
+  }
+  if (port < 0 || port > 65535) {
+    ThrowInputError(SourceRef{.field = "--serve"}, fmt::format("\"{}\": use ADDRESS:PORT, port 0..65535", serve));
+  }
+  std::string address = serve.substr(0, colon);
+  if (address.size() > 2 && address.front() == '[' && address.back() == ']') address = address.substr(1, address.size() - 2);
+  return {address, static_cast<uint16_t>(port)};
+}
+
+/// The browser device: the trainee page on --serve, its token from the session key.
+std::unique_ptr<HapticDevice> MakeBrowserDevice(const HapticAppOptions& o) {
+  const auto key = transport::LoadSessionKey(o.key_file);
+  if (!key) {
+    ThrowInputError(SourceRef{.field = "--key-file"},
+                    fmt::format("--device browser needs the session key (--key-file or ${}): the trainee page's "
+                                "token is derived from it",
+                                transport::kSessionKeyEnv));
+  }
+  BrowserDeviceOptions bo;
+  std::tie(bo.address, bo.port) = SplitServe(o.serve);
+  bo.token = TraineeToken(*key);
+  bo.page_dir = o.page_dir.empty() ? std::string(CUTSIM_TRAINEE_PAGE) : o.page_dir;
+  bo.url_file = o.url_file;
+  auto device = std::make_unique<BrowserDevice>(bo, BrowserDevice::DefaultInfo());
+  const DeviceInfo& d = device->info();
+  Log().info("browser device: trainee page on {} (the token is in the URL{}; workspace [{:.3f}, {:.3f}] x [{:.3f}, "
+             "{:.3f}] x [{:.3f}, {:.3f}] m)",
+             device->server().BaseUrl(), o.url_file.empty() ? " printed on stdout" : " written to --url-file",
+             d.workspace_min.x(), d.workspace_max.x(), d.workspace_min.y(), d.workspace_max.y(), d.workspace_min.z(),
+             d.workspace_max.z());
+  if (o.url_file.empty()) {
+    std::printf("trainee: %s\n", device->url().c_str());
+    std::fflush(stdout);
+  }
+  return device;
+}
+
 std::unique_ptr<HapticDevice> MakeDevice(const HapticAppOptions& o) {
+  if (o.device == "browser") return MakeBrowserDevice(o);
   DeviceInfo info;
   if (o.device == "scripted") {
     info.name = "scripted";
@@ -219,6 +273,20 @@ DeviceOutcome SummariseDevice(const HapticDevice& device, const DeviceGuard& gua
     Log().warn("device {} was lost {:.3f} s into the loop ({}); the force faded to zero over {:.0f} ms and the tool "
                "held its last pose for the rest of the session",
                d.name, d.lost_at_s, why.empty() ? "read failed" : why, 1e3 * options.fade_s);
+  }
+  if (const auto* browser = dynamic_cast<const BrowserDevice*>(&device)) {
+    const BrowserDeviceStats bs = browser->stats();
+    const web::TraineeServerStats ss = browser->server().stats();
+    const auto& r = bs.refused;
+    auto n = [&r](SampleError e) { return r[static_cast<size_t>(e)]; };
+    Log().info("browser device: {} pages connected, {} samples; refused: {} malformed, {} not finite, {} out of "
+               "range, {} bad direction, {} bad buttons, {} time going back; {} over the rate cap, {} oversized; "
+               "upgrades refused: {} token, {} origin, {} busy; {} frames sent",
+               bs.connections, bs.samples, n(SampleError::kFormat), n(SampleError::kNotFinite),
+               n(SampleError::kRange), n(SampleError::kDirection), n(SampleError::kButtons),
+               n(SampleError::kTimeBackwards), ss.rate_limited, ss.closed_oversized, ss.refused_token,
+               ss.refused_origin, ss.refused_busy, ss.frames_sent);
+    d.read_errors = bs.refused_total();
   }
   if (d.read_errors > 0) Log().warn("device {}: {} failed or invalid reads (the last pose was held)", d.name, d.read_errors);
   return d;

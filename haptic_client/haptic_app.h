@@ -15,7 +15,9 @@
 ///   logs or makes a system call other than clock_gettime, clock_nanosleep
 ///   and the device's own non-blocking calls (a device plugin's read and
 ///   force update, docs/devices.md).
-/// * Devices: built in (scripted, replay) or plugins loaded with dlopen
+/// * Devices: built in (scripted, replay, browser: a trainee's page served
+///   on --serve by its own Boost.Beast I/O thread, browser_device.h) or
+///   plugins loaded with dlopen
 ///   (plugin_loader.h, plugin_device.h); every device sits behind
 ///   DeviceGuard (device_guard.h: workspace mapping, clutch, force clamp,
 ///   the fade of a lost device).
@@ -44,7 +46,7 @@ namespace cutsim::haptic_client {
 struct HapticAppOptions {
   std::string session = "default";
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
-  std::string device = "scripted";    ///< scripted | replay | a plugin name or path (plugin_loader.h)
+  std::string device = "scripted";    ///< scripted | replay | browser | a plugin name or path (plugin_loader.h)
   std::string device_dir;             ///< --device-dir, plugin folder; "" = next to the executable
   std::string device_arg;             ///< --device-arg, passed to the plugin's open
   std::string scene;                  ///< --scene, the device workspace from haptics.device_*
@@ -69,6 +71,9 @@ struct HapticAppOptions {
   std::string fault_direction = "both";  ///< both | tool | model
   bool realtime = true;               ///< --no-rt: do not try SCHED_FIFO / mlockall
   int rt_priority = transport::kHapticLoopPriority;  ///< --rt-priority, SCHED_FIFO 1..99
+  std::string serve = "127.0.0.1:0"; ///< --serve ADDRESS:PORT, the trainee page of `browser`
+  std::string page_dir;               ///< --page-dir, the trainee page's files; "" = the source tree's web/trainee
+  std::string url_file;               ///< --url-file, where the page's URL (with its token) is written, mode 0600
   std::string key_file;               ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else unsigned
 };
 

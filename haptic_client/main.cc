@@ -15,11 +15,11 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   bool no_rt = false;
   bool no_passivity = false;
-  CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted, replayed or plugin device) over LCM"};
+  CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted, replayed, browser or plugin device) over LCM"};
   app.add_option("--session", o.session, "Session name")->capture_default_str();
   app.add_option("--lcm-url", o.lcm_url, "LCM URL (ttl=1 to reach another machine)")->capture_default_str();
   app.add_option("--device", o.device,
-                 "scripted | replay | NAME (plugin libcutsim_device_NAME.so in --device-dir) | PATH to a plugin")
+                 "scripted | replay | browser | NAME (plugin libcutsim_device_NAME.so in --device-dir) | PATH to a plugin")
       ->capture_default_str();
   app.add_option("--device-dir", o.device_dir, "Folder of device plugins (default: next to cutsim-haptic)");
   app.add_option("--device-arg", o.device_arg, "Configuration string passed to the device plugin's open");
@@ -32,6 +32,12 @@ int main(int argc, char** argv) {
   app.add_option("--clutch-button", o.clutch_button, "Button bit of the clutch (-1 = none)")->capture_default_str();
   app.add_option("--unplug-fade", o.unplug_fade, "Force ramp to zero when the device is lost, s")
       ->capture_default_str();
+  app.add_option("--serve", o.serve, "Trainee page of --device browser: ADDRESS:PORT (loopback by default)")
+      ->capture_default_str();
+  app.add_option("--page-dir", o.page_dir, "The trainee page's files (default: the source tree's web/trainee)");
+  app.add_option("--url-file", o.url_file,
+                 "Write the trainee page's URL (it carries the session's token) to this file, mode 0600, instead "
+                 "of stdout");
   app.add_option("--path", o.path, "Tool path file for --device scripted (minimum-jerk timing)");
   app.add_option("--log", o.log, "LCM log (lcm-logger or server recorder) for --device replay");
   app.add_option("--log-channel", o.log_channel, "Channel to replay (default CUTSIM_<session>_TOOL)");

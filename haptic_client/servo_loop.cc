@@ -33,6 +33,7 @@ const char* ServoLoop::Run(const std::atomic<bool>& stop) {
     TakeModel(wake.now_ns);
     const Eigen::Vector3d force = renderer_.Tick(state_.pose.tip, state_.velocity, wake.now_ns, wake.dt_s);
     device_.SetForce(force);
+    if (have_model_) device_.ShowModel(received_.model.cut.cuts, received_.model.contact);
     Record(wake, force);
     ++ticks_;
     if (const char* reason = EndReason(wake.now_ns, stop)) return reason;

@@ -1,6 +1,7 @@
 // The device calls of a servo tick never touch the heap: the example plugin
 // behind PluginDevice and DeviceGuard (through an unplug and the fade), and
-// the evdev plugin's read and force update (counted by
+// the evdev plugin's read and force update, the browser device's sample
+// parsing and ticks (counted by
 // tests/support/malloc_counter.h, which sees the C plugin's malloc too).
 #include <fcntl.h>
 #include <linux/input.h>
@@ -9,9 +10,12 @@
 #include <cerrno>
 #include <cstring>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
+#include "haptic_client/browser_device.h"
 #include "haptic_client/device_guard.h"
 #include "haptic_client/plugin_device.h"
 #include "haptic_client/plugins/evdev/evdev_device.h"
@@ -37,6 +41,29 @@ TEST(DeviceAllocation, PluginTicksThroughTheGuardNeverAllocate) {
   }
   EXPECT_EQ(StopCountingAllocations(), 0);
   EXPECT_TRUE(guard.stats().lost);
+}
+
+TEST(DeviceAllocation, BrowserSamplesAndTicksNeverAllocate) {
+  if (!kMallocCounting) GTEST_SKIP() << "malloc counting unavailable under a sanitizer";
+  BrowserDeviceOptions o;
+  o.token = "t";
+  o.page_dir = CUTSIM_SOURCE_DIR "/web/trainee";
+  BrowserDevice device(o, BrowserDevice::DefaultInfo());  // no page connects: its I/O thread idles
+  DeviceGuard guard(device, GuardOptions{});
+  guard.Start(0);
+  std::vector<std::string> samples;
+  for (int i = 0; i < 100; ++i) samples.push_back("p " + std::to_string(8 * i) + " 0.5 0.5 0.5 0 0 1 1");
+  DeviceState state;
+  StartCountingAllocations();
+  for (int i = 0; i < 800; ++i) {  // a sample every 8 ticks, as a 125 Hz mouse
+    if (i % 8 == 0) device.OnMessage(samples[static_cast<size_t>(i / 8)], int64_t{i} * 1'000'000);
+    guard.Read(int64_t{i} * 1'000'000, &state);
+    guard.SetForce(Eigen::Vector3d(0.0, 0.0, 1.0));
+    guard.ShowModel(static_cast<uint64_t>(i), true);
+  }
+  EXPECT_EQ(StopCountingAllocations(), 0);
+  EXPECT_EQ(device.stats().samples, 100U);
+  EXPECT_EQ(state.buttons, 1U);
 }
 
 // A stick with FF_CONSTANT whose reads return one axis event per call.

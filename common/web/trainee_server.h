@@ -1,0 +1,100 @@
+#pragma once
+/// @file
+/// The trainee page's server: HTTP for the page's fixed set of files and one
+/// two-way WebSocket (`/ws`) over which a single browser drives the scalpel
+/// (pose samples in) and sees the force and the cut (frames out). Boost.Beast
+/// on one I/O thread of its own; the handlers run on that thread.
+///
+/// The server enforces:
+///  - a token on every WebSocket upgrade (`?token=<token>`), always: the
+///    page drives a tool that cuts, so nobody without the session's token
+///    may connect, on loopback or not (the page's files hold no session data
+///    and are served to anyone who can connect);
+///  - the `Origin` of a WebSocket upgrade, when present, must be this
+///    server's own (`http://<Host>`), so other sites' pages cannot connect;
+///  - one trainee at a time: an upgrade while a trainee is connected is
+///    refused (503);
+///  - a cap on request header size and on the size of incoming WebSocket
+///    messages (a message above it closes the client with 1009);
+///  - a rate cap on incoming messages (a token bucket): messages above it
+///    are dropped and counted, not handed on.
+/// What a message says is the handler's to validate (browser_device.h).
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <string_view>
+
+namespace cutsim::web {
+
+/// The server's settings.
+struct TraineeServerOptions {
+  std::string address = "127.0.0.1";  ///< Listening address (IPv4 or IPv6 literal).
+  uint16_t port = 0;                  ///< 0: any free port (see TraineeServer::port()).
+  std::string token;                  ///< Required on every WebSocket upgrade; must not be empty.
+  /// URL path → file served at it (read once, at construction). "/" serves
+  /// the entry mapped to "/index.html".
+  std::map<std::string, std::filesystem::path> files;
+  size_t max_incoming_bytes = 256;        ///< Largest WebSocket message the trainee may send.
+  double max_messages_per_s = 400.0;      ///< Sustained incoming rate; above it messages are dropped.
+  double burst_messages = 40.0;           ///< Token-bucket depth (messages).
+  double frame_hz = 60.0;                 ///< Rate of the outgoing frames while a trainee is connected.
+  size_t max_request_header_bytes = 8192; ///< HTTP request header limit.
+};
+
+/// What the server calls, on its I/O thread.
+struct TraineeHandlers {
+  /// A trainee connected; returns the first message sent to it.
+  std::function<std::string()> on_open;
+  /// A message within the size and rate caps (text or binary), with the
+  /// CLOCK_MONOTONIC time it was read.
+  std::function<void(std::string_view message, int64_t receive_ns)> on_message;
+  /// At `frame_hz` while a trainee is connected: the frame to send ("" = none).
+  std::function<std::string()> frame;
+  /// The trainee left (or was closed).
+  std::function<void()> on_close;
+};
+
+/// Counters, read with TraineeServer::stats() (a consistent copy).
+struct TraineeServerStats {
+  bool connected = false;        ///< A trainee is connected now.
+  uint64_t accepted = 0;         ///< Trainees accepted in all.
+  uint64_t refused_busy = 0;     ///< Upgrades refused: a trainee was already connected.
+  uint64_t refused_origin = 0;   ///< Upgrades refused: foreign Origin.
+  uint64_t refused_token = 0;    ///< Upgrades refused: missing or wrong token.
+  uint64_t bad_requests = 0;     ///< Malformed or oversized HTTP requests, unknown paths.
+  uint64_t closed_oversized = 0; ///< Trainees closed for a message above the size cap.
+  uint64_t rate_limited = 0;     ///< Messages dropped above the rate cap.
+  uint64_t messages_received = 0;///< Messages handed to `on_message`.
+  uint64_t frames_sent = 0;      ///< Messages written to the trainee.
+  uint64_t pages_served = 0;     ///< HTTP files served.
+};
+
+struct TraineeServerImpl;  // the I/O thread's state (trainee_server.cc)
+
+/// The HTTP + WebSocket server. Construction binds and starts the I/O
+/// thread; destruction closes the trainee's connection and joins it.
+class TraineeServer {
+ public:
+  /// Throws InputError naming `--serve` (or the file) for a bad address, an
+  /// empty token, a missing file, or a port that cannot be bound.
+  TraineeServer(TraineeServerOptions options, TraineeHandlers handlers);
+  ~TraineeServer();
+  TraineeServer(const TraineeServer&) = delete;
+  TraineeServer& operator=(const TraineeServer&) = delete;
+
+  /// The bound port (the chosen one when options.port was 0).
+  [[nodiscard]] uint16_t port() const { return port_; }
+  /// "http://address:port/" without the token.
+  [[nodiscard]] std::string BaseUrl() const;
+  [[nodiscard]] TraineeServerStats stats() const;
+
+ private:
+  std::unique_ptr<TraineeServerImpl> impl_;
+  uint16_t port_ = 0;
+};
+
+}  // namespace cutsim::web
