@@ -2,11 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
-#include <fstream>
 #include <future>
 #include <mutex>
 #include <optional>
-#include <sstream>
 #include <thread>
 #include <utility>
 
@@ -20,6 +18,7 @@
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
+#include "common/web/http_util.h"
 
 namespace cutsim::web {
 
@@ -28,49 +27,6 @@ namespace beast = boost::beast;
 namespace http = beast::http;
 namespace websocket = beast::websocket;
 using tcp = net::ip::tcp;
-
-namespace {
-
-struct PageFile {
-  std::string body;
-  std::string content_type;
-};
-
-std::string ContentType(const std::filesystem::path& path) {
-  const std::string ext = path.extension().string();
-  if (ext == ".html") return "text/html; charset=utf-8";
-  if (ext == ".js" || ext == ".mjs") return "text/javascript; charset=utf-8";
-  if (ext == ".css") return "text/css; charset=utf-8";
-  return "application/octet-stream";
-}
-
-/// The path of a request target, and the value of its `token` parameter.
-std::pair<std::string, std::string> SplitTarget(std::string_view target) {
-  const size_t q = target.find('?');
-  std::string path(target.substr(0, q));
-  std::string token;
-  if (q != std::string_view::npos) {
-    std::string_view query = target.substr(q + 1);
-    while (!query.empty()) {
-      const size_t amp = query.find('&');
-      const std::string_view param = query.substr(0, amp);
-      if (param.substr(0, 6) == "token=") token = std::string(param.substr(6));
-      if (amp == std::string_view::npos) break;
-      query.remove_prefix(amp + 1);
-    }
-  }
-  return {path, token};
-}
-
-/// Comparison whose time does not depend on where the strings differ.
-bool SameSecret(const std::string& a, const std::string& b) {
-  if (a.size() != b.size()) return false;
-  unsigned diff = 0;
-  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned>(a[i] ^ b[i]);
-  return diff == 0;
-}
-
-}  // namespace
 
 class TraineeSession;
 
@@ -321,13 +277,7 @@ TraineeServer::TraineeServer(TraineeServerOptions options, TraineeHandlers handl
     ThrowInputError({.field = "max_messages_per_s"}, "the rate cap needs a positive rate and a burst of at least 1");
   }
   impl_->frame_period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / o.frame_hz));
-  for (const auto& [path, file] : o.files) {
-    std::ifstream in(file, std::ios::binary);
-    if (!in) ThrowFileError(file.string(), "cannot open (the trainee page's files)");
-    std::ostringstream text;
-    text << in.rdbuf();
-    impl_->files[path] = {text.str(), ContentType(file)};
-  }
+  impl_->files = ReadPageFiles(o.files, "the trainee page's files");
   boost::system::error_code ec;
   const net::ip::address address = net::ip::make_address(o.address == "localhost" ? "127.0.0.1" : o.address, ec);
   if (ec) ThrowInputError({.field = "--serve"}, fmt::format("'{}' is not an IP address", o.address));

@@ -1,0 +1,32 @@
+#pragma once
+/// @file
+/// What the observer and the trainee servers share about serving a page:
+/// the page's files read into memory, the path and token of a request
+/// target, and a constant-time comparison of secrets.
+
+#include <filesystem>
+#include <map>
+#include <string>
+#include <string_view>
+#include <utility>
+
+namespace cutsim::web {
+
+/// A page file held in memory, with its Content-Type.
+struct PageFile {
+  std::string body;
+  std::string content_type;
+};
+
+/// Reads each URL path's file (`files`: URL path → file). Throws a file
+/// error naming the file and `what` (e.g. "the observer page's files").
+[[nodiscard]] std::map<std::string, PageFile> ReadPageFiles(const std::map<std::string, std::filesystem::path>& files,
+                                                            const std::string& what);
+
+/// The path of a request target, and the value of its `token` parameter.
+[[nodiscard]] std::pair<std::string, std::string> SplitTarget(std::string_view target);
+
+/// Comparison whose time does not depend on where the strings differ.
+[[nodiscard]] bool SameSecret(const std::string& a, const std::string& b);
+
+}  // namespace cutsim::web
