@@ -98,10 +98,9 @@ class Engine final : public Simulation {
   }
   std::optional<IncisionScore> Score() const override {
     if (!scorer_) return std::nullopt;
-    static const std::vector<uint8_t> kNone;
-    return scorer_->Score(fem_.model().rest_positions(), surface_.triangles(),
-                          cuts_ ? std::span<const uint8_t>(surface_.opened()) : std::span<const uint8_t>(kNone),
-                          meter_.metrics(), sim_time());
+    const std::span<const uint8_t> opened =
+        cuts_ ? std::span<const uint8_t>(surface_.opened()) : std::span<const uint8_t>();
+    return scorer_->Score(fem_.model().rest_positions(), surface_.triangles(), opened, meter_.metrics(), sim_time());
   }
 
   void FillMeshView(MeshView& view) const override {
