@@ -583,6 +583,7 @@ const hud = {
   contact: document.getElementById('hud-contact'),
   cutOff: document.getElementById('hud-cut-off'),
   stress: document.getElementById('hud-stress'),
+  stressNow: document.getElementById('hud-stress-now'),
   plot: document.getElementById('force-plot'),
 };
 const plot = hud.plot.getContext('2d');
@@ -613,7 +614,8 @@ function updateMetricsHud() {
   hud.path.textContent = `${(m.pathLength * 1e3).toFixed(1)} mm`;
   hud.contact.textContent = `${m.contactTime.toFixed(2)} s`;
   hud.cutOff.textContent = `${(m.cutOffVolume * 1e6).toFixed(3)} cm³`;
-  hud.stress.textContent = `${(m.maxStressOutside / 1e3).toFixed(2)} kPa (now ${(m.stressOutside / 1e3).toFixed(2)})`;
+  hud.stress.textContent = `${(m.maxStressOutside / 1e3).toFixed(2)} kPa`;
+  hud.stressNow.textContent = `${(m.stressOutside / 1e3).toFixed(2)} kPa`;
 }
 
 /** |F| over the last PLOT_WINDOW_S seconds of session time, auto-scaled. */
