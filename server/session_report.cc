@@ -1,15 +1,12 @@
 #include "server/session_report.h"
 
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 
 #include <fmt/format.h>
 
-#include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/sim/metrics_proto.h"
 #include "common/transport/report_json.h"
 
@@ -145,31 +142,11 @@ std::string SessionPlotSvg(const v1::SessionReport& r) {
   return svg;
 }
 
-namespace {
-
-void WriteChecked(const std::filesystem::path& path, const std::string& text) {
-  const std::filesystem::path tmp = path.string() + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) ThrowFileError(tmp.string(), fmt::format("cannot create: {}", std::strerror(errno)));
-    out << text;
-    out.flush();
-    if (!out) ThrowFileError(tmp.string(), fmt::format("write failed: {}", std::strerror(errno)));
-    out.close();
-    if (out.fail()) ThrowFileError(tmp.string(), "close failed");
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) ThrowFileError(path.string(), fmt::format("cannot rename {} onto it: {}", tmp.string(), ec.message()));
-}
-
-}  // namespace
-
 void WriteSessionReport(const std::string& path, const v1::SessionReport& report) {
-  WriteChecked(path, transport::ReportJson(report) + "\n");
+  WriteFileAtomically(path, transport::ReportJson(report) + "\n");
   std::filesystem::path svg(path);
   svg.replace_extension(".svg");
-  WriteChecked(svg, SessionPlotSvg(report));
+  WriteFileAtomically(svg.string(), SessionPlotSvg(report));
 }
 
 }  // namespace cutsim::server

@@ -19,8 +19,9 @@ namespace cutsim::server {
 /// deviation of each scored cut step with the plan's tolerance band.
 [[nodiscard]] std::string SessionPlotSvg(const v1::SessionReport& report);
 
-/// Writes FILE and FILE's .svg sibling, each through a temporary file and a
-/// rename. Throws InputError naming the file on any write error.
+/// Writes FILE and FILE's .svg sibling, each atomically
+/// (common/core/input_file.h). Throws InputError naming the file on any
+/// write error.
 void WriteSessionReport(const std::string& path, const v1::SessionReport& report);
 
 }  // namespace cutsim::server
