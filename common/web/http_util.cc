@@ -50,6 +50,19 @@ std::pair<std::string, std::string> SplitTarget(std::string_view target) {
   return {path, token};
 }
 
+std::shared_ptr<boost::beast::http::response<boost::beast::http::string_body>> MakeReply(
+    const boost::beast::http::request<boost::beast::http::empty_body>& req, boost::beast::http::status status,
+    const std::string& body, const std::string& type) {
+  namespace http = boost::beast::http;
+  auto res = std::make_shared<http::response<http::string_body>>(status, req.version());
+  res->set(http::field::content_type, type);
+  res->set(http::field::cache_control, "no-store");
+  res->keep_alive(req.keep_alive() && status == http::status::ok);
+  res->body() = body;
+  res->prepare_payload();
+  return res;
+}
+
 bool SameSecret(const std::string& a, const std::string& b) {
   if (a.size() != b.size()) return false;
   unsigned diff = 0;

@@ -5,10 +5,13 @@
 /// target, and a constant-time comparison of secrets.
 
 #include <filesystem>
+#include <memory>
 #include <map>
 #include <string>
 #include <string_view>
 #include <utility>
+
+#include <boost/beast/http.hpp>
 
 namespace cutsim::web {
 
@@ -25,6 +28,12 @@ struct PageFile {
 
 /// The path of a request target, and the value of its `token` parameter.
 [[nodiscard]] std::pair<std::string, std::string> SplitTarget(std::string_view target);
+
+/// A response to `req`: `body` as `type`, never cached, kept alive only when
+/// the request asks and the status is 200. Shared, to outlive its async write.
+[[nodiscard]] std::shared_ptr<boost::beast::http::response<boost::beast::http::string_body>> MakeReply(
+    const boost::beast::http::request<boost::beast::http::empty_body>& req, boost::beast::http::status status,
+    const std::string& body, const std::string& type);
 
 /// Comparison whose time does not depend on where the strings differ.
 [[nodiscard]] bool SameSecret(const std::string& a, const std::string& b);

@@ -193,12 +193,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
 
   void Reply(const http::request<http::empty_body>& req, http::status status, const std::string& body,
              const std::string& type) {
-    auto res = std::make_shared<http::response<http::string_body>>(status, req.version());
-    res->set(http::field::content_type, type);
-    res->set(http::field::cache_control, "no-store");
-    res->keep_alive(req.keep_alive() && status == http::status::ok);
-    res->body() = body;
-    res->prepare_payload();
+    auto res = MakeReply(req, status, body, type);
     http::async_write(stream_, *res, [self = shared_from_this(), res](beast::error_code ec, size_t) {
       if (ec || !res->keep_alive()) {
         beast::error_code ignored;
