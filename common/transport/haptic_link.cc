@@ -242,9 +242,11 @@ void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns)
         bump(stats_.auth_forged);
         return;
       case AuthVerdict::kOutsideWindow:
+      case AuthVerdict::kInvalidEpoch:
         bump(stats_.auth_outside_window);
         [[fallthrough]];
       case AuthVerdict::kReplayed:
+      case AuthVerdict::kOtherSender:
         bump(stats_.unauthenticated);
         bump(stats_.auth_replayed);
         return;

@@ -66,6 +66,7 @@
 #include "common/transport/fault_injection.h"
 #include "common/transport/lcm_bus.h"
 #include "common/transport/mailbox.h"
+#include "common/transport/stream_auth.h"
 #include "common/transport/wake_fd.h"
 #include "cutsim/v1/wire.pb.h"
 
@@ -104,16 +105,6 @@ class StreamSequencer {
   int64_t stamp_ns_ = 0;
 };
 
-/// Outcome of authenticating one tool message.
-enum class AuthVerdict : uint8_t {
-  kOk,             ///< Valid tag, newer than the held message.
-  kNewEpoch,       ///< Valid tag, a newer sender epoch (the sender restarted).
-  kUnsigned,       ///< No tag.
-  kForged,         ///< Tag of the wrong size or not matching (wrong key, altered, other session).
-  kReplayed,       ///< Valid tag, but not newer than the held message.
-  kOutsideWindow,  ///< Valid tag, but its timestamp is far from our clock (an old recording).
-};
-
 /// Authenticates tool messages (HMAC in `ToolState.hmac`; the implementation
 /// is `HmacToolAuthenticator` in tool_auth.h). Called on the sending and
 /// receiving threads; implementations must not throw.
@@ -148,8 +139,9 @@ struct HapticServerLinkStats {
   uint64_t unauthenticated = 0;  ///< Failed `ToolAuthenticator::Verify` (sum of the next four).
   uint64_t auth_unsigned = 0;    ///< No tag while a key is configured.
   uint64_t auth_forged = 0;      ///< Bad tag.
-  uint64_t auth_replayed = 0;    ///< Valid tag, sequence not newer (or timestamp outside the window).
-  uint64_t auth_outside_window = 0;  ///< Of `auth_replayed`: timestamp outside the window.
+  uint64_t auth_replayed = 0;    ///< Valid tag, but not fresh: sequence not newer, timestamp outside
+                                 ///< the window, invalid epoch, or another sender holds the stream.
+  uint64_t auth_outside_window = 0;  ///< Of `auth_replayed`: outside the window or invalid epoch.
   uint64_t restarts = 0;         ///< Client restarts detected (included in accepted).
   uint64_t models_published = 0;
   uint64_t models_not_sent = 0;  ///< Over one datagram or LCM refused.

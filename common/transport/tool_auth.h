@@ -38,31 +38,10 @@
 #include <string_view>
 
 #include "common/transport/haptic_link.h"
+#include "common/transport/stream_auth.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
-
-/// Environment variable holding the hex session key.
-inline constexpr const char* kSessionKeyEnv = "CUTSIM_SESSION_KEY";
-
-/// A session key: 16..64 bytes.
-struct SessionKey {
-  static constexpr size_t kMinBytes = 16;
-  static constexpr size_t kMaxBytes = 64;
-  std::array<uint8_t, kMaxBytes> bytes{};
-  size_t size = 0;
-};
-
-/// Parses hex text (whitespace ignored). Throws `InputError` naming `source`
-/// (file or environment variable) on odd length, non-hex digits, or a key
-/// shorter than 16 or longer than 64 bytes. The error never quotes the key.
-[[nodiscard]] SessionKey ParseSessionKey(std::string_view text, std::string_view source);
-
-/// The key from `key_file` if not empty (warns if the file is readable by
-/// group or others), else from `CUTSIM_SESSION_KEY` if set, else nullopt (an
-/// open session). Throws `InputError` naming the file or variable when it is
-/// unreadable or malformed.
-[[nodiscard]] std::optional<SessionKey> LoadSessionKey(const std::string& key_file);
 
 /// HMAC-SHA256 signing and verification of `ToolState` (see the file comment).
 class HmacToolAuthenticator final : public ToolAuthenticator {
@@ -82,12 +61,15 @@ class HmacToolAuthenticator final : public ToolAuthenticator {
   /// must rise; if it does not (a new link on the same authenticator) a new,
   /// larger epoch starts so the receiver still accepts the stream.
   void Sign(v1::ToolState* msg) noexcept override;
-  /// Checks tag, window and freshness (in that order); only a message with a
+  /// Checks the tag, then freshness (`EpochGate`); only a message with a
   /// valid tag can advance the replay state.
   [[nodiscard]] AuthVerdict Verify(const v1::ToolState& msg) noexcept override;
 
-  /// Verification against an explicit receiver clock (tests).
-  [[nodiscard]] AuthVerdict VerifyAt(const v1::ToolState& msg, int64_t now_wall_ns) noexcept;
+  /// Verification against explicit receiver clocks (tests): CLOCK_REALTIME
+  /// for the window, CLOCK_MONOTONIC for the quiet period (defaults to the
+  /// realtime value).
+  [[nodiscard]] AuthVerdict VerifyAt(const v1::ToolState& msg, int64_t now_wall_ns,
+                                     std::optional<int64_t> now_mono_ns = std::nullopt) noexcept;
   /// Signing with an explicit sender clock (tests, and the forging tool's
   /// "old but correctly signed" messages).
   void SignAt(v1::ToolState* msg, int64_t now_wall_ns) noexcept;
@@ -96,22 +78,15 @@ class HmacToolAuthenticator final : public ToolAuthenticator {
 
  private:
   /// Computes the tag of `msg` as if in `session_`; false if OpenSSL failed.
-  bool Tag(const v1::ToolState& msg, uint8_t (&tag)[kTagBytes]) noexcept;
+  bool Tag(const v1::ToolState& msg, HmacSha256::Tag* tag) noexcept;
 
   std::string session_;
-  int64_t window_ns_;
-  void* mac_ = nullptr;  // EVP_MAC*
-  void* ctx_ = nullptr;  // EVP_MAC_CTX*, keyed once; re-initialised per message
+  HmacSha256 mac_;
   // Signing state.
   uint64_t epoch_ = 0;
   uint64_t last_signed_seq_ = 0;
-  // Verification state (the newest accepted message).
-  bool have_ = false;
-  uint64_t held_epoch_ = 0;
-  uint64_t held_seq_ = 0;
+  // Verification state.
+  EpochGate gate_;
 };
-
-/// Name of a verdict for logs and tests.
-[[nodiscard]] const char* ToString(AuthVerdict verdict);
 
 }  // namespace cutsim::transport

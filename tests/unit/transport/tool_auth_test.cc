@@ -205,22 +205,49 @@ TEST(HmacToolAuthenticatorTest, ReplaysAndOldMessagesAreRejected) {
   EXPECT_EQ(fresh_server.VerifyAt(m[3], now + kSecond), AuthVerdict::kNewEpoch);
 
   // A restarted sender (new authenticator: newer epoch) is accepted with seq 1;
-  // the old epoch's messages are then replays.
+  // the old epoch's messages are then refused while the new sender is heard.
   HmacToolAuthenticator restarted(Key(), "lab");
   ASSERT_GT(restarted.epoch(), client.epoch());
+  const int64_t later = static_cast<int64_t>(restarted.epoch());
   v1::ToolState r = Tool("lab", 1);
-  restarted.SignAt(&r, now + 10);
-  EXPECT_EQ(server.VerifyAt(r, now), AuthVerdict::kNewEpoch);
+  restarted.SignAt(&r, later + 10);
+  EXPECT_EQ(server.VerifyAt(r, later), AuthVerdict::kNewEpoch);
   v1::ToolState late = Tool("lab", 5);
-  client.SignAt(&late, now + 11);
-  EXPECT_EQ(server.VerifyAt(late, now), AuthVerdict::kReplayed);
+  client.SignAt(&late, later + 11);
+  EXPECT_EQ(server.VerifyAt(late, later), AuthVerdict::kOtherSender);
 
   // Reusing an authenticator for a new stream (seq back to 1) moves to a new epoch.
   const uint64_t before = restarted.epoch();
   v1::ToolState again = Tool("lab", 1);
-  restarted.SignAt(&again, now + 12);
+  restarted.SignAt(&again, later + 1000);
   EXPECT_GT(again.epoch(), before);
-  EXPECT_EQ(server.VerifyAt(again, now), AuthVerdict::kNewEpoch);
+  EXPECT_EQ(server.VerifyAt(again, later), AuthVerdict::kNewEpoch);
+}
+
+TEST(HmacToolAuthenticatorTest, NoSingleMessageLocksTheStationOut) {
+  HmacToolAuthenticator station(Key(), "lab");
+  HmacToolAuthenticator server(Key(), "lab", 2 * kSecond);
+  const int64_t t0 = static_cast<int64_t>(station.epoch()) + kSecond;
+  v1::ToolState m = Tool("lab", 1);
+  station.SignAt(&m, t0);
+  ASSERT_EQ(server.VerifyAt(m, t0), AuthVerdict::kNewEpoch);
+
+  // A newer authentic epoch takes the stream; the station is refused only
+  // while that sender is heard, and takes over again once it is quiet.
+  HmacToolAuthenticator newer(Key(), "lab");
+  v1::ToolState n = Tool("lab", 1);
+  const int64_t t1 = static_cast<int64_t>(newer.epoch()) + 1;
+  newer.SignAt(&n, t1);
+  ASSERT_EQ(server.VerifyAt(n, t1, t1), AuthVerdict::kNewEpoch);
+  v1::ToolState s2 = Tool("lab", 2);
+  station.SignAt(&s2, t1 + 1000);
+  EXPECT_EQ(server.VerifyAt(s2, t1 + 1000, t1 + 1000), AuthVerdict::kOtherSender);
+  const int64_t quiet = t1 + EpochGate::kDefaultQuietNs + 1;
+  v1::ToolState s3 = Tool("lab", 3);
+  station.SignAt(&s3, quiet);
+  EXPECT_EQ(server.VerifyAt(s3, quiet, quiet), AuthVerdict::kNewEpoch);
+  // And its replay memory survived the detour.
+  EXPECT_EQ(server.VerifyAt(s2, quiet, quiet), AuthVerdict::kReplayed);
 }
 
 // The server end of the link counts each kind of rejection and passes only
