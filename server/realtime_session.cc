@@ -18,6 +18,7 @@
 #include "common/core/error.h"
 #include "common/core/input_file.h"
 #include "common/core/log.h"
+#include "common/core/stop.h"
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpoint.h"
 #include "common/sim/metrics_proto.h"
@@ -32,6 +33,7 @@
 #include "common/transport/proto_vec.h"
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
+#include "common/transport/server_presence.h"
 #include "cutsim/v1/report.pb.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
@@ -172,7 +174,7 @@ RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double
 
 int RealtimeLoop::Run() {
   sim::Simulation& simulation = p_.simulation;
-  while (!g_stop) {
+  while (!g_stop && !StopRequested()) {
     if (options_.duration && simulation.sim_time() >= *options_.duration - 1e-9) break;
     const int64_t frame_start = MonotonicNs();
     // Frame order, for the pose-to-model latency: the newest tool pose is
@@ -373,6 +375,17 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
 
 int ServerApp::RunRealtime() {
   transport::ValidateSessionName(options_.session, "--session");
+  // One server per session: ask who is there before touching the
+  // checkpoint or any output, and keep announcing this server while it runs.
+  transport::ServerPresence presence(
+      {.lcm_url = options_.lcm_url, .session = options_.session, .key = transport::LoadSessionKey(options_.key_file)});
+  if (const auto peer = presence.Claim()) {
+    Log().error("session '{}' is already served by {}: refusing to serve it twice. Stop that "
+                "server, or give this one another --session.",
+                options_.session, peer->Describe());
+    return transport::kExitDuplicateServer;
+  }
+  presence.Start();
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
@@ -393,7 +406,9 @@ int ServerApp::RunRealtime() {
                                           : std::make_unique<SessionRecorder>(
                                                 options_.record, options_.session, options_.scene, *simulation);
   transport::DdsParticipant participant(options_.dds_domain, DdsConfigUri(options_.dds_config));
-  transport::MeshStreamPublisher publisher(participant, options_.session);
+  // Observer frames are signed with the session key when there is one.
+  transport::MeshStreamPublisher publisher(participant, options_.session,
+                                           {.key = transport::LoadSessionKey(options_.key_file)});
   // Poses arrive on their own thread; the physics takes the newest right
   // before each step.
   link.StartReceiving(lcm_priority);
@@ -409,6 +424,13 @@ int ServerApp::RunRealtime() {
                     {*simulation, link, publisher, recorder.get(), checkpointer, governor});
   const int exit_code = loop.Run();
   link.StopReceiving();
+  if (presence.refused()) {
+    // Another server started first: its checkpoint and outputs are not ours to write.
+    Log().error("session '{}': stopped for the server that started first; no checkpoint or "
+                "outputs written",
+                options_.session);
+    return transport::kExitDuplicateServer;
+  }
 
   // Every output is finished and checked; a lost one makes the exit non-zero
   // (kExitOutputFailed) after the others are written.

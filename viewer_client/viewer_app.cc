@@ -99,6 +99,13 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
   v.set_unknown_topology(ReportCount(s.unknown_topology));
   v.set_ignored(ReportCount(s.ignored));
   v.set_status_messages(ReportCount(s.status));
+  v.set_authenticated(s.authenticated);
+  v.set_unsigned_samples(ReportCount(s.unsigned_samples));
+  v.set_forged(ReportCount(s.forged));
+  v.set_replayed(ReportCount(s.replayed));
+  v.set_invalid_epoch(ReportCount(s.invalid_epoch));
+  v.set_other_server(ReportCount(s.other_server));
+  v.set_server_changes(ReportCount(s.server_changes));
   v.set_join_latency_s(r.join_latency_s);
   v.set_render_ms_mean(r.frames > 0 ? 1e-6 * static_cast<double>(r.render_ns) / static_cast<double>(r.frames)
                                     : 0.0);
@@ -296,6 +303,9 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--log-level", options_.log_level, "trace, debug, info, warn, error, off");
   app.add_option("--serve", options_.serve,
                  "Serve the session to browsers at HOST:PORT (loopback unless --token-file is given)");
+  app.add_option("--key-file", options_.key_file,
+                 "Session key file (hex): only mesh frames signed with it are shown "
+                 "(default $CUTSIM_SESSION_KEY; neither: an open session)");
   app.add_option("--token-file", options_.token_file,
                  "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL");
   options_.web_root = CUTSIM_WEB_ROOT;
@@ -329,7 +339,15 @@ int ViewerApp::Run() {
   const int64_t start_ns = MonotonicNs();
   FrameSink sink(o);
   transport::DdsParticipant participant(o.dds_domain, DdsConfigUri(o.dds_config));
-  transport::MeshStreamSubscriber sub(participant, o.session);
+  std::optional<transport::SessionKey> key = transport::LoadSessionKey(o.key_file);
+  if (key) {
+    Log().info("session '{}': only mesh frames signed with the session key are shown", o.session);
+  } else {
+    Log().warn("session '{}' is OPEN: no session key (--key-file or ${}), so the frames shown are "
+               "not authenticated",
+               o.session, transport::kSessionKeyEnv);
+  }
+  transport::MeshStreamSubscriber sub(participant, o.session, key);
   std::unique_ptr<web::BrowserBridge> bridge;
   if (!o.serve.empty()) {
     web::ObserverServerOptions so;

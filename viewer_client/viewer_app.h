@@ -34,6 +34,7 @@ struct ViewerOptions {
   std::string serve;       ///< HOST:PORT of the browser observers' page; empty: none.
   std::string token_file;  ///< Observers' token (required off loopback).
   std::string web_root;    ///< The page's files (web/observer).
+  std::string key_file;    ///< Session key: only frames signed with it are shown; empty: $CUTSIM_SESSION_KEY, else open.
 };
 
 class ViewerApp {

@@ -32,6 +32,8 @@ std::string LcmChannelName(std::string_view session, LcmChannel channel) {
       return fmt::format("CUTSIM_{}_TOOL", session);
     case LcmChannel::kModel:
       return fmt::format("CUTSIM_{}_MODEL", session);
+    case LcmChannel::kServer:
+      return fmt::format("CUTSIM_{}_SERVER", session);
   }
   CUTSIM_CHECK(false, "unknown LcmChannel");
 }

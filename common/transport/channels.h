@@ -25,14 +25,17 @@ inline constexpr size_t kMaxSessionLength = 50;
 /// Throws `InputError` naming `field` (e.g. "--session") if the name is invalid.
 void ValidateSessionName(std::string_view session, std::string_view field = "--session");
 
-/// The two LCM channels of the haptic link.
+/// The LCM channels of a session: the haptic link's two, and the servers'
+/// presence.
 enum class LcmChannel {
-  kTool,   ///< Haptic station → server: `cutsim.v1.ToolState`, up to 1 kHz.
-  kModel,  ///< Server → haptic station: `cutsim.v1.HapticModel`, one per physics frame.
+  kTool,    ///< Haptic station → server: `cutsim.v1.ToolState`, up to 1 kHz.
+  kModel,   ///< Server → haptic station: `cutsim.v1.HapticModel`, one per physics frame.
+  kServer,  ///< Server ↔ server: `cutsim.v1.ServerPresence`, once a second (server_presence.h).
 };
 
-/// "CUTSIM_<session>_TOOL" or "CUTSIM_<session>_MODEL". Throws `InputError`
-/// (field "--session") on an invalid session name.
+/// "CUTSIM_<session>_TOOL", "CUTSIM_<session>_MODEL" or
+/// "CUTSIM_<session>_SERVER". Throws `InputError` (field "--session") on an
+/// invalid session name.
 [[nodiscard]] std::string LcmChannelName(std::string_view session, LcmChannel channel);
 
 }  // namespace cutsim::transport

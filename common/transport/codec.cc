@@ -60,13 +60,20 @@ bool DecodeInto(std::span<const uint8_t> bytes, google::protobuf::MessageLite& o
 }  // namespace detail
 
 std::optional<std::span<const uint8_t>> Encoder::Encode(const google::protobuf::MessageLite& msg,
-                                                        size_t limit, size_t* size) {
-  const size_t n = msg.ByteSizeLong();
+                                                        size_t limit, size_t* size,
+                                                        PayloadAuthenticator* signer) {
+  const size_t body = msg.ByteSizeLong();
+  const size_t n = body + (signer != nullptr ? kTrailerBytes : 0);
   if (size != nullptr) *size = n;
   if (n > limit || n > static_cast<size_t>(INT_MAX)) return std::nullopt;
   if (buffer_.size() < n || buffer_.empty()) buffer_.resize(std::max<size_t>(n, 1));
   // ByteSizeLong cached the sizes; serialise straight into our buffer.
   msg.SerializeWithCachedSizesToArray(buffer_.data());
+  if (signer != nullptr &&
+      !signer->MakeTrailer({buffer_.data(), body},
+                           std::span<uint8_t, kTrailerBytes>(buffer_.data() + body, kTrailerBytes))) {
+    return std::nullopt;
+  }
   return std::span<const uint8_t>(buffer_.data(), n);
 }
 

@@ -23,6 +23,7 @@
 
 #include <google/protobuf/message_lite.h>
 
+#include "common/transport/stream_auth.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
@@ -34,7 +35,8 @@ namespace cutsim::transport {
 template <class Msg>
 constexpr size_t MaxPayloadBytes() {
   if constexpr (std::is_same_v<Msg, ::cutsim::v1::ToolState> ||
-                std::is_same_v<Msg, ::cutsim::v1::HapticModel>) {
+                std::is_same_v<Msg, ::cutsim::v1::HapticModel> ||
+                std::is_same_v<Msg, ::cutsim::v1::ServerPresence>) {
     return 1400;
   } else if constexpr (std::is_same_v<Msg, ::cutsim::v1::SessionStatus>) {
     return 4 * 1024;
@@ -111,16 +113,20 @@ class Encoder {
  public:
   /// Serialises `msg`; returns a view of the bytes valid until the next call,
   /// or an empty optional if the encoding exceeds `limit` bytes or fails
-  /// (protobuf cannot encode messages above 2 GiB). `size` (if given)
-  /// receives the encoded size even when it exceeds the limit.
+  /// (protobuf cannot encode messages above 2 GiB, or signing failed). With
+  /// a `signer` the bytes end with its signed trailer (stream_auth.h), which
+  /// counts towards `limit`. `size` (if given) receives the encoded size
+  /// even when it exceeds the limit.
   std::optional<std::span<const uint8_t>> Encode(const google::protobuf::MessageLite& msg,
-                                                 size_t limit, size_t* size = nullptr);
+                                                 size_t limit, size_t* size = nullptr,
+                                                 PayloadAuthenticator* signer = nullptr);
 
   /// Typed form using `MaxPayloadBytes<Msg>()` as the limit.
   template <class Msg>
-  std::optional<std::span<const uint8_t>> Encode(const Msg& msg, size_t* size = nullptr) {
+  std::optional<std::span<const uint8_t>> Encode(const Msg& msg, size_t* size = nullptr,
+                                                 PayloadAuthenticator* signer = nullptr) {
     return Encode(static_cast<const google::protobuf::MessageLite&>(msg),
-                  MaxPayloadBytes<Msg>(), size);
+                  MaxPayloadBytes<Msg>(), size, signer);
   }
 
  private:

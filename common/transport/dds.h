@@ -32,6 +32,20 @@ enum class EnvelopeKind : uint32_t {
   kStatus = 2,    ///< cutsim.v1.SessionStatus
 };
 
+/// Domain string of the signed trailer (stream_auth.h) of each observer
+/// topic's payload, so a tag never moves from one topic to another.
+[[nodiscard]] constexpr std::string_view ObserverStreamDomain(EnvelopeKind kind) {
+  switch (kind) {
+    case EnvelopeKind::kSnapshot:
+      return "cutsim.v1.MeshSnapshot/hmac-sha256/1";
+    case EnvelopeKind::kDelta:
+      return "cutsim.v1.MeshDelta/hmac-sha256/1";
+    case EnvelopeKind::kStatus:
+      return "cutsim.v1.SessionStatus/hmac-sha256/1";
+  }
+  return "";
+}
+
 /// Name and QoS of one topic. The one place where they are chosen:
 ///  - snapshot: RELIABLE, TRANSIENT_LOCAL, KEEP_LAST 1 per session (the key),
 ///    so a late joiner receives the current mesh on match;

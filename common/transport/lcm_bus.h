@@ -204,6 +204,12 @@ class LcmBus {
         std::move(channel), std::move(callback)));
   }
 
+  /// Subscribes to one channel's raw bytes (at most `max_bytes`; larger
+  /// messages are counted as decode errors): for receivers that
+  /// authenticate the bytes before parsing them (stream_auth.h).
+  [[nodiscard]] LcmSubscription SubscribeRaw(std::string channel, size_t max_bytes,
+                                             std::function<void(std::span<const uint8_t>)> callback);
+
   /// Waits up to `timeout_ms` (≥ 0) for a message, then dispatches everything
   /// already queued without further waiting, and finally delivers the newest
   /// pending message of each subscription. Returns the number of callbacks

@@ -79,6 +79,15 @@ MeshStreamPublisher::MeshStreamPublisher(DdsParticipant& participant, std::strin
   seq_ = static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(
                                    std::chrono::system_clock::now().time_since_epoch())
                                    .count());
+  epoch_ = static_cast<uint64_t>(RealtimeNowNs());
+  if (opts_.key) {
+    snapshot_signer_ = std::make_unique<PayloadAuthenticator>(
+        *opts_.key, std::string(ObserverStreamDomain(EnvelopeKind::kSnapshot)), session_);
+    delta_signer_ = std::make_unique<PayloadAuthenticator>(
+        *opts_.key, std::string(ObserverStreamDomain(EnvelopeKind::kDelta)), session_);
+    status_signer_ = std::make_unique<PayloadAuthenticator>(
+        *opts_.key, std::string(ObserverStreamDomain(EnvelopeKind::kStatus)), session_);
+  }
 }
 
 MeshStreamPublisher::~MeshStreamPublisher() = default;
@@ -363,8 +372,10 @@ void MeshStreamPublisher::EncodeSnapshot(uint64_t seq, uint64_t hash) {
   for (const uint8_t o : sent_opened_) snapshot_.add_opened(o != 0);
   for (const int32_t c : sent_stress_) snapshot_.add_stress_code(c);
   snapshot_.set_hash(hash);
+  snapshot_.set_epoch(epoch_);
+  snapshot_.set_wall_ns(RealtimeNowNs());
   size_t size = 0;
-  const auto bytes = encoder_.Encode(snapshot_, &size);
+  const auto bytes = encoder_.Encode(snapshot_, &size, snapshot_signer_.get());
   if (bytes && snapshot_writer_.Publish(EnvelopeKind::kSnapshot, seq, session_, *bytes) ==
                    DdsPublishStatus::kOk) {
     ++stats_.snapshots;
@@ -383,8 +394,10 @@ void MeshStreamPublisher::PublishDelta(uint64_t seq, uint64_t hash) {
   delta_.set_sim_time(frame_.sim_time);
   delta_.set_hash(hash);
   *delta_.mutable_observed() = observed_;
+  delta_.set_epoch(epoch_);
+  delta_.set_wall_ns(RealtimeNowNs());
   size_t size = 0;
-  const auto bytes = encoder_.Encode(delta_, &size);
+  const auto bytes = encoder_.Encode(delta_, &size, delta_signer_.get());
   if (bytes && delta_writer_.Publish(EnvelopeKind::kDelta, seq, session_, *bytes) == DdsPublishStatus::kOk) {
     ++stats_.deltas;
     stats_.delta_bytes += size;
@@ -397,7 +410,9 @@ void MeshStreamPublisher::PublishDelta(uint64_t seq, uint64_t hash) {
 void MeshStreamPublisher::PublishStatus(const cutsim::v1::SessionStatus& status) {
   status_ = status;
   status_.set_session(session_);
-  const auto bytes = encoder_.Encode(status_);
+  status_.set_epoch(epoch_);
+  status_.set_wall_ns(RealtimeNowNs());
+  const auto bytes = encoder_.Encode(status_, nullptr, status_signer_.get());
   if (bytes && status_writer_.Publish(EnvelopeKind::kStatus, ++status_seq_, session_, *bytes) ==
                    DdsPublishStatus::kOk) {
     ++stats_.status_published;

@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -15,6 +16,7 @@
 #include "common/transport/codec.h"
 #include "common/transport/dds.h"
 #include "common/transport/mesh_hash.h"
+#include "common/transport/stream_auth.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
@@ -30,6 +32,9 @@ struct MeshStreamOptions {
   /// A node is sent when its world position is farther than this from the
   /// value last sent for it, m; unset = quantum_m.
   std::optional<double> move_tolerance_m;
+  /// The session key: every snapshot, delta and status is signed with it
+  /// (stream_auth.h). Unset: an open session, nothing is signed.
+  std::optional<SessionKey> key;
 };
 
 /// The publisher's counters (`MeshStreamPublisher::stats`).
@@ -62,6 +67,9 @@ class MeshStreamPublisher {
 
   /// True when a reader of the snapshot or delta topic is matched.
   [[nodiscard]] bool HasReaders() const;
+  /// This publisher's epoch (its start, CLOCK_REALTIME ns): viewers follow
+  /// one epoch per session.
+  [[nodiscard]] uint64_t epoch() const { return epoch_; }
 
   /// Called once per viewer frame. `fill` is invoked only when at least one
   /// reader is matched (no copying, no encoding otherwise); it fills the
@@ -126,6 +134,11 @@ class MeshStreamPublisher {
   bool have_sent_ = false;
   uint64_t seq_ = 0;
   uint64_t status_seq_ = 0;
+  uint64_t epoch_ = 0;  // this server's start, CLOCK_REALTIME ns (stream_auth.h)
+  // Signers of the three topics; null in an open session.
+  std::unique_ptr<PayloadAuthenticator> snapshot_signer_;
+  std::unique_ptr<PayloadAuthenticator> delta_signer_;
+  std::unique_ptr<PayloadAuthenticator> status_signer_;
   uint64_t sent_version_ = 0;
   QuantisedPositions sent_world_;  // #N×3
   QuantisedPositions sent_rest_;   // #N×3

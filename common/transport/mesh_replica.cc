@@ -1,5 +1,6 @@
 #include "common/transport/mesh_replica.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <utility>
@@ -161,6 +162,14 @@ bool MeshReplica::DecodeDelta(const v1::MeshDelta& d) {
       (!d.has_stress() && d.stress_code_size() != 0)) {
     return false;
   }
+  // A node the replica does not hold yet comes with its rest and world
+  // positions, so the count a delta claims is backed by bytes it carries
+  // (indices are sorted and unique: the added ones are the tail).
+  auto covers_added = [&](const std::vector<uint32_t>& nodes) {
+    const auto first_added = std::lower_bound(nodes.begin(), nodes.end(), old_n);
+    return static_cast<uint64_t>(nodes.end() - first_added) == n - old_n;
+  };
+  if (!covers_added(idx.rest) || !covers_added(idx.moved)) return false;
   for (const uint32_t v : d.changed_tet_nodes()) {
     if (v >= n) return false;
   }

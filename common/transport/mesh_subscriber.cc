@@ -39,7 +39,8 @@ struct MeshStreamSubscriber::WaitSet {
   WaitSet& operator=(const WaitSet&) = delete;
 };
 
-MeshStreamSubscriber::MeshStreamSubscriber(DdsParticipant& participant, std::string session)
+MeshStreamSubscriber::MeshStreamSubscriber(DdsParticipant& participant, std::string session,
+                                           std::optional<SessionKey> key)
     : session_(ValidatedSession(session)),
       snapshot_topic_(participant, EnvelopeKind::kSnapshot),
       delta_topic_(participant, EnvelopeKind::kDelta),
@@ -50,9 +51,74 @@ MeshStreamSubscriber::MeshStreamSubscriber(DdsParticipant& participant, std::str
       waitset_(std::make_unique<WaitSet>(
           participant.handle(),
           std::initializer_list<DdsEntity>{snapshot_reader_.handle(), delta_reader_.handle(),
-                                           status_reader_.handle()})) {}
+                                           status_reader_.handle()})) {
+  stats_.authenticated = key.has_value();
+  if (key) {
+    for (const EnvelopeKind kind :
+         {EnvelopeKind::kSnapshot, EnvelopeKind::kDelta, EnvelopeKind::kStatus}) {
+      verifiers_[static_cast<size_t>(kind)] = std::make_unique<PayloadAuthenticator>(
+          *key, std::string(ObserverStreamDomain(kind)), session_);
+    }
+  }
+}
 
 MeshStreamSubscriber::~MeshStreamSubscriber() = default;
+
+bool MeshStreamSubscriber::Authentic(EnvelopeKind kind, std::span<const uint8_t> payload,
+                                     std::span<const uint8_t>* body) {
+  PayloadAuthenticator* verifier = verifiers_[static_cast<size_t>(kind)].get();
+  if (verifier == nullptr) {
+    *body = payload;
+    return true;
+  }
+  switch (verifier->Check(payload, body)) {
+    case AuthVerdict::kOk:
+      return true;
+    case AuthVerdict::kUnsigned:
+      ++stats_.unsigned_samples;
+      return false;
+    default:
+      ++stats_.forged;
+      return false;
+  }
+}
+
+bool MeshStreamSubscriber::Admit(EnvelopeKind kind, uint64_t epoch, uint64_t seq, int64_t wall_ns) {
+  const int64_t now = MonotonicNs();
+  const AuthVerdict verdict =
+      gate_.Judge(epoch, seq, wall_ns, RealtimeNowNs(), now, static_cast<size_t>(kind));
+  switch (verdict) {
+    case AuthVerdict::kOk:
+      return true;
+    case AuthVerdict::kNewEpoch:
+      if (server_epoch_ != 0 && epoch != server_epoch_) {
+        // Another server epoch: a restarted server (newer), or the old one
+        // back after the newer went quiet. Its state starts with its snapshot.
+        ++stats_.server_changes;
+        Log().info("mesh stream {}: following server epoch {} (was {})", session_, epoch,
+                   server_epoch_);
+        LoseSync();
+        pending_.clear();
+      }
+      server_epoch_ = epoch;
+      return true;
+    case AuthVerdict::kOtherSender:
+      ++stats_.other_server;
+      if (now - last_other_server_log_ns_ > 5'000'000'000) {
+        last_other_server_log_ns_ = now;
+        Log().warn("mesh stream {}: two servers publish this session (epochs {} and {}); "
+                   "following {}, the newer",
+                   session_, gate_.epoch(), epoch, gate_.epoch());
+      }
+      return false;
+    case AuthVerdict::kReplayed:
+      ++stats_.replayed;
+      return false;
+    default:
+      ++stats_.invalid_epoch;
+      return false;
+  }
+}
 
 size_t MeshStreamSubscriber::Poll(std::chrono::nanoseconds timeout) {
   if (timeout.count() > 0) {
@@ -114,15 +180,17 @@ void MeshStreamSubscriber::Process(EnvelopeKind kind, std::string_view session, 
   ++stats_.samples;
   stats_.bytes_received += payload.size();
   last_sample_ns_ = MonotonicNs();
+  std::span<const uint8_t> body;
+  if (!Authentic(kind, payload, &body)) return;
   switch (kind) {
     case EnvelopeKind::kSnapshot:
-      OnSnapshot(payload, seq);
+      OnSnapshot(body, seq);
       break;
     case EnvelopeKind::kDelta:
-      OnDelta(payload, seq);
+      OnDelta(body, seq);
       break;
     case EnvelopeKind::kStatus:
-      OnStatus(payload);
+      OnStatus(body, seq);
       break;
   }
 }
@@ -147,9 +215,16 @@ void MeshStreamSubscriber::OnSnapshot(std::span<const uint8_t> payload, uint64_t
     ++stats_.malformed;
     return;
   }
+  if (!Admit(EnvelopeKind::kSnapshot, snapshot_msg_.epoch(), seq, snapshot_msg_.wall_ns())) return;
+  // Only a sample whose content proved valid is remembered by the gate, so a
+  // malformed one cannot use up the sequence number of the genuine one.
+  const auto taken = [&] {
+    gate_.Record(snapshot_msg_.epoch(), seq, MonotonicNs(), static_cast<size_t>(EnvelopeKind::kSnapshot));
+  };
   if (replica_.synced() && (seq < replica_.seq() ||
                             (seq == replica_.seq() && snapshot_msg_.hash() == replica_.hash()))) {
     ++stats_.ignored;  // we are already there or past it
+    taken();
     return;
   }
   const bool keep_confirmed = replica_.synced() && confirmed_;
@@ -161,6 +236,7 @@ void MeshStreamSubscriber::OnSnapshot(std::span<const uint8_t> payload, uint64_t
       ++state_version_;
       confirmed_ = keep_confirmed;
       snapshot_applied_ns_ = MonotonicNs();
+      taken();
       TakeObserved(snapshot_msg_.observed());
       ApplyPending();
       break;
@@ -210,10 +286,10 @@ void MeshStreamSubscriber::Stash(const v1::MeshDelta& delta) {
   pending_[delta.seq()] = delta;
 }
 
-void MeshStreamSubscriber::HandleDelta(const v1::MeshDelta& delta) {
+bool MeshStreamSubscriber::HandleDelta(const v1::MeshDelta& delta) {
   if (!replica_.synced()) {
     Stash(delta);  // may follow a snapshot still on its way
-    return;
+    return true;
   }
   switch (replica_.ApplyDelta(delta)) {
     case MeshReplica::DeltaResult::kApplied:
@@ -251,14 +327,15 @@ void MeshStreamSubscriber::HandleDelta(const v1::MeshDelta& delta) {
       Log().warn("mesh stream {}: hash mismatch at seq {}, waiting for the next snapshot",
                  session_, delta.seq());
       LoseSync();
-      break;
+      return false;
     case MeshReplica::DeltaResult::kUnknownTopology:
       ++stats_.unknown_topology;
-      break;
+      return false;
     case MeshReplica::DeltaResult::kMalformed:
       ++stats_.malformed;
-      break;
+      return false;
   }
+  return true;
 }
 
 void MeshStreamSubscriber::OnDelta(std::span<const uint8_t> payload, uint64_t seq) {
@@ -271,7 +348,10 @@ void MeshStreamSubscriber::OnDelta(std::span<const uint8_t> payload, uint64_t se
     ++stats_.malformed;
     return;
   }
-  HandleDelta(delta_msg_);
+  if (!Admit(EnvelopeKind::kDelta, delta_msg_.epoch(), seq, delta_msg_.wall_ns())) return;
+  if (HandleDelta(delta_msg_)) {
+    gate_.Record(delta_msg_.epoch(), seq, MonotonicNs(), static_cast<size_t>(EnvelopeKind::kDelta));
+  }
 }
 
 void MeshStreamSubscriber::ApplyPending() {
@@ -288,13 +368,15 @@ void MeshStreamSubscriber::ApplyPending() {
   }
 }
 
-void MeshStreamSubscriber::OnStatus(std::span<const uint8_t> payload) {
+void MeshStreamSubscriber::OnStatus(std::span<const uint8_t> payload, uint64_t seq) {
   v1::SessionStatus msg;
   if (!Decodable(payload, msg, EnvelopeKind::kStatus)) return;
   if (msg.session() != session_) {
     CountForeign();
     return;
   }
+  if (!Admit(EnvelopeKind::kStatus, msg.epoch(), seq, msg.wall_ns())) return;
+  gate_.Record(msg.epoch(), seq, MonotonicNs(), static_cast<size_t>(EnvelopeKind::kStatus));
   ++stats_.status;
   status_ = std::move(msg);
 }

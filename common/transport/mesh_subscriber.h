@@ -15,6 +15,7 @@
 
 #include "common/transport/dds.h"
 #include "common/transport/mesh_replica.h"
+#include "common/transport/stream_auth.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
@@ -38,16 +39,38 @@ struct MeshStreamSubscriberStats {
   uint64_t malformed_observed = 0; ///< Applied frames whose session view was refused (tool count,
                                    ///< non-finite values, absurd blade length, negative
                                    ///< measures); the mesh stood.
+  bool authenticated = false;      ///< A session key is configured: only signed samples are taken.
+  uint64_t unsigned_samples = 0;   ///< Samples without a tag while a key is configured.
+  uint64_t forged = 0;             ///< Samples whose tag does not verify (wrong key, altered).
+  uint64_t replayed = 0;           ///< Authentic samples not newer than one already taken.
+  uint64_t invalid_epoch = 0;      ///< Authentic samples whose epoch is after their signing time.
+  uint64_t other_server = 0;       ///< Samples of an older server epoch while the followed server
+                                   ///< is alive (a second server on the session).
+  uint64_t server_changes = 0;     ///< Times a newer server epoch took over (a restarted server).
   uint64_t samples = 0;            ///< Samples received of this session (any topic).
   uint64_t bytes_received = 0;     ///< Payload bytes of those samples.
 };
 
 /// Readers of one session's snapshot, delta and status topics feeding a
 /// `MeshReplica`. Not thread-safe.
+///
+/// Authentication: with the session key every sample's signed trailer is
+/// checked on the raw payload before it is parsed (stream_auth.h); unsigned
+/// and forged samples are counted and dropped, so nothing without the key
+/// reaches the replica. Every sample then passes one `EpochGate` (no window:
+/// late joiners are sent an old keyframe; one lane per topic): the viewer
+/// follows one server epoch. A newer epoch (a restarted server) takes over
+/// and the replica waits for its snapshot; an older one is refused while the
+/// followed server has been heard within `kServerQuietNs`; a sequence number
+/// of another epoch, however high, never takes the replica over. Without a
+/// key (an open session) the same rules apply to the epochs the samples
+/// claim, which anyone on the network can forge.
 class MeshStreamSubscriber {
  public:
-  /// Throws `InputError` ("--session") on an invalid session name.
-  MeshStreamSubscriber(DdsParticipant& participant, std::string session);
+  /// Throws `InputError` ("--session") on an invalid session name. With a
+  /// `key`, only samples signed with it are taken (see the class comment).
+  MeshStreamSubscriber(DdsParticipant& participant, std::string session,
+                       std::optional<SessionKey> key = std::nullopt);
   ~MeshStreamSubscriber();
   MeshStreamSubscriber(const MeshStreamSubscriber&) = delete;
   MeshStreamSubscriber& operator=(const MeshStreamSubscriber&) = delete;
@@ -83,13 +106,16 @@ class MeshStreamSubscriber {
 
  private:
   static constexpr size_t kMaxPending = 64;
+  static constexpr int64_t kServerQuietNs = 3'000'000'000;
   static constexpr int kMaxObservedTools = 4;
   static constexpr double kMaxObservedBladeLength = 1.0;  // m
 
   void OnSnapshot(std::span<const uint8_t> payload, uint64_t seq);
   void OnDelta(std::span<const uint8_t> payload, uint64_t seq);
-  void OnStatus(std::span<const uint8_t> payload);
-  void HandleDelta(const v1::MeshDelta& delta);
+  void OnStatus(std::span<const uint8_t> payload, uint64_t seq);
+  /// Applies or stashes a delta; false if it was refused (malformed, unknown
+  /// topology, hash mismatch).
+  bool HandleDelta(const v1::MeshDelta& delta);
   void Stash(const v1::MeshDelta& delta);
   void ApplyPending();
   void LoseSync();
@@ -97,8 +123,19 @@ class MeshStreamSubscriber {
   void CountForeign();
   bool Decodable(std::span<const uint8_t> payload, google::protobuf::MessageLite& msg,
                  EnvelopeKind kind);
+  /// Checks the trailer (with a key); sets `*body` to the bytes to parse.
+  bool Authentic(EnvelopeKind kind, std::span<const uint8_t> payload, std::span<const uint8_t>* body);
+  /// Judges a decoded sample's epoch and sequence by the gate and switches to
+  /// a new server epoch; false when the sample is to be dropped. The caller
+  /// records the sample in the gate once its content proved valid.
+  bool Admit(EnvelopeKind kind, uint64_t epoch, uint64_t seq, int64_t wall_ns);
 
   std::string session_;
+  // Verifiers of the three topics (null in an open session), and the gate.
+  std::unique_ptr<PayloadAuthenticator> verifiers_[3];
+  EpochGate gate_{0, kServerQuietNs};
+  uint64_t server_epoch_ = 0;  // epoch the replica's state comes from
+  int64_t last_other_server_log_ns_ = 0;
   DdsTopic snapshot_topic_;
   DdsTopic delta_topic_;
   DdsTopic status_topic_;

@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cctype>
 #include <cstdlib>
 #include <ctime>
@@ -28,8 +29,12 @@ int HexValue(char c) {
 
 EVP_MAC_CTX* Ctx(void* p) { return static_cast<EVP_MAC_CTX*>(p); }
 
-// Protobuf key of `bytes hmac = 15` (field 15, wire type 2) and the tag's length.
-constexpr uint8_t kTrailerKey = (15 << 3) | 2;
+// Protobuf key of `bytes hmac = 127` (wire type 2) as a two-byte varint, and
+// the tag's length.
+constexpr uint32_t kTrailerKey = (kTrailerField << 3) | 2;
+constexpr uint8_t kTrailerKey0 = static_cast<uint8_t>((kTrailerKey & 0x7f) | 0x80);
+constexpr uint8_t kTrailerKey1 = static_cast<uint8_t>(kTrailerKey >> 7);
+static_assert(kTrailerKey >> 14 == 0, "the trailer's key is two varint bytes");
 constexpr uint8_t kTrailerLength = HmacSha256::kTagBytes;
 
 std::span<const uint8_t> AsBytes(std::string_view s) {
@@ -165,8 +170,10 @@ bool HmacSha256::Final(Tag* tag) noexcept {
 SignedBytes SplitTrailer(std::span<const uint8_t> bytes) noexcept {
   if (bytes.size() < kTrailerBytes) return {bytes, {}};
   const size_t at = bytes.size() - kTrailerBytes;
-  if (bytes[at] != kTrailerKey || bytes[at + 1] != kTrailerLength) return {bytes, {}};
-  return {bytes.first(at), bytes.subspan(at + 2)};
+  if (bytes[at] != kTrailerKey0 || bytes[at + 1] != kTrailerKey1 || bytes[at + 2] != kTrailerLength) {
+    return {bytes, {}};
+  }
+  return {bytes.first(at), bytes.subspan(at + 3)};
 }
 
 PayloadAuthenticator::PayloadAuthenticator(const SessionKey& key, std::string domain,
@@ -192,9 +199,10 @@ bool PayloadAuthenticator::MakeTrailer(std::span<const uint8_t> body,
                                        std::span<uint8_t, kTrailerBytes> out) noexcept {
   HmacSha256::Tag tag;
   if (!TagOf(body, &tag)) return false;
-  out[0] = kTrailerKey;
-  out[1] = kTrailerLength;
-  std::copy(tag.begin(), tag.end(), out.begin() + 2);
+  out[0] = kTrailerKey0;
+  out[1] = kTrailerKey1;
+  out[2] = kTrailerLength;
+  std::copy(tag.begin(), tag.end(), out.begin() + 3);
   return true;
 }
 
@@ -211,29 +219,35 @@ AuthVerdict PayloadAuthenticator::Check(std::span<const uint8_t> bytes,
 
 // ---- EpochGate ---------------------------------------------------------------------
 
-EpochGate::Seen* EpochGate::Find(uint64_t epoch) noexcept {
-  for (Seen& s : seen_) {
+const EpochGate::Seen* EpochGate::Find(uint64_t epoch) const noexcept {
+  for (const Seen& s : seen_) {
     if (s.epoch == epoch && epoch != 0) return &s;
   }
   return nullptr;
 }
 
 EpochGate::Seen* EpochGate::Slot(uint64_t epoch) noexcept {
-  if (Seen* s = Find(epoch)) return s;
+  for (Seen& s : seen_) {
+    if (s.epoch == epoch) return &s;
+  }
   // An empty entry, else the least recently heard epoch other than the followed one.
   Seen* pick = nullptr;
   for (Seen& s : seen_) {
-    if (s.epoch == 0) return &s;
+    if (s.epoch == 0) {
+      s = Seen{.epoch = epoch};
+      return &s;
+    }
     if (s.epoch == followed_) continue;
     if (pick == nullptr || s.last_mono_ns < pick->last_mono_ns) pick = &s;
   }
+  *pick = Seen{.epoch = epoch};
   return pick;
 }
 
-AuthVerdict EpochGate::Offer(uint64_t epoch, uint64_t seq, int64_t wall_ns, int64_t now_wall_ns,
-                             int64_t now_mono_ns) noexcept {
+AuthVerdict EpochGate::Judge(uint64_t epoch, uint64_t seq, int64_t wall_ns, int64_t now_wall_ns,
+                             int64_t now_mono_ns, size_t lane) const noexcept {
   // An epoch is its sender's start time: never 0, never after a message it signed.
-  if (epoch == 0 || wall_ns < 0 || epoch > static_cast<uint64_t>(wall_ns)) {
+  if (lane >= kLanes || epoch == 0 || wall_ns < 0 || epoch > static_cast<uint64_t>(wall_ns)) {
     return AuthVerdict::kInvalidEpoch;
   }
   if (window_ns_ > 0) {
@@ -241,20 +255,30 @@ AuthVerdict EpochGate::Offer(uint64_t epoch, uint64_t seq, int64_t wall_ns, int6
                                                   : wall_ns - now_wall_ns <= window_ns_;
     if (!in_window) return AuthVerdict::kOutsideWindow;
   }
-  Seen* known = Find(epoch);
-  if (known != nullptr && seq <= known->seq) return AuthVerdict::kReplayed;
-  AuthVerdict verdict = AuthVerdict::kOk;
-  if (epoch != followed_) {
-    if (followed_ != 0 && epoch < followed_) {
-      const Seen* held = Find(followed_);
-      const bool quiet = held == nullptr || now_mono_ns - held->last_mono_ns >= quiet_ns_;
-      if (!quiet) return AuthVerdict::kOtherSender;
-    }
-    verdict = AuthVerdict::kNewEpoch;
+  const Seen* known = Find(epoch);
+  if (known != nullptr && known->has[lane] && seq <= known->seq[lane]) return AuthVerdict::kReplayed;
+  if (epoch == followed_) return AuthVerdict::kOk;
+  if (followed_ != 0 && epoch < followed_) {
+    const Seen* held = Find(followed_);
+    const bool quiet = held == nullptr || now_mono_ns - held->last_mono_ns >= quiet_ns_;
+    if (!quiet) return AuthVerdict::kOtherSender;
   }
-  Seen* slot = known != nullptr ? known : Slot(epoch);
+  return AuthVerdict::kNewEpoch;
+}
+
+void EpochGate::Record(uint64_t epoch, uint64_t seq, int64_t now_mono_ns, size_t lane) noexcept {
+  if (lane >= kLanes || epoch == 0) return;
+  Seen* slot = Slot(epoch);
   followed_ = epoch;
-  *slot = Seen{.epoch = epoch, .seq = seq, .last_mono_ns = now_mono_ns};
+  slot->seq[lane] = seq;
+  slot->has[lane] = true;
+  slot->last_mono_ns = now_mono_ns;
+}
+
+AuthVerdict EpochGate::Offer(uint64_t epoch, uint64_t seq, int64_t wall_ns, int64_t now_wall_ns,
+                             int64_t now_mono_ns, size_t lane) noexcept {
+  const AuthVerdict verdict = Judge(epoch, seq, wall_ns, now_wall_ns, now_mono_ns, lane);
+  if (Accepted(verdict)) Record(epoch, seq, now_mono_ns, lane);
   return verdict;
 }
 

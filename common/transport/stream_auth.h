@@ -7,8 +7,8 @@
 /// Two pieces, used by every stream:
 ///
 /// * **A tag over the bytes as sent.** `PayloadAuthenticator` signs a
-///   serialised protobuf message by appending one field, `bytes hmac = 15`
-///   (34 bytes: key 0x7A, length 32, the tag), whose value is
+///   serialised protobuf message by appending one field, `bytes hmac = 127`
+///   (35 bytes: the key 0xFA 0x07, the length 32, the tag), whose value is
 ///   HMAC-SHA256(key, domain ‖ len(session) ‖ session ‖ body), body being
 ///   every byte before the trailer. The receiver checks the tag on the raw
 ///   bytes before it parses anything, so a forged message never reaches a
@@ -118,9 +118,12 @@ class HmacSha256 {
   void* ctx_ = nullptr;  // EVP_MAC_CTX*, keyed once; re-initialised per tag
 };
 
-/// Size of the signed trailer: protobuf key of field 15 (wire type 2), the
+/// Protobuf field number of the signed trailer in every signed message type;
+/// no signed message uses it for anything else.
+inline constexpr uint32_t kTrailerField = 127;
+/// Size of the signed trailer: the field's key (two bytes of varint), the
 /// length 32, and the tag.
-inline constexpr size_t kTrailerBytes = 2 + HmacSha256::kTagBytes;
+inline constexpr size_t kTrailerBytes = 3 + HmacSha256::kTagBytes;
 
 /// A message split into the bytes the tag covers and the tag.
 struct SignedBytes {
@@ -128,7 +131,7 @@ struct SignedBytes {
   std::span<const uint8_t> tag;  ///< Empty if the message carries no trailer.
 };
 
-/// Splits `bytes` at the trailer if its last 34 bytes are one.
+/// Splits `bytes` at the trailer if its last 35 bytes are one.
 [[nodiscard]] SignedBytes SplitTrailer(std::span<const uint8_t> bytes) noexcept;
 
 /// Tags and checks serialised messages of one kind in one session.
@@ -158,8 +161,11 @@ class EpochGate {
  public:
   static constexpr int64_t kDefaultWindowNs = 2'000'000'000;
   static constexpr int64_t kDefaultQuietNs = 500'000'000;
-  /// Epochs whose highest sequence is remembered (the followed one included).
+  /// Epochs whose highest sequences are remembered (the followed one included).
   static constexpr size_t kEpochsKept = 8;
+  /// Independent sequence spaces of one sender (the observer stream numbers
+  /// its snapshot, delta and status topics separately).
+  static constexpr size_t kLanes = 3;
 
   /// `window_ns` ≤ 0 turns the signing-time window off (streams that replay
   /// old keyframes to late joiners). `quiet_ns` is how long the followed
@@ -167,11 +173,19 @@ class EpochGate {
   explicit EpochGate(int64_t window_ns = kDefaultWindowNs, int64_t quiet_ns = kDefaultQuietNs)
       : window_ns_(window_ns), quiet_ns_(quiet_ns) {}
 
-  /// Judges an authentic message (epoch, seq, signing time) at receiver
-  /// times `now_wall_ns` (CLOCK_REALTIME) and `now_mono_ns` (CLOCK_MONOTONIC,
-  /// for the quiet period); an accepted message is remembered.
+  /// Judges an authentic message (epoch, seq in `lane`, signing time) at
+  /// receiver times `now_wall_ns` (CLOCK_REALTIME) and `now_mono_ns`
+  /// (CLOCK_MONOTONIC, for the quiet period); an accepted message is
+  /// remembered. A lane ≥ kLanes is refused as kInvalidEpoch.
   AuthVerdict Offer(uint64_t epoch, uint64_t seq, int64_t wall_ns, int64_t now_wall_ns,
-                    int64_t now_mono_ns) noexcept;
+                    int64_t now_mono_ns, size_t lane = 0) noexcept;
+  /// `Offer` in two steps, for a receiver that takes a message only once
+  /// its content proved valid: `Judge` decides without remembering, and
+  /// `Record` remembers a message judged acceptable.
+  [[nodiscard]] AuthVerdict Judge(uint64_t epoch, uint64_t seq, int64_t wall_ns,
+                                  int64_t now_wall_ns, int64_t now_mono_ns,
+                                  size_t lane = 0) const noexcept;
+  void Record(uint64_t epoch, uint64_t seq, int64_t now_mono_ns, size_t lane = 0) noexcept;
 
   /// The followed epoch, 0 before the first accepted message.
   [[nodiscard]] uint64_t epoch() const { return followed_; }
@@ -181,10 +195,11 @@ class EpochGate {
  private:
   struct Seen {
     uint64_t epoch = 0;
-    uint64_t seq = 0;
+    std::array<uint64_t, kLanes> seq{};
+    std::array<bool, kLanes> has{};
     int64_t last_mono_ns = 0;
   };
-  Seen* Find(uint64_t epoch) noexcept;
+  [[nodiscard]] const Seen* Find(uint64_t epoch) const noexcept;
   Seen* Slot(uint64_t epoch) noexcept;  // existing entry, else the least recently used
 
   int64_t window_ns_;

@@ -100,7 +100,7 @@ struct Fake {
 int main(int argc, char** argv) {
   try {
     CLI::App app{"cutsim-fake-mesh-server: test publisher of a deforming, cut box"};
-    std::string session = "default", hash_log, mesh = "box", log_level = "info";
+    std::string session = "default", hash_log, mesh = "box", log_level = "info", key_file;
     uint32_t domain = 0;
     double rate = 20, duration = 10, cut_at = 3;
     int cells = 8;
@@ -113,6 +113,7 @@ int main(int argc, char** argv) {
     app.add_option("--mesh", mesh)->check(CLI::IsMember({"box", "organ"}));
     app.add_option("--hash-log", hash_log);
     app.add_option("--log-level", log_level);
+    app.add_option("--key-file", key_file, "Sign the frames with this session key (hex)");
     CLI11_PARSE(app, argc, argv);
     cutsim::InitLogging("fake-mesh-server", log_level);
     std::signal(SIGINT, OnSignal);
@@ -146,7 +147,9 @@ int main(int argc, char** argv) {
                        fake.surface.rows());
 
     cutsim::transport::DdsParticipant participant(domain);
-    cutsim::transport::MeshStreamPublisher pub(participant, session);
+    cutsim::transport::MeshStreamPublisher pub(
+        participant, session,
+        {.key = key_file.empty() ? std::nullopt : cutsim::transport::LoadSessionKey(key_file)});
     std::ofstream log;
     if (!hash_log.empty()) log.open(hash_log, std::ios::trunc);
 

@@ -4,6 +4,7 @@
 
 #include "common/transport/mesh_stream.h"
 
+#include <array>
 #include <chrono>
 #include <limits>
 #include <memory>
@@ -322,6 +323,8 @@ TEST(MeshStreamTest, BadSamplesAreCountedAndIgnored) {
     v1::MeshSnapshot snap;
     snap.set_session(h.session());
     snap.set_seq(d.seq() + 5);
+    snap.set_epoch(d.epoch());  // the genuine server's epoch: it reaches the replica's checks
+    snap.set_wall_ns(d.wall_ns());
     snap.set_quantum(1e-5);
     snap.add_world(0), snap.add_world(0), snap.add_world(0);
     snap.add_rest(0), snap.add_rest(0), snap.add_rest(0);
@@ -363,7 +366,138 @@ TEST(MeshStreamTest, DeltaForALocalPokeIsAtMostTenPercentOfASnapshot) {
   const uint64_t still_bytes = h.pub().stats().last_delta_bytes;
   EXPECT_LE(10 * poke_bytes, snapshot_bytes);
   EXPECT_LT(cut_bytes, snapshot_bytes);
-  EXPECT_LT(still_bytes, 64U);
+  EXPECT_LT(still_bytes, 96U);  // the header: session, seq, frame, hash, epoch, signing time
+}
+
+SessionKey TestKey(char fill = 'c') { return ParseSessionKey(std::string(64, fill), "test"); }
+
+/// Serialises `msg` and appends the trailer `key` gives it for `kind`.
+std::vector<uint8_t> SignedAs(const google::protobuf::MessageLite& msg, const SessionKey& key,
+                              EnvelopeKind kind, const std::string& session) {
+  PayloadAuthenticator signer(key, std::string(ObserverStreamDomain(kind)), session);
+  const std::string body = msg.SerializeAsString();
+  std::vector<uint8_t> out(body.begin(), body.end());
+  std::array<uint8_t, kTrailerBytes> trailer{};
+  EXPECT_TRUE(signer.MakeTrailer(out, trailer));
+  out.insert(out.end(), trailer.begin(), trailer.end());
+  return out;
+}
+
+TEST(MeshStreamAuth, OnlyFramesSignedWithTheKeyReachTheReplica) {
+  StreamHarness h({.keyframe_interval_s = 0, .key = TestKey()});
+  FakeMesh m(3);
+  const std::vector<Sample> first = h.Publish(m);
+  MeshStreamSubscriber keyed(h.participant(), h.session(), TestKey());
+  MeshStreamSubscriber wrong(h.participant(), h.session(), TestKey('d'));
+  MeshStreamSubscriber open(h.participant(), h.session());
+  Feed(keyed, first, h.session());
+  Feed(wrong, first, h.session());
+  Feed(open, first, h.session());
+  ExpectReplicaEquals(keyed.replica(), h.pub(), m);
+  EXPECT_TRUE(keyed.stats().authenticated);
+  EXPECT_FALSE(wrong.replica().synced());
+  EXPECT_EQ(wrong.stats().forged, first.size());
+  ExpectReplicaEquals(open.replica(), h.pub(), m);  // the trailer is a field an open viewer skips
+  EXPECT_FALSE(open.stats().authenticated);
+
+  // The next frame without its trailer is unsigned: refused, and the signed
+  // one still applies after it.
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  const std::vector<Sample> next = h.Publish(m);
+  ASSERT_FALSE(next.empty());
+  const uint64_t hash_before = keyed.replica().hash();
+  for (const Sample& s : next) {
+    ASSERT_GT(s.bytes.size(), kTrailerBytes);
+    const std::vector<uint8_t> stripped(s.bytes.begin(), s.bytes.end() - kTrailerBytes);
+    keyed.Process(s.kind, h.session(), s.seq, stripped);
+  }
+  EXPECT_EQ(keyed.stats().unsigned_samples, next.size());
+  EXPECT_EQ(keyed.replica().hash(), hash_before);
+  Feed(keyed, next, h.session());
+  ExpectReplicaEquals(keyed.replica(), h.pub(), m);
+}
+
+TEST(MeshStreamAuth, AForgedHighSequenceNeverTakesTheViewerOver) {
+  StreamHarness h({.keyframe_interval_s = 0, .key = TestKey()});
+  FakeMesh m(3);
+  const std::vector<Sample> first = h.Publish(m);
+  MeshStreamSubscriber keyed(h.participant(), h.session(), TestKey());
+  Feed(keyed, first, h.session());
+  ASSERT_TRUE(keyed.replica().synced());
+  const uint64_t hash_before = keyed.replica().hash();
+
+  // A snapshot of another mesh with a huge sequence number, signed with a
+  // key that is not the session's, and the same unsigned.
+  v1::MeshSnapshot forged;
+  ASSERT_EQ(first[0].kind, EnvelopeKind::kSnapshot);
+  ASSERT_TRUE(forged.ParseFromArray(first[0].bytes.data(),
+                                    static_cast<int>(first[0].bytes.size() - kTrailerBytes)));
+  const uint64_t huge = uint64_t{1} << 62;
+  forged.set_seq(huge);
+  for (int i = 0; i < forged.world_size(); ++i) forged.set_world(i, forged.world(i) + 0.01F);
+  keyed.Process(EnvelopeKind::kSnapshot, h.session(), huge,
+                SignedAs(forged, TestKey('e'), EnvelopeKind::kSnapshot, h.session()));
+  const std::string plain = forged.SerializeAsString();
+  keyed.Process(EnvelopeKind::kSnapshot, h.session(), huge,
+                {reinterpret_cast<const uint8_t*>(plain.data()), plain.size()});
+  EXPECT_EQ(keyed.stats().forged, 1U);
+  EXPECT_EQ(keyed.stats().unsigned_samples, 1U);
+  EXPECT_EQ(keyed.replica().hash(), hash_before);
+
+  // A 46-byte delta that claims 2^26 nodes, correctly signed (a buggy or
+  // hostile key holder): refused before anything is allocated.
+  v1::MeshDelta claim;
+  claim.set_session(h.session());
+  claim.set_seq(keyed.replica().seq() + 1);
+  claim.set_quantum(h.pub().options().quantum_m);
+  claim.set_num_nodes(uint32_t{1} << 26);
+  claim.set_num_tets(static_cast<uint32_t>(keyed.replica().tets().rows()));
+  claim.set_base_topology_version(keyed.replica().topology_version());
+  claim.set_topology_version(keyed.replica().topology_version());
+  claim.set_epoch(h.pub().epoch());
+  claim.set_wall_ns(RealtimeNowNs());
+  const Eigen::Index rows_before = keyed.replica().world_q().rows();
+  keyed.Process(EnvelopeKind::kDelta, h.session(), claim.seq(),
+                SignedAs(claim, TestKey(), EnvelopeKind::kDelta, h.session()));
+  EXPECT_EQ(keyed.stats().malformed, 1U);
+  EXPECT_EQ(keyed.replica().world_q().rows(), rows_before);
+
+  // The genuine stream goes on: the refused samples used up no sequence number.
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  Feed(keyed, h.Publish(m), h.session());
+  ExpectReplicaEquals(keyed.replica(), h.pub(), m);
+}
+
+TEST(MeshStreamAuth, TheViewerFollowsOneServerAndARestartedServerTakesOver) {
+  StreamHarness h({.keyframe_interval_s = 0, .key = TestKey()});
+  FakeMesh m(3);
+  const std::vector<Sample> first = h.Publish(m);
+  MeshStreamSubscriber keyed(h.participant(), h.session(), TestKey());
+  Feed(keyed, first, h.session());
+  ASSERT_TRUE(keyed.replica().synced());
+
+  // A restarted server: a newer epoch, its sequence numbers lower, another mesh.
+  v1::MeshSnapshot restarted;
+  ASSERT_TRUE(restarted.ParseFromArray(first[0].bytes.data(),
+                                       static_cast<int>(first[0].bytes.size() - kTrailerBytes)));
+  const int64_t now = RealtimeNowNs();
+  ASSERT_GT(static_cast<uint64_t>(now), h.pub().epoch());
+  restarted.set_epoch(static_cast<uint64_t>(now));
+  restarted.set_wall_ns(now);
+  restarted.set_seq(3);
+  keyed.Process(EnvelopeKind::kSnapshot, h.session(), 3,
+                SignedAs(restarted, TestKey(), EnvelopeKind::kSnapshot, h.session()));
+  EXPECT_EQ(keyed.stats().server_changes, 1U);
+  ASSERT_TRUE(keyed.replica().synced());
+  EXPECT_EQ(keyed.replica().seq(), 3U);
+
+  // The old server, still publishing, is now the older epoch: refused while
+  // the followed one is alive, whatever its sequence numbers.
+  m.Poke({0.05, 0.05, 0.1}, 0.04, 0.002);
+  const std::vector<Sample> old_server = h.Publish(m);
+  Feed(keyed, old_server, h.session());
+  EXPECT_EQ(keyed.stats().other_server, old_server.size());
+  EXPECT_EQ(keyed.replica().seq(), 3U);
 }
 
 TEST(MeshStreamTest, LateJoinerStartsFromTheCurrentMesh) {

@@ -138,5 +138,17 @@ TEST(EpochGate, RefusedMessagesLeaveNoState) {
   EXPECT_EQ(gate.Offer(followed, 51, t, t, t), AuthVerdict::kOk);
 }
 
+TEST(EpochGate, LanesNumberIndependently) {
+  EpochGate gate(0, kSecond);
+  const int64_t t = 100 * kSecond;
+  const uint64_t e = static_cast<uint64_t>(t);
+  EXPECT_EQ(gate.Offer(e, 5, t, t, t, 0), AuthVerdict::kNewEpoch);
+  EXPECT_EQ(gate.Offer(e, 5, t, t, t, 1), AuthVerdict::kOk);  // same seq, other lane
+  EXPECT_EQ(gate.Offer(e, 5, t, t, t, 1), AuthVerdict::kReplayed);
+  EXPECT_EQ(gate.Offer(e, 0, t, t, t, 2), AuthVerdict::kOk);  // seq 0 is a sequence like any
+  EXPECT_EQ(gate.Offer(e, 0, t, t, t, 2), AuthVerdict::kReplayed);
+  EXPECT_EQ(gate.Offer(e, 9, t, t, t, EpochGate::kLanes), AuthVerdict::kInvalidEpoch);
+}
+
 }  // namespace
 }  // namespace cutsim::transport
