@@ -69,7 +69,12 @@ bool PeriodicCheckpointer::Begin(Simulation& sim, bool resume) {
   header.set_lineage(lineage_);
   header.set_base_topology_version(base_);
   journal_.emplace(journal_path_);
-  journal_->Start(header, carried_);
+  try {
+    journal_->Start(header, carried_);
+  } catch (...) {
+    journal_.reset();
+    throw;
+  }
   Log().info("event journal {}: every cut is synced to it as it happens (after version {}, {} events carried over)",
              journal_path_.string(), base_, carried_.size());
   carried_.clear();
