@@ -309,8 +309,9 @@ void EventJournal::DoRestart(uint64_t base_version) {
     header_ = header;
     restarts_.fetch_add(1, std::memory_order_relaxed);
   } catch (const InputError& e) {
-    // The old journal stays: it continues an older checkpoint of the same
-    // session and its records are still valid.
+    // Failed before the rename, the old journal stays: it continues an
+    // older checkpoint of the same session and its records are still valid.
+    // Failed after it, no record is written until the next restart.
     Fail(fmt::format("cannot start the new journal: {}", e.what()));
   }
 }
@@ -337,12 +338,16 @@ void EventJournal::WriteNewJournal(const v1::JournalHeader& header, std::span<co
     (void)::unlink(tmp.c_str());
     ThrowFileError(path_.string(), fmt::format("cannot rename {} onto it: {}", tmp, err));
   }
+  // The old file is gone from the path: nothing more goes to it, and
+  // nothing goes to the new one until it is synced and open.
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  broken_ = true;
   if (!SyncDirectoryOf(path_)) {
     ThrowFileError(path_.string(), fmt::format("cannot sync its directory: {}", ErrnoText()));
   }
   const int append = ::open(path_.c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
   if (append < 0) ThrowFileError(path_.string(), fmt::format("cannot open the event journal: {}", ErrnoText()));
-  if (fd_ >= 0) ::close(fd_);
   fd_ = append;
   good_bytes_ = bytes.size();
   broken_ = false;

@@ -111,8 +111,10 @@ class EventJournal {
 
   /// After a checkpoint holding every event up to `base_version` is on
   /// disk: the writer thread starts a new journal (header with that base)
-  /// once the records queued before are written. A failed restart keeps
-  /// the old journal, which stays valid.
+  /// once the records queued before are written. A restart that fails
+  /// before its rename keeps the old journal (still valid) in use; one
+  /// that fails after it writes no record until the next restart. Either
+  /// is counted as a failure.
   void Restart(uint64_t base_version);
 
   /// Waits until everything queued so far is written (or has failed).
