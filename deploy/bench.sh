@@ -64,6 +64,10 @@ echo "== tool_auth_bench (HMAC sign/verify of a tool message beside its decode)"
 run tool_auth_bench "$out/tool_auth.log" "$bin/tool_auth_bench" --benchmark_min_time="$min_time" \
   --benchmark_out="$out/tool_auth.json" --benchmark_out_format=json >/dev/null
 
+echo "== journal_bench (a cut's journal record: hand-off to fdatasync'd, on this machine's disk)"
+run journal_bench "$out/journal.log" "$bin/journal_bench" --dir "$out" > "$out/journal.json"
+cat "$out/journal.json"
+
 echo "== skip_bench (session-level skips: no tool, cutting off, no haptic client, no viewer)"
 run skip_bench "$out/skip.log" "$bin/skip_bench" --scene-dir scenes --json "$out/skip.json" >/dev/null
 cat "$out/skip.log"

@@ -20,7 +20,7 @@
 #include "common/core/log.h"
 #include "common/core/stop.h"
 #include "common/haptics/local_model.h"
-#include "common/sim/checkpoint.h"
+#include "common/sim/checkpointer.h"
 #include "common/sim/metrics_proto.h"
 #include "server/session_report.h"
 #include "common/sim/scene_loader.h"
@@ -197,6 +197,9 @@ int RealtimeLoop::Run() {
       return 3;
     }
     ++counters_.frames;
+    // The frame's cut goes to the journal's writer thread before the
+    // haptic client feels it; the write and fdatasync happen there.
+    p_.checkpointer.JournalNewEvents(simulation);
     // The local model only when a haptic client listens.
     if (client_present && simulation.has_tool()) PublishLocalModel(applied.has_value());
     if (p_.recorder) p_.recorder->Frame(frame_dt_, applied, simulation);  // off the latency path
@@ -368,6 +371,7 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_status(s.status);
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
+  FillJournalStats(p_.checkpointer, r.mutable_journal());
   return r;
 }
 
@@ -390,7 +394,7 @@ int ServerApp::RunRealtime() {
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
   sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
-  if (options_.resume) (void)checkpointer.Resume(*simulation);
+  (void)checkpointer.Begin(*simulation, options_.resume);
   const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();
 
   // The haptic link. LCM's udpm receive thread starts on the first
@@ -445,6 +449,7 @@ int ServerApp::RunRealtime() {
     }
   }
   if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
+  outputs_ok &= FinishJournal(checkpointer);
   if (checkpointer.failures() > 0) {
     Log().warn("{} of {} checkpoint saves to {} failed", checkpointer.failures(),
                checkpointer.failures() + checkpointer.saves(), options_.checkpoint);

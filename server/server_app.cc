@@ -17,6 +17,7 @@
 #include "common/core/log.h"
 #include "common/core/stop.h"
 #include "common/sim/checkpoint.h"
+#include "common/sim/checkpointer.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
@@ -235,8 +236,15 @@ int ServerApp::Run() {
                                    std::pair{&options_.out, "final state (--out)"}}) {
     if (!path->empty()) CheckOutputPath(*path, what);
   }
+  if (!options_.checkpoint.empty()) {
+    CheckOutputPath(sim::JournalPathFor(options_.checkpoint).string(), "event journal (beside --checkpoint)");
+  }
   if (options_.resume && !options_.checkpoint.empty() && std::filesystem::exists(options_.checkpoint)) {
     (void)CheckInputFile(options_.checkpoint, "checkpoint (--checkpoint)", sim::kMaxCheckpointBytes);
+  }
+  if (const auto journal = sim::JournalPathFor(options_.checkpoint);
+      options_.resume && !options_.checkpoint.empty() && std::filesystem::exists(journal)) {
+    (void)CheckInputFile(journal.string(), "event journal (beside --checkpoint)", sim::kMaxCheckpointBytes);
   }
   return options_.headless ? RunHeadless() : RunRealtime();
 }
@@ -249,6 +257,29 @@ bool WriteOutput(const std::function<void()>& write) {
     Log().error("output not written: {}", e.what());
     return false;
   }
+}
+
+void FillJournalStats(const sim::PeriodicCheckpointer& checkpointer, v1::JournalStats* out) {
+  if (!checkpointer.enabled()) return;
+  const sim::JournalCounters c = checkpointer.journal_counters();
+  using transport::ReportCount;
+  out->set_path(checkpointer.journal_path().string());
+  out->set_records(ReportCount(c.records));
+  out->set_failures(ReportCount(c.failures));
+  out->set_restarts(ReportCount(c.restarts));
+  out->set_durable_version(ReportCount(c.durable_version));
+  out->set_sync_max_ms(1e3 * c.sync_max_seconds);
+  out->set_sync_mean_ms(1e3 * c.sync_mean_seconds);
+}
+
+bool FinishJournal(sim::PeriodicCheckpointer& checkpointer) {
+  if (!checkpointer.enabled()) return true;
+  checkpointer.DrainJournal();
+  const sim::JournalCounters c = checkpointer.journal_counters();
+  if (c.failures == 0) return true;
+  Log().error("event journal {} lost {} writes: cuts after the failure were durable only at the next checkpoint",
+              checkpointer.journal_path().string(), c.failures);
+  return false;
 }
 
 std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const ServerOptions& o) {
@@ -288,7 +319,7 @@ int ServerApp::RunHeadless() {
   auto simulation = sim::Simulation::Create(
       scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
   sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
-  if (options_.resume) (void)checkpointer.Resume(*simulation);
+  (void)checkpointer.Begin(*simulation, options_.resume);
   // The run ends at --duration, else when the tool path ends, else (with
   // --until-rest) at rest or --max-time.
   double end_time = options_.max_time;
@@ -314,6 +345,7 @@ int ServerApp::RunHeadless() {
       exit_code = 3;
       break;
     }
+    checkpointer.JournalNewEvents(*simulation);
     checkpointer.MaybeSave(*simulation);
     if (since_report.ElapsedSeconds() > (tty ? 0.2 : 5.0)) {
       since_report.Reset();
@@ -335,6 +367,7 @@ int ServerApp::RunHeadless() {
   bool outputs_ok = true;
   // Not over a good checkpoint after a blow-up.
   if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
+  outputs_ok &= FinishJournal(checkpointer);
   if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !g_stop) {
     Log().warn("did not reach rest within {} s of simulated time", end_time);
   }
@@ -349,7 +382,9 @@ int ServerApp::RunHeadless() {
       WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
     });
   }
-  std::printf("%s\n", transport::ReportJson(HeadlessReport(*simulation)).c_str());
+  v1::HeadlessSummary summary = HeadlessReport(*simulation);
+  FillJournalStats(checkpointer, summary.mutable_journal());
+  std::printf("%s\n", transport::ReportJson(summary).c_str());
   if (std::fflush(stdout) != 0) outputs_ok = false;
   return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }

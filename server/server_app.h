@@ -10,6 +10,13 @@
 
 #include "common/transport/tool_auth.h"
 
+namespace cutsim::sim {
+class PeriodicCheckpointer;
+}  // namespace cutsim::sim
+namespace cutsim::v1 {
+class JournalStats;
+}  // namespace cutsim::v1
+
 namespace cutsim::server {
 
 struct ServerOptions {
@@ -58,6 +65,14 @@ inline constexpr int kExitOutputFailed = 5;
 
 /// Runs `write`; logs and returns false if it throws.
 bool WriteOutput(const std::function<void()>& write);
+
+/// The event journal's counters into `out` (nothing when checkpoints are off).
+void FillJournalStats(const sim::PeriodicCheckpointer& checkpointer, v1::JournalStats* out);
+
+/// At exit: writes what the event journal holds queued; false (logged with
+/// the file) when any journal write failed, which makes the exit status
+/// kExitOutputFailed as for any lost output.
+bool FinishJournal(sim::PeriodicCheckpointer& checkpointer);
 
 class ServerApp {
  public:

@@ -23,6 +23,7 @@
 #include "common/mesh/generators.h"
 #include "common/mesh/mesh_io.h"
 #include "common/mesh/mesh_validation.h"
+#include "common/mesh/msh_check.h"
 #include "common/mesh/text_io.h"
 
 namespace cutsim::mesh {
@@ -171,90 +172,8 @@ TetMesh ExtractTetsFromModel(const std::string& path) {
 
 }  // namespace
 
-namespace {
-
-// libgmsh trusts the node references of a .msh file: an element naming a
-// node the file never defines crashes it. For the ASCII 2.2 format (the one
-// written by hand and by WriteMsh) every section's count is checked against
-// its lines and every node an element names against the $Nodes section
-// before gmsh sees the file. Other versions and binary files go to gmsh as
-// they are.
-void CheckMsh22Ascii(const std::string& path, const std::string& text) {
-  std::istringstream in(text);
-  std::string line;
-  int64_t line_no = 0;
-  auto fail = [&](std::string_view msg) { ThrowInputError(SourceRef{.file = path, .line = line_no}, msg); };
-  auto next_line = [&](std::string_view what) {
-    if (!std::getline(in, line)) fail(fmt::format("unexpected end of file in {}", what));
-    ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-  };
-  auto parse_int = [&](std::string_view tok, std::string_view what) {
-    int64_t v = 0;
-    const auto [end, ec] = std::from_chars(tok.data(), tok.data() + tok.size(), v);
-    if (ec != std::errc() || end != tok.data() + tok.size()) fail(fmt::format("bad {} '{}'", what, tok));
-    return v;
-  };
-  std::unordered_map<int64_t, bool> nodes;
-  bool format_checked = false;
-  while (std::getline(in, line)) {
-    ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (line == "$MeshFormat") {
-      next_line("$MeshFormat");
-      const auto tok = SplitWhitespace(line);
-      if (tok.size() < 3 || tok[0] != "2.2" || tok[1] != "0") return;  // not ASCII 2.2: gmsh reads it
-      format_checked = true;
-    } else if (line == "$Nodes" && format_checked) {
-      next_line("$Nodes");
-      const int64_t n = parse_int(line, "node count");
-      RequireCountFits(n, 8, text.size(), SourceRef{.file = path, .line = line_no}, "node count");
-      nodes.reserve(static_cast<size_t>(n));
-      for (int64_t i = 0; i < n; ++i) {
-        next_line("$Nodes");
-        const auto tok = SplitWhitespace(line);
-        if (tok.size() != 4) fail("a node needs an id and 3 coordinates");
-        for (size_t k = 1; k < 4; ++k) {
-          double x = 0.0;
-          const auto [end, ec] = std::from_chars(tok[k].data(), tok[k].data() + tok[k].size(), x);
-          if (ec != std::errc() || end != tok[k].data() + tok[k].size()) {
-            fail(fmt::format("bad coordinate '{}'", tok[k]));
-          }
-          RequireFinite(x, SourceRef{.file = path, .line = line_no}, "node coordinate");
-        }
-        if (!nodes.emplace(parse_int(tok[0], "node id"), true).second) {
-          fail(fmt::format("node {} defined twice", tok[0]));
-        }
-      }
-      next_line("$Nodes");
-      if (line != "$EndNodes") fail("expected $EndNodes (node count does not match the lines)");
-    } else if (line == "$Elements" && format_checked) {
-      next_line("$Elements");
-      const int64_t n = parse_int(line, "element count");
-      RequireCountFits(n, 10, text.size(), SourceRef{.file = path, .line = line_no}, "element count");
-      for (int64_t i = 0; i < n; ++i) {
-        next_line("$Elements");
-        const auto tok = SplitWhitespace(line);
-        if (tok.size() < 4) fail("an element needs an id, a type, a tag count and nodes");
-        const int64_t tags = parse_int(tok[2], "tag count");
-        if (tags < 0 || static_cast<size_t>(tags) + 4 > tok.size()) fail("element tag count exceeds the line");
-        for (size_t k = 3 + static_cast<size_t>(tags); k < tok.size(); ++k) {
-          const int64_t node = parse_int(tok[k], "element node");
-          if (nodes.find(node) == nodes.end()) {
-            fail(fmt::format("element {} names node {}, which $Nodes does not define", tok[0], node));
-          }
-        }
-      }
-      next_line("$Elements");
-      if (line != "$EndElements") fail("expected $EndElements (element count does not match the lines)");
-    }
-  }
-}
-
-}  // namespace
-
 TetMesh ReadGmsh(const std::string& path) {
-  CheckMsh22Ascii(path, ReadInputFile(path, "mesh file"));
+  internal::CheckMshBeforeGmsh(path, ReadInputFile(path, "mesh file"));
   GmshSession session;
   GmshCall(path, "open", [&] { gmsh::open(path); });
   return ExtractTetsFromModel(path);

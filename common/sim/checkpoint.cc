@@ -12,7 +12,6 @@
 
 #include <fmt/format.h>
 
-#include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/input_file.h"
 #include "common/core/log.h"
@@ -173,47 +172,25 @@ void CheckIdentity(const v1::CheckpointBody& b, const std::string& source, const
   }
 }
 
-/// Converts and replays every event of `b` on a copy of the cut complex;
-/// returns the events and sets `num_nodes` to the replayed mesh's.
+/// Checks and converts every event of `b` (CheckEvents); returns the events
+/// and sets `num_nodes` to the replayed mesh's.
 std::vector<cutting::TopologyEvent> DryRunEvents(const v1::CheckpointBody& b, const std::string& source,
                                                  const RestoreTarget& target, int32_t& num_nodes) {
-  std::vector<cutting::TopologyEvent> events;
   num_nodes = target.num_nodes;
-  if (target.cut == nullptr) return events;
-  events.reserve(static_cast<size_t>(b.events_size()));
-  cutting::CutMesh trial = *target.cut;
-  for (int i = 0; i < b.events_size(); ++i) {
-    const std::string field = fmt::format("events[{}]", i);
-    events.push_back(EventFromProto(b.events(i), source, field));
-    const cutting::TopologyEvent& e = events.back();
-    if (e.version <= trial.version()) Fail(source, field + ".version", "versions must increase");
-    // Versions between events are replayed as empty events: bounded, so a
-    // forged version cannot make the restore loop for ever.
-    if (e.version > kMaxTopologyVersion) {
-      Fail(source, field + ".version", fmt::format("{} exceeds the limit {}", e.version, kMaxTopologyVersion));
-    }
-    try {
-      ReplayEvent(trial, e);
-    } catch (const InputError& err) {
-      Fail(source, field + "." + err.source().field, err.message());
-    }
-    for (const int32_t t : e.touched_tets) {
-      if (t < 0 || t >= target.num_tets) Fail(source, field + ".touched_tets", fmt::format("tet {} out of range", t));
-    }
-    for (const int32_t n : e.touched_nodes) {
-      if (n < 0 || n >= trial.num_nodes()) {
-        Fail(source, field + ".touched_nodes", fmt::format("node {} out of range", n));
-      }
-    }
-  }
+  if (target.cut == nullptr) return {};
+  std::vector<NamedEvent> named;
+  named.reserve(static_cast<size_t>(b.events_size()));
+  for (int i = 0; i < b.events_size(); ++i) named.push_back({&b.events(i), fmt::format("events[{}]", i)});
+  std::vector<cutting::TopologyEvent> events =
+      CheckEvents(named, source, *target.cut, target.num_tets, target.node_capacity, num_nodes);
+  const uint64_t last = events.empty() ? target.cut->version() : events.back().version;
   if (b.topology_version() > kMaxTopologyVersion) {
     Fail(source, "topology_version", fmt::format("{} exceeds the limit {}", b.topology_version(), kMaxTopologyVersion));
   }
-  if (b.topology_version() < trial.version()) {
+  if (b.topology_version() < last) {
     Fail(source, "topology_version",
-         fmt::format("{} is below the last event's version {}", b.topology_version(), trial.version()));
+         fmt::format("{} is below the last event's version {}", b.topology_version(), last));
   }
-  num_nodes = trial.num_nodes();
   return events;
 }
 
@@ -239,6 +216,43 @@ void CheckNodeValues(const v1::CheckpointBody& b, const std::string& source, int
 }
 
 }  // namespace
+
+std::vector<cutting::TopologyEvent> CheckEvents(std::span<const NamedEvent> named, const std::string& source,
+                                                const cutting::CutMesh& start, int32_t num_tets,
+                                                int32_t node_capacity, int32_t& num_nodes) {
+  std::vector<cutting::TopologyEvent> events;
+  events.reserve(named.size());
+  cutting::CutMesh trial = start;
+  for (const NamedEvent& n : named) {
+    const std::string& field = n.field;
+    events.push_back(EventFromProto(*n.event, source, field));
+    const cutting::TopologyEvent& e = events.back();
+    if (e.version <= trial.version()) Fail(source, field + ".version", "versions must increase");
+    // Versions between events are replayed as empty events: bounded, so a
+    // forged version cannot make the restore loop for ever.
+    if (e.version > kMaxTopologyVersion) {
+      Fail(source, field + ".version", fmt::format("{} exceeds the limit {}", e.version, kMaxTopologyVersion));
+    }
+    try {
+      ReplayEvent(trial, e);
+    } catch (const InputError& err) {
+      Fail(source, field + "." + err.source().field, err.message());
+    }
+    if (trial.num_nodes() > node_capacity) {
+      Fail(source, field, fmt::format("{} nodes exceed the node capacity {}", trial.num_nodes(), node_capacity));
+    }
+    for (const int32_t t : e.touched_tets) {
+      if (t < 0 || t >= num_tets) Fail(source, field + ".touched_tets", fmt::format("tet {} out of range", t));
+    }
+    for (const int32_t nd : e.touched_nodes) {
+      if (nd < 0 || nd >= trial.num_nodes()) {
+        Fail(source, field + ".touched_nodes", fmt::format("node {} out of range", nd));
+      }
+    }
+  }
+  num_nodes = trial.num_nodes();
+  return events;
+}
 
 std::vector<cutting::TopologyEvent> CheckCheckpointBody(const v1::CheckpointBody& body, const std::string& source,
                                                         const RestoreTarget& target) {
@@ -297,6 +311,12 @@ void WriteCheckpointFile(const std::filesystem::path& path, const v1::Checkpoint
   std::error_code ec;
   std::filesystem::rename(tmp, path, ec);
   if (ec) ThrowFileError(path.string(), fmt::format("cannot rename {} onto it: {}", tmp.string(), ec.message()));
+  std::filesystem::path dir = path.parent_path();
+  if (dir.empty()) dir = ".";
+  Fd dir_fd(::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (dir_fd.get() < 0 || ::fsync(dir_fd.get()) != 0) {
+    ThrowFileError(path.string(), fmt::format("cannot sync its directory {}: {}", dir.string(), std::strerror(errno)));
+  }
 }
 
 v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path) {
@@ -324,58 +344,23 @@ v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path) {
   return body;
 }
 
-void SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path) {
+uint64_t LastEventVersion(const v1::CheckpointBody& body) {
+  return body.events().empty() ? 0 : body.events(body.events_size() - 1).version();
+}
+
+v1::CheckpointBody SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path, uint64_t lineage) {
   v1::CheckpointBody body = sim.CheckpointState();
+  body.set_lineage(lineage);
   body.set_wall_clock_unix_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(
                                   std::chrono::system_clock::now().time_since_epoch())
                                   .count());
   WriteCheckpointFile(path, body);
+  return body;
 }
 
 void RestoreCheckpoint(Simulation& sim, const std::filesystem::path& path) {
   const v1::CheckpointBody body = ReadCheckpointFile(path);
   sim.RestoreCheckpointState(body, path.string());
-}
-
-PeriodicCheckpointer::PeriodicCheckpointer(std::filesystem::path path, double every)
-    : path_(std::move(path)),
-      period_ns_(every > 0 ? static_cast<int64_t>(std::llround(every * 1e9)) : 0),
-      next_ns_(MonotonicNs() + period_ns_) {}
-
-bool PeriodicCheckpointer::Resume(Simulation& sim) {
-  if (!enabled()) return false;
-  if (!std::filesystem::exists(path_)) {
-    Log().info("checkpoint {} does not exist yet: starting from the uncut scene", path_.string());
-    return false;
-  }
-  RestoreCheckpoint(sim, path_);
-  const SimulationSummary s = sim.QuickSummary();
-  Log().info("resumed from checkpoint {}: t = {:.4g} s, {} cuts, topology version {}", path_.string(),
-             s.sim_time, s.cuts, s.topology_version);
-  return true;
-}
-
-void PeriodicCheckpointer::MaybeSave(const Simulation& sim) {
-  if (!enabled() || period_ns_ <= 0) return;
-  const int64_t now = MonotonicNs();
-  if (now < next_ns_) return;
-  next_ns_ = now + period_ns_;
-  (void)Save(sim);
-}
-
-bool PeriodicCheckpointer::Save(const Simulation& sim) {
-  if (!enabled()) return false;
-  try {
-    SaveCheckpoint(sim, path_);
-    ++saves_;
-    Log().debug("checkpoint {} written (t = {:.4g} s, topology version {})", path_.string(), sim.sim_time(),
-                sim.topology_version());
-    return true;
-  } catch (const std::exception& e) {
-    ++failures_;
-    Log().error("checkpoint not written: {}", e.what());
-    return false;
-  }
 }
 
 }  // namespace cutsim::sim

@@ -81,6 +81,18 @@ struct RestoreTarget {
                                                                       const std::string& source,
                                                                       const RestoreTarget& target);
 
+/// Converts `events` and replays them in order on a copy of `start`: each
+/// version above the last and at most kMaxTopologyVersion, every split and
+/// move valid on the complex, touched tets below `num_tets` and touched
+/// nodes below the replayed node count, which may not exceed
+/// `node_capacity`. Returns the events, ready to apply, and sets `num_nodes`
+/// to the replayed complex's node count. Throws InputError naming `source`
+/// and the event's field; changes nothing.
+[[nodiscard]] std::vector<cutting::TopologyEvent> CheckEvents(std::span<const NamedEvent> events,
+                                                              const std::string& source,
+                                                              const cutting::CutMesh& start, int32_t num_tets,
+                                                              int32_t node_capacity, int32_t& num_nodes);
+
 /// Applies `event` to a cut complex, first bumping its version across cut
 /// steps that changed nothing (their empty events are not recorded).
 void ReplayEvent(cutting::CutMesh& cut, const cutting::TopologyEvent& event);
@@ -94,15 +106,17 @@ void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state);
 // ---- files ------------------------------------------------------------------
 
 /// Frames and writes `body` atomically: `path`.tmp, fsync, rename onto
-/// `path`. Throws InputError (file error) when the directory is not writable.
+/// `path`, fsync of the directory (the rename is on disk before anything
+/// that relies on it, such as the event journal's restart). Throws InputError (file error) when the directory is not writable.
 void WriteCheckpointFile(const std::filesystem::path& path, const v1::CheckpointBody& body);
 
 /// Reads and checks a checkpoint file (magic, format version, checksum,
 /// body). Throws InputError naming the file and field.
 [[nodiscard]] v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path);
 
-/// Saves `sim` to `path` (CheckpointState + WriteCheckpointFile).
-void SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path);
+/// Saves `sim` to `path` (CheckpointState + WriteCheckpointFile) with the
+/// session's `lineage` (see checkpoint.proto); returns what it wrote.
+v1::CheckpointBody SaveCheckpoint(const Simulation& sim, const std::filesystem::path& path, uint64_t lineage = 0);
 
 /// Restores `path` into `sim`, freshly created from the checkpoint's scene.
 /// On an InputError nothing has been applied.
@@ -114,33 +128,8 @@ inline constexpr uint64_t kMaxTopologyVersion = 10'000'000;
 /// Largest checkpoint file read, bytes (1 GiB).
 inline constexpr uint64_t kMaxCheckpointBytes = uint64_t{1} << 30;
 
-/// What the server does with `--checkpoint FILE --checkpoint-every S
-/// --resume`: restore at start when asked and the file exists, save every
-/// `every` wall seconds and at a clean exit. A failed periodic save is logged
-/// and retried at the next period (a full disk must not stop the session).
-class PeriodicCheckpointer {
- public:
-  /// An empty `path` disables everything; `every` ≤ 0 saves only at exit.
-  PeriodicCheckpointer(std::filesystem::path path, double every);
-
-  [[nodiscard]] bool enabled() const { return !path_.empty(); }
-  /// Restores `path` into the fresh `sim` if it exists; returns whether it
-  /// did. Throws InputError for a corrupted or foreign file (the server
-  /// must not silently start over an operator's checkpoint).
-  bool Resume(Simulation& sim);
-  /// Saves when the period has elapsed since the last save.
-  void MaybeSave(const Simulation& sim);
-  /// Saves now (clean exit); logs and returns false on failure.
-  bool Save(const Simulation& sim);
-  [[nodiscard]] uint64_t saves() const { return saves_; }
-  [[nodiscard]] uint64_t failures() const { return failures_; }
-
- private:
-  std::filesystem::path path_;
-  int64_t period_ns_ = 0;
-  int64_t next_ns_ = 0;
-  uint64_t saves_ = 0;
-  uint64_t failures_ = 0;
-};
+/// The version of the last event `body` holds (0 without events): an event
+/// journal continuing it holds the events after this one.
+[[nodiscard]] uint64_t LastEventVersion(const v1::CheckpointBody& body);
 
 }  // namespace cutsim::sim

@@ -179,6 +179,28 @@ class Engine final : public Simulation {
     if (scorer_) scorer_->Restore(series.cut_points);
   }
 
+  std::span<const cutting::TopologyEvent> TopologyEvents() const override {
+    return cuts_ ? std::span<const cutting::TopologyEvent>(cuts_->events()) : std::span<const cutting::TopologyEvent>();
+  }
+
+  /// Checks the events on a copy of the cut complex first (CheckEvents),
+  /// then applies them as RestoreCheckpointState does and rebuilds the
+  /// surface.
+  void ApplyTopologyEvents(std::span<const NamedEvent> named, uint64_t cuts, const std::string& source) override {
+    if (named.empty()) return;
+    if (!cuts_) ThrowInputError({.file = source, .field = named.front().field}, "the scene has no cutting");
+    const fem::Model<T>& model = fem_.model();
+    int32_t num_nodes = 0;
+    std::vector<cutting::TopologyEvent> events =
+        CheckEvents(named, source, cuts_->cut_mesh(), model.num_tets(), model.node_capacity(), num_nodes);
+    for (cutting::TopologyEvent& e : events) {
+      ReplayEvent(cuts_->cut_mesh(), e);
+      cuts_->ApplyRecordedEvent(std::move(e), Targets());
+    }
+    if (cuts > cuts_->cuts()) cuts_->set_cuts(cuts);
+    RebuildSurface();
+  }
+
  private:
   static const char* PrecisionName() { return sizeof(T) == 4 ? "float" : "double"; }
 

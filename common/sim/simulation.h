@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 
+#include "common/cutting/topology_event.h"
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/incision_score.h"
 #include "common/sim/scene_loader.h"
@@ -22,9 +23,17 @@
 
 namespace cutsim::v1 {
 class CheckpointBody;
+class CheckpointEvent;
 }  // namespace cutsim::v1
 
 namespace cutsim::sim {
+
+/// A stored topology event and the field that names it in errors (e.g.
+/// "events[3]" in a checkpoint, "record at byte 812.event" in a journal).
+struct NamedEvent {
+  const v1::CheckpointEvent* event = nullptr;
+  std::string field;
+};
 
 class Simulation {
  public:
@@ -92,6 +101,17 @@ class Simulation {
   /// positions and velocities. Everything is checked first: on an InputError
   /// (naming `source` and the field) nothing has been applied.
   virtual void RestoreCheckpointState(const v1::CheckpointBody& body, const std::string& source) = 0;
+  /// Every topology event so far, in order (what a checkpoint stores; the
+  /// event journal appends the new ones after each frame).
+  [[nodiscard]] virtual std::span<const cutting::TopologyEvent> TopologyEvents() const = 0;
+  /// Applies stored events on top of the current tissue (an event journal's
+  /// after its checkpoint, before the first frame): checked first exactly as
+  /// a checkpoint's events are (CheckEvents in checkpoint.h), then replayed
+  /// through the cut complex and the FEM. Positions and velocities of the
+  /// existing nodes stay; node copies start at their originals'. The cut
+  /// count becomes at least `cuts`. On an InputError (naming `source` and
+  /// the event's field) nothing has been applied.
+  virtual void ApplyTopologyEvents(std::span<const NamedEvent> events, uint64_t cuts, const std::string& source) = 0;
 };
 
 }  // namespace cutsim::sim

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Outputs that cannot be written fail loudly: `--record /dev/full` (a device
-# that refuses every write) and a `--checkpoint` or `--stats-json` in a
-# missing directory exit non-zero at start, naming the file, instead of
+# that refuses every write), a `--checkpoint` or `--stats-json` in a
+# missing directory and an event journal (beside the checkpoint) that is a
+# directory exit non-zero at start, naming the file, instead of
 # running a session whose recording is then lost. Run inside a private
 # network namespace (deploy/netns-run.sh): the real-time server opens LCM and
 # DDS on loopback only.
@@ -35,6 +36,8 @@ server=("$bin/cutsim-server" --scene "$src/scenes/ligament.pbtxt" --no-rt --lcm-
         --session outputs-$$ --duration 0.5 --log-level warn)
 expect "record to a full device" "2|5" "/dev/full" "${server[@]}" --record /dev/full
 expect "checkpoint in a missing directory" "2" "does not exist" "${server[@]}" --checkpoint "$work/no/such/x.ckpt"
+mkdir -p "$work/j.ckpt.journal"
+expect "event journal path is a directory" "2" "event journal" "${server[@]}" --checkpoint "$work/j.ckpt"
 expect "stats in a missing directory" "2" "does not exist" "${server[@]}" --stats-json "$work/no/such/s.json"
 expect "headless output is a directory" "2" "directory" \
   "$bin/cutsim-server" --headless --scene "$src/scenes/block.pbtxt" --duration 0.01 --out "$work" --log-level warn

@@ -2,8 +2,10 @@
 // with checkpoints, the scripted haptic client cutting it and a viewer. The
 // server is killed with SIGKILL after it has cut and checkpointed, then
 // started again with --resume: the haptic client fades its force and resumes,
-// the viewer resyncs, and the tissue keeps its cuts. Runs inside its own
-// network namespace (deploy/netns-run.sh).
+// the viewer resyncs, and the tissue keeps its cuts. And a server killed
+// right after a cut, long before its first checkpoint, comes back with the
+// cut from its event journal. Runs inside its own network namespace
+// (deploy/netns-run.sh).
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -143,6 +145,67 @@ TEST(RestartTest, KilledServerResumesTheCutTissue) {
   EXPECT_GT(JsonNumber(v, "verified_frames"), 5) << v;
   std::printf("restart_test: topology version %llu at the kill; after restart %s\nviewer %s\n",
               static_cast<unsigned long long>(version_before), s.c_str(), v.c_str());
+}
+
+/// The topology version of the server's latest "stats:" log line (0 while
+/// there is none), and asks for the next one (SIGUSR1).
+double ReportedTopologyVersion(Subprocess& server) {
+  server.Signal(SIGUSR1);
+  const std::string err = server.Stderr();
+  const auto at = err.rfind("stats: ");
+  if (at == std::string::npos) return 0;
+  const double v = JsonNumber(err.substr(at, err.find('\n', at) - at), "topology_version");
+  return std::isfinite(v) ? v : 0;
+}
+
+TEST(RestartTest, KilledRightAfterACutComesBackWithTheCut) {
+  TempDir dir("cutsim-journal-restart");
+  const int k = UniqueTestIndex();
+  const std::string session = "j" + std::to_string(k);
+  const std::string lcm = "udpm://239.255.76.67:" + std::to_string(7960 + k) + "?ttl=0";
+  const std::string domain = std::to_string(1 + (k + 100) % 200);
+  const std::string scene = std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt";
+  const std::string d = dir.path();
+  const std::string ckpt = d + "/ligament.ckpt";
+  { std::ofstream(d + "/cut.path") << kPath; }
+  // A checkpoint only every 60 s: the kill comes long before the first.
+  auto server_argv = [&](std::vector<std::string> more) {
+    std::vector<std::string> argv{BinPath("cutsim-server"), "--scene", scene, "--session", session,
+                                  "--lcm-url", lcm, "--dds-domain", domain, "--checkpoint", ckpt,
+                                  "--checkpoint-every", "60", "--resume", "--no-rt"};
+    argv.insert(argv.end(), more.begin(), more.end());
+    return argv;
+  };
+  auto server = std::make_unique<Subprocess>(server_argv({}));
+  auto haptic = std::make_unique<Subprocess>(
+      std::vector<std::string>{BinPath("cutsim-haptic"), "--device", "scripted", "--path", d + "/cut.path",
+                               "--session", session, "--lcm-url", lcm, "--no-rt"});
+
+  // SIGKILL as soon as the server reports a cut (asked once it handles
+  // SIGUSR1: its session is up).
+  ASSERT_TRUE(WaitUntil([&] { return server->Stderr().find("session '") != std::string::npos; }, 30s, 20ms))
+      << server->Stderr();
+  double reported = 0;
+  (void)WaitUntil([&] { return (reported = ReportedTopologyVersion(*server)) >= 1; }, 30s, 20ms);
+  server->Kill();
+  ASSERT_GE(reported, 1) << "the server never reported a cut\nserver:\n"
+                         << server->Stderr() << "\nhaptic client:\n" << haptic->Stderr();
+  ASSERT_TRUE(server->Wait(10s).has_value());
+  const std::string killed_log = server->Stderr();
+  server.reset();
+  haptic.reset();  // no more cuts: what comes back is what the killed server had
+  ASSERT_FALSE(std::filesystem::exists(ckpt)) << "a checkpoint was written: the journal is not what is tested";
+  ASSERT_TRUE(std::filesystem::exists(ckpt + ".journal")) << killed_log;
+
+  Subprocess restarted(server_argv({"--duration", "0.3", "--stats-json", d + "/second.json"}));
+  ASSERT_EQ(restarted.Wait(60s), std::optional<int>(0)) << restarted.Stderr();
+  EXPECT_NE(restarted.Stderr().find("resumed from event journal"), std::string::npos) << restarted.Stderr();
+  const std::string s = ReadTextFile(d + "/second.json");
+  EXPECT_GE(JsonNumber(s, "topology_version"), reported) << s << "\n" << restarted.Stderr();
+  EXPECT_GE(JsonNumber(s, "cuts"), 1) << s;
+  EXPECT_EQ(JsonNumber(s, "failures"), 0) << s;  // the journal's
+  std::printf("journal restart: topology version %g reported before SIGKILL; after --resume %s\n", reported,
+              s.c_str());
 }
 
 }  // namespace

@@ -2,12 +2,14 @@
 // counts against the bytes present, values for finiteness and sizes against
 // the caps, and names the file and element.
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 
 #include <fmt/format.h>
@@ -112,6 +114,95 @@ TEST(HostileMesh, MshElementNamingAnUndefinedNodeIsRefusedBeforeGmsh) {
             "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 1 00\n$EndNodes\n"
             "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
   EXPECT_NE(ErrorOf([&] { (void)ReadGmsh(path); }).find("$EndNodes"), std::string::npos);
+}
+
+/// Bytes of `path`.
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+/// `bytes` with the little-endian `value` of `size` bytes written at `at`.
+std::string Patched(std::string bytes, size_t at, uint64_t value, size_t size) {
+  for (size_t i = 0; i < size; ++i) bytes[at + i] = static_cast<char>((value >> (8 * i)) & 0xff);
+  return bytes;
+}
+
+// Versions 4.1 (ASCII and binary) and 2.2 binary pass the same check as 2.2
+// ASCII before libgmsh sees them: a file gmsh writes reads back, and the
+// same file naming an undefined node, claiming more data than it holds,
+// holding a NaN, or using a format cutsim does not check is refused naming
+// the file and line or byte offset.
+TEST(HostileMesh, Msh41AndBinaryFilesAreCheckedBeforeGmsh) {
+  TempDir dir;
+  const TetMesh box = MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d::Ones(), 2, 2, 2);
+  const std::string a41 = dir.File("a41.msh"), b41 = dir.File("b41.msh"), b22 = dir.File("b22.msh");
+  WriteMsh(a41, box, {4.1, false});
+  WriteMsh(b41, box, {4.1, true});
+  WriteMsh(b22, box, {2.2, true});
+  for (const std::string& p : {a41, b41, b22}) EXPECT_EQ(ReadGmsh(p).num_tets(), box.num_tets()) << p;
+  const std::string t41 = ReadBytes(a41), u41 = ReadBytes(b41), u22 = ReadBytes(b22);
+  const std::string bad = dir.File("bad.msh");
+  auto error_for = [&](const std::string& bytes) {
+    WriteText(bad, bytes);
+    return ErrorOf([&] { (void)ReadGmsh(bad); });
+  };
+
+  // 4.1 ASCII: the last element's last node undefined, on its line.
+  {
+    std::string t = t41;
+    const size_t end = t.find("$EndElements");
+    const size_t line_start = t.rfind('\n', end - 2) + 1;
+    const size_t last = t.find_last_not_of(" \n", end - 1);
+    const size_t tok = t.find_last_of(' ', last) + 1;
+    t.replace(tok, last + 1 - tok, "999999");
+    const std::string what = error_for(t);
+    const int64_t line = 1 + std::count(t.begin(), t.begin() + static_cast<std::ptrdiff_t>(line_start), '\n');
+    EXPECT_NE(what.find(fmt::format("bad.msh:{}", line)), std::string::npos) << what;
+    EXPECT_NE(what.find("node 999999"), std::string::npos) << what;
+  }
+  // 4.1 ASCII: more nodes claimed than the blocks hold; a NaN coordinate.
+  {
+    std::string t = t41;
+    const size_t nodes = t.find("$Nodes\n") + 7;
+    const size_t sp = t.find(' ', nodes);
+    t.replace(sp + 1, t.find(' ', sp + 1) - sp - 1, "100000");
+    EXPECT_NE(error_for(t).find("node"), std::string::npos);
+    std::string n = t41;
+    const size_t coord = n.find("\n0 0 0\n", n.find("$Nodes")) + 1;
+    n.replace(coord, 1, "nan");
+    EXPECT_NE(error_for(n).find("NaN"), std::string::npos) << error_for(n);
+  }
+  // 4.1 binary: the last element's last node (8 bytes before "\n$EndElements").
+  {
+    const size_t at = u41.find("\n$EndElements") - 8;
+    const std::string what = error_for(Patched(u41, at, 999999, 8));
+    EXPECT_NE(what.find("node 999999"), std::string::npos) << what;
+    EXPECT_NE(what.find(fmt::format("byte {}", at)), std::string::npos) << what;
+    // A node count of 2^40: refused before anything is allocated.
+    const size_t count = u41.find("$Nodes\n") + 7 + 8;
+    EXPECT_NE(error_for(Patched(u41, count, uint64_t{1} << 40, 8)).find("exceed the limit"), std::string::npos);
+    // Cut short anywhere: an error, never a crash.
+    for (const size_t keep : {u41.size() / 3, u41.size() / 2, u41.size() - 20}) {
+      EXPECT_NE(error_for(u41.substr(0, keep)), "") << keep;
+    }
+  }
+  // 2.2 binary: the last element's last node (4 bytes before "\n$EndElements").
+  {
+    const size_t at = u22.find("\n$EndElements") - 4;
+    const std::string what = error_for(Patched(u22, at, 999999, 4));
+    EXPECT_NE(what.find("node 999999"), std::string::npos) << what;
+    EXPECT_NE(what.find("byte"), std::string::npos) << what;
+    EXPECT_NE(error_for(u22.substr(0, u22.size() / 2)), "");
+  }
+  // Formats and sections the check does not read are refused by name.
+  const size_t one = u41.find("4.1 1 8\n") + 8;
+  EXPECT_NE(error_for(Patched(u41, one, 0x01000000, 4)).find("big-endian"), std::string::npos);
+  std::string v40 = t41;
+  v40.replace(v40.find("4.1 0 8"), 7, "4 0 8");
+  EXPECT_NE(error_for(v40).find("version 4:"), std::string::npos) << error_for(v40);
+  EXPECT_NE(error_for(t41 + "$Periodic\n0\n$EndPeriodic\n").find("$Periodic"), std::string::npos);
+  EXPECT_NE(error_for("$NOD\n1\n1 0 0 0\n$ENDNOD\n").find("$MeshFormat"), std::string::npos);
 }
 
 TEST(HostileMesh, NonRegularFilesAreRefusedByEveryReader) {

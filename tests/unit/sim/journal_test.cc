@@ -1,0 +1,318 @@
+// The event journal beside a checkpoint: records round-trip, a torn tail is
+// left out with the valid prefix kept, a corrupt record with records after
+// it is refused naming the file and byte offset, a checkpoint restarts the
+// journal, and a resume from checkpoint + journal is the tissue the
+// uninterrupted session had (topology, rest shape, surface, cut count).
+#include "common/sim/event_journal.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "common/core/error.h"
+#include "common/sim/checkpoint.h"
+#include "common/sim/checkpointer.h"
+#include "common/sim/scene_loader.h"
+#include "common/sim/simulation.h"
+
+namespace cutsim::sim {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A coarse copy of scenes/block.pbtxt cut by a scalpel dragged along y = 10 mm.
+constexpr const char* kBlockScene = R"pb(name: "journal-block"
+mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.04 y: 0.02 z: 0.01 } nx: 10 ny: 5 nz: 2 } }
+materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
+boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
+gravity { z: -9.81 }
+time_step { frame_dt: 0.01 threads: 1 }
+tool {
+  blade_length: 0.025
+  keyframes { t: 0 tip { x: -0.003 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
+  keyframes { t: 0.8 tip { x: 0.043 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
+}
+cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 10000 }
+)pb";
+
+std::unique_ptr<Simulation> MakeBlock() {
+  return Simulation::Create(ParseScene(kBlockScene, "journal-test.pbtxt", fs::temp_directory_path()));
+}
+
+std::string ReadBytes(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+void WriteBytes(const fs::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
+}
+
+/// The error of `fn`, or "" if it did not throw InputError.
+template <typename Fn>
+std::string ErrorOf(Fn&& fn) {
+  try {
+    fn();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+class JournalTest : public ::testing::Test {
+ protected:
+  /// The session, run once for the suite: journal from the start, a
+  /// checkpoint after the first cut (the journal's compaction), more cuts
+  /// journaled after it, then "killed" (no final checkpoint).
+  static void SetUpTestSuite() {
+    suite_dir_ = fs::temp_directory_path() / ("cutsim-journal-test-" + std::to_string(::getpid()));
+    fs::create_directories(suite_dir_);
+    session_ = MakeBlock();
+    Simulation& sim = *session_;
+    PeriodicCheckpointer cp(suite_dir_ / "block.ckpt", 0.0);
+    ASSERT_FALSE(cp.Begin(sim, /*resume=*/false));
+    auto run_until = [&](uint64_t cuts) {
+      while (sim.QuickSummary().cuts < cuts && sim.sim_time() < 0.8) {
+        ASSERT_EQ(sim.AdvanceFrame(), SimStatus::kOk);
+        cp.JournalNewEvents(sim);
+      }
+    };
+    run_until(1);
+    ASSERT_TRUE(cp.Save(sim));
+    checkpoint_events_ = sim.TopologyEvents().size();
+    run_until(3);
+    cp.DrainJournal();
+    counters_ = cp.journal_counters();
+  }
+  static void TearDownTestSuite() {
+    session_.reset();
+    fs::remove_all(suite_dir_);
+  }
+
+  void SetUp() override {
+    dir_ = suite_dir_ / ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    fs::create_directories(dir_);
+  }
+
+  /// A journal of every event of the session, written by EventJournal.
+  fs::path WriteWholeJournal() {
+    const fs::path path = dir_ / "all.journal";
+    EventJournal journal(path);
+    v1::JournalHeader header;
+    header.set_scene_name("journal-block");
+    header.set_lineage(7);
+    journal.Start(header, {});
+    for (const cutting::TopologyEvent& e : session_->TopologyEvents()) journal.Append(e, 1, 0.5);
+    journal.Drain();
+    EXPECT_EQ(journal.counters().records, session_->TopologyEvents().size());
+    EXPECT_EQ(journal.counters().failures, 0u);
+    return path;
+  }
+
+  static inline fs::path suite_dir_;
+  static inline std::unique_ptr<Simulation> session_;
+  static inline size_t checkpoint_events_ = 0;
+  static inline JournalCounters counters_;
+  fs::path dir_;
+};
+
+TEST_F(JournalTest, RecordsRoundTrip) {
+  const auto events = session_->TopologyEvents();
+  ASSERT_GE(events.size(), 2u) << "the scalpel should have cut by now";
+  const fs::path path = WriteWholeJournal();
+  const JournalContents j = ReadJournalFile(path);
+  EXPECT_FALSE(j.torn);
+  EXPECT_EQ(j.valid_bytes, fs::file_size(path));
+  EXPECT_EQ(j.header.scene_name(), "journal-block");
+  EXPECT_EQ(j.header.lineage(), 7u);
+  ASSERT_EQ(j.entries.size(), events.size());
+  for (size_t i = 0; i < events.size(); ++i) {
+    EXPECT_EQ(j.entries[i].record.event().SerializeAsString(), EventToProto(events[i]).SerializeAsString())
+        << "record " << i;
+    EXPECT_EQ(j.entries[i].record.cuts(), 1u);
+  }
+}
+
+TEST_F(JournalTest, TornTailKeepsTheValidPrefix) {
+  const fs::path path = WriteWholeJournal();
+  const std::string whole = ReadBytes(path);
+  const JournalContents all = ReadJournalFile(path);
+  ASSERT_GE(all.entries.size(), 2u);
+  const uint64_t last = all.entries.back().offset;
+  // Cut inside the last record's payload, inside its frame, and a tail of
+  // zeros (a file extended but not written): each keeps every whole record.
+  for (const size_t keep : {whole.size() - 3, static_cast<size_t>(last) + 5}) {
+    WriteBytes(path, whole.substr(0, keep));
+    const JournalContents j = ReadJournalFile(path);
+    EXPECT_TRUE(j.torn) << keep;
+    EXPECT_EQ(j.entries.size(), all.entries.size() - 1) << keep;
+    EXPECT_EQ(j.valid_bytes, last) << keep;
+  }
+  WriteBytes(path, whole + std::string(100, '\0'));
+  const JournalContents zeros = ReadJournalFile(path);
+  EXPECT_TRUE(zeros.torn);
+  EXPECT_EQ(zeros.entries.size(), all.entries.size());
+  // The last record's payload garbled in place (its checksum fails, nothing
+  // after it): torn too.
+  std::string garbled = whole;
+  garbled[garbled.size() - 2] ^= 0x5a;
+  WriteBytes(path, garbled);
+  EXPECT_EQ(ReadJournalFile(path).entries.size(), all.entries.size() - 1);
+}
+
+TEST_F(JournalTest, CorruptRecordInTheMiddleIsRefusedNamingFileAndOffset) {
+  const fs::path path = WriteWholeJournal();
+  std::string bytes = ReadBytes(path);
+  const JournalContents all = ReadJournalFile(path);
+  ASSERT_GE(all.entries.size(), 2u);
+  const uint64_t first = all.entries.front().offset;
+  bytes[first + kJournalFrameBytes + 1] ^= 0x5a;
+  WriteBytes(path, bytes);
+  const std::string err = ErrorOf([&] { (void)ReadJournalFile(path); });
+  EXPECT_NE(err.find(path.string()), std::string::npos) << err;
+  EXPECT_NE(err.find("record at byte " + std::to_string(first)), std::string::npos) << err;
+  EXPECT_NE(err.find("corrupted"), std::string::npos) << err;
+  // A bad header is refused, torn or not.
+  WriteBytes(path, bytes.substr(0, 5));
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }).find("header"), std::string::npos);
+  WriteBytes(path, "");
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }), "");
+}
+
+TEST_F(JournalTest, CheckpointRestartsTheJournalAfterItsLastEvent) {
+  const auto events = session_->TopologyEvents();
+  ASSERT_GT(events.size(), checkpoint_events_) << "the session should cut after its checkpoint";
+  const v1::CheckpointBody ckpt = ReadCheckpointFile(suite_dir_ / "block.ckpt");
+  ASSERT_EQ(static_cast<size_t>(ckpt.events_size()), checkpoint_events_);
+  const JournalContents j = ReadJournalFile(JournalPathFor(suite_dir_ / "block.ckpt"));
+  EXPECT_EQ(j.header.base_topology_version(), LastEventVersion(ckpt));
+  EXPECT_EQ(j.header.lineage(), ckpt.lineage());
+  EXPECT_NE(ckpt.lineage(), 0u);
+  // Only the events after the checkpoint, in order.
+  ASSERT_EQ(j.entries.size(), events.size() - checkpoint_events_);
+  for (size_t i = 0; i < j.entries.size(); ++i) {
+    EXPECT_EQ(j.entries[i].record.event().version(), events[checkpoint_events_ + i].version);
+  }
+  EXPECT_EQ(counters_.failures, 0u);
+  EXPECT_EQ(counters_.restarts, 2u);  // at start and after the checkpoint
+  EXPECT_EQ(counters_.durable_version, events.back().version);
+}
+
+/// The topology of two simulations: version, counts, rest shape, tets,
+/// surface and its opened faces, cuts.
+void ExpectSameTopology(const Simulation& a, const Simulation& b) {
+  MeshView va, vb;
+  a.FillMeshView(va);
+  b.FillMeshView(vb);
+  EXPECT_EQ(a.topology_version(), b.topology_version());
+  ASSERT_EQ(va.rest.rows(), vb.rest.rows()) << "node counts differ";
+  ASSERT_EQ(va.tets.rows(), vb.tets.rows());
+  EXPECT_TRUE(va.rest == vb.rest) << "rest positions differ";
+  EXPECT_TRUE(va.tets == vb.tets) << "tets differ";
+  ASSERT_EQ(va.surface.rows(), vb.surface.rows());
+  EXPECT_TRUE(va.surface == vb.surface) << "surface differs";
+  EXPECT_EQ(va.opened, vb.opened);
+  EXPECT_EQ(a.QuickSummary().cuts, b.QuickSummary().cuts);
+  EXPECT_EQ(a.Summary().opened_faces, b.Summary().opened_faces);
+}
+
+TEST_F(JournalTest, ResumeIsTheUninterruptedTopology) {
+  for (const char* f : {"block.ckpt", "block.ckpt.journal"}) fs::copy_file(suite_dir_ / f, dir_ / f);
+  auto resumed = MakeBlock();
+  PeriodicCheckpointer cp(dir_ / "block.ckpt", 0.0);
+  ASSERT_TRUE(cp.Begin(*resumed, /*resume=*/true));
+  ExpectSameTopology(*session_, *resumed);
+  // The positions are the checkpoint's: older than the session's.
+  EXPECT_LT(resumed->sim_time(), session_->sim_time());
+
+  // The control: the checkpoint alone is behind the session.
+  fs::copy_file(suite_dir_ / "block.ckpt", dir_ / "alone.ckpt");
+  auto alone = MakeBlock();
+  PeriodicCheckpointer cp_alone(dir_ / "alone.ckpt", 0.0);
+  ASSERT_TRUE(cp_alone.Begin(*alone, true));
+  EXPECT_LT(alone->topology_version(), session_->topology_version());
+
+  // The new journal carries the replayed events over: killed again before
+  // any checkpoint, the next resume has them still.
+  cp.DrainJournal();
+  auto again = MakeBlock();
+  PeriodicCheckpointer cp_again(dir_ / "block.ckpt", 0.0);
+  ASSERT_TRUE(cp_again.Begin(*again, true));
+  ExpectSameTopology(*session_, *again);
+}
+
+TEST_F(JournalTest, JournalAloneResumesOnTheUncutScene) {
+  fs::copy_file(suite_dir_ / "block.ckpt.journal", dir_ / "block.ckpt.journal");
+  // The suite's journal continues its checkpoint: without it, refused.
+  auto sim = MakeBlock();
+  PeriodicCheckpointer cp(dir_ / "block.ckpt", 0.0);
+  const std::string err = ErrorOf([&] { (void)cp.Begin(*sim, true); });
+  EXPECT_NE(err.find("base_topology_version"), std::string::npos) << err;
+  EXPECT_NE(err.find("does not exist"), std::string::npos) << err;
+
+  // A session journaled from the start and killed before any checkpoint.
+  const fs::path whole = dir_ / "fresh.ckpt";
+  {
+    EventJournal journal(JournalPathFor(whole));
+    v1::JournalHeader header;
+    const v1::CheckpointBody self = session_->CheckpointState();
+    header.set_scene_name(self.scene_name());
+    header.set_scene_fingerprint(self.scene_fingerprint());
+    header.set_precision(self.precision());
+    header.set_lineage(99);
+    journal.Start(header, {});
+    for (const cutting::TopologyEvent& e : session_->TopologyEvents()) {
+      journal.Append(e, session_->QuickSummary().cuts, 0.5);
+    }
+  }
+  auto fresh = MakeBlock();
+  PeriodicCheckpointer cp_fresh(whole, 0.0);
+  ASSERT_TRUE(cp_fresh.Begin(*fresh, true));
+  ExpectSameTopology(*session_, *fresh);
+  EXPECT_EQ(fresh->sim_time(), 0.0);
+}
+
+TEST_F(JournalTest, BadEventsAreRefusedNamingTheRecordsOffset) {
+  const v1::CheckpointBody self = session_->CheckpointState();
+  v1::JournalHeader header;
+  header.set_scene_name(self.scene_name());
+  header.set_scene_fingerprint(self.scene_fingerprint());
+  header.set_precision(self.precision());
+  header.set_lineage(5);
+  // A checksummed record whose event splits a node the mesh lacks.
+  v1::JournalRecord bad;
+  *bad.mutable_event() = EventToProto(session_->TopologyEvents().front());
+  bad.mutable_event()->mutable_splits(0)->set_node(1 << 30);
+  const std::string payload = bad.SerializeAsString();
+  const fs::path ckpt = dir_ / "bad.ckpt";
+  {
+    EventJournal journal(JournalPathFor(ckpt));
+    journal.Start(header, std::vector<std::string>{payload});
+  }
+  auto sim = MakeBlock();
+  PeriodicCheckpointer cp(ckpt, 0.0);
+  const std::string err = ErrorOf([&] { (void)cp.Begin(*sim, true); });
+  EXPECT_NE(err.find(JournalPathFor(ckpt).string()), std::string::npos) << err;
+  EXPECT_NE(err.find("record at byte "), std::string::npos) << err;
+  EXPECT_NE(err.find("splits"), std::string::npos) << err;
+  EXPECT_EQ(sim->topology_version(), 0u) << "nothing applied";
+
+  // A journal of another scene is refused.
+  header.set_scene_name("another");
+  {
+    EventJournal journal(JournalPathFor(ckpt));
+    journal.Start(header, {});
+  }
+  auto sim2 = MakeBlock();
+  PeriodicCheckpointer cp2(ckpt, 0.0);
+  EXPECT_NE(ErrorOf([&] { (void)cp2.Begin(*sim2, true); }).find("scene_name"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace cutsim::sim
