@@ -45,7 +45,7 @@ PY
 run() {
   local name="$1" channel="${2:-}" kind="${3:-}"
   local log="$dir/$name"
-  "$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 1e6 --session flood \
+  "$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 86400 --session flood \
     --key-file "$dir/session.key" --stats-json "$log-server.json" >/dev/null 2>"$log-server.log" &
   local server=$!
   wait_for_server "$log-server.log" "$server" 60
@@ -87,8 +87,10 @@ for name, channel, kind in [("baseline", None, None), ("tool_unsigned", "tool", 
     mp = hap.get("link", {}).get("model_packets", {})
     published = max(1, hap["link"]["tools_published"])
     genuine = tp.get("accepted", 0) + tp.get("superseded", 0)
-    models_out = max(1, srv.get("models_published", 0))
+    # Models the station received against those it missed in their sequence
+    # (the server's count includes models sent after the client left).
     models_in = mp.get("accepted", 0) + mp.get("superseded", 0)
+    models_out = max(1, models_in + hap["link"].get("models_missed", 0))
     r = {
         "kind": "flood_run", "run": name, "flood": flood.get("flood"), "channel": channel,
         "flood_sent": flood.get("sent", 0), "flood_rate": flood.get("rate", 0),

@@ -248,6 +248,7 @@ v1::HapticLinkReport LinkReport(const transport::HapticClientLinkStats& ls) {
   r.set_restarts(ReportCount(ls.restarts));
   r.set_accepted(ReportCount(ls.accepted));
   transport::ToReport(ls.packets, r.mutable_model_packets());
+  r.set_models_missed(ReportCount(ls.missed));
   return r;
 }
 

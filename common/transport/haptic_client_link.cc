@@ -189,6 +189,7 @@ void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_
     return;
   }
   if (new_server) sequencer_.Reset();
+  const uint64_t previous = sequencer_.seq();  // 0: none held
   switch (sequencer_.Offer(msg.seq(), msg.stamp_ns())) {
     case StreamSequencer::Verdict::kDuplicate:
       stats_.duplicate.fetch_add(1, std::memory_order_relaxed);
@@ -202,6 +203,10 @@ void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_
       new_server = true;
       break;
     case StreamSequencer::Verdict::kAccepted:
+      // The server numbers its models 1, 2, …: a jump is models lost on the way.
+      if (previous != 0 && msg.seq() > previous + 1) {
+        stats_.missed.fetch_add(msg.seq() - previous - 1, std::memory_order_relaxed);
+      }
       break;
   }
   if (new_server) {
@@ -275,6 +280,7 @@ HapticClientLinkStats HapticClientLink::stats() const {
   s.malformed = stats_.malformed.load();
   s.restarts = stats_.restarts.load();
   s.accepted = stats_.accepted.load();
+  s.missed = stats_.missed.load();
   s.packets = SnapshotPackets(packets_, s.accepted, receiver_.get());
   if (receiver_ != nullptr) s.models_superseded = s.packets[PacketReason::kSuperseded];
   return s;
