@@ -22,6 +22,10 @@ source "$root/bench/wait_for_server.sh"
 if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
   exec "$root/deploy/netns-run.sh" "$0" "$@"
 fi
+if [ "$seconds" -lt 4 ]; then
+  echo "flood_session.sh: SECONDS must be an integer ≥ 4 (the flood leaves out the first and last second)" >&2
+  exit 2
+fi
 dir="$out/flood"
 mkdir -p "$dir"
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$dir/session.key"

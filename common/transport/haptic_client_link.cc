@@ -218,6 +218,7 @@ void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_
   staging_.epoch = epoch_;
   model_box_.Write(staging_);
   last_accept_ns_ = receive_ns;
+  refused_since_warn_.fill(0);  // the silence, if one comes, starts here
   stats_.accepted.fetch_add(1, std::memory_order_relaxed);
 }
 

@@ -27,11 +27,12 @@
 ///
 /// Threading:
 /// * `HapticServerLink` lives on the server's physics thread. Without
-///   `StartReceiving`, `PollTool` handles pending LCM traffic with a 0 ms
-///   wait on that thread. That is not enough for a fresh pose: LCM keeps one
-///   message per subscription and drops *later* arrivals until it is
-///   handled, so polling once per 5 ms frame hands the physics the *oldest*
-///   pose since the previous frame (~3 ms old on average). With
+///   `StartReceiving`, `PollTool` reads pending tool packets (udpm
+///   receiver) or handles pending LCM traffic with a 0 ms wait on that
+///   thread. That is not enough for a fresh pose: on LCM's subscription one
+///   message waits per subscription and *later* arrivals are dropped until
+///   it is handled, so polling once per 5 ms frame hands the physics the
+///   *oldest* pose since the previous frame. With
 ///   `StartReceiving` a receive thread dispatches every pose as it arrives
 ///   into a wait-free mailbox, and `PollTool` only takes the newest one
 ///   (late pose sampling: call it right before the step). Models are still
@@ -41,8 +42,8 @@
 ///   the newest tool sample, `TakeModel` reads the newest model) and, per
 ///   tool sample, one non-blocking `write` to an eventfd (`WakeFd`) that
 ///   wakes the LCM thread, which sends the sample at once (it waits in
-///   `poll` on LCM's descriptor and the eventfd, not in a timed
-///   `lcm_handle_timeout` poll). So the loop never blocks or allocates for
+///   `poll` on its udpm receiver's socket, or LCM's descriptor, and the
+///   eventfd, not in a timed `lcm_handle_timeout` poll). So the loop never blocks or allocates for
 ///   the link, and a pose leaves as soon as the LCM thread is scheduled.
 /// * Both ends' LCM threads can run SCHED_FIFO below the haptic loop
 ///   (realtime_thread.h).
@@ -360,7 +361,7 @@ class HapticClientLink {
   int64_t last_accept_ns_ = 0;         // CLOCK_MONOTONIC of the last accepted model (or the start)
   int64_t last_silence_warn_ns_ = 0;
   int64_t last_two_servers_warn_ns_ = 0;
-  std::array<uint64_t, kPacketReasonCount> refused_since_warn_{};
+  std::array<uint64_t, kPacketReasonCount> refused_since_warn_{};  // since the last accepted model or warning
   v1::ToolState tool_msg_;     // reused
   v1::HapticModel scratch_;    // reused: each model is decoded into it
   ReceivedModel staging_;
