@@ -24,7 +24,7 @@ with open(path, "w") as f:
         t += 2.0
         k += 1
 PY
-"$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 1e6 \
+"$bin/cutsim-server" --scene "$root/scenes/ligament.pbtxt" --threads 1 --duration 86400 \
   --stats-json "$out/haptic_server.json" >/dev/null 2>"$out/haptic_server.log" &
 server=$!
 # The client starts once the server's session is up (its start-up log line).

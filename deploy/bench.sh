@@ -154,6 +154,19 @@ elif [[ $rc -ne 0 ]]; then
 fi
 cat "$out/haptic_session.json" 2>/dev/null || true
 
+echo "== flood resistance of the haptic link (hostile packets on the tool and model channels)"
+# Exit 77: no network namespace here, a skip; exit 1: a target missed.
+rc=0
+bench/flood_session.sh "$PWD/$bin" "$PWD/$out" "${FLOOD_SECONDS:-10}" "${FLOOD_RATE:-50000}" \
+  >"$out/flood_session.jsonl" 2>"$out/flood_session.log" || rc=$?
+if [[ $rc -eq 77 ]]; then
+  echo "flood bench skipped (see $out/flood_session.log)"
+elif [[ $rc -ne 0 ]]; then
+  echo "!! flood_session failed (exit $rc, see $out/flood_session.log)"
+  failed+=(flood_session)
+fi
+cat "$out/flood_session.jsonl" 2>/dev/null || true
+
 echo "== haptic loop per device (jitter; the cost of a plugin call against a built-in one)"
 run device_loop "$out/device_loop.log" "$bin/cutsim-haptic-loop-bench" --devices \
   --seconds "${DEVICE_SECONDS:-10}" > "$out/device_loop.json"

@@ -20,6 +20,8 @@
 #include "common/transport/channels.h"
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/lcm_packet.h"
+#include "common/transport/stream_auth.h"
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
 #include "common/transport/tool_auth.h"
@@ -162,24 +164,33 @@ haptics::RendererConfig MakeConfig(const HapticAppOptions& o, const DeviceInfo& 
   return config;
 }
 
-/// The tool-message signer for the session's key, or null (unsigned, with
-/// a warning) when there is no key.
-std::unique_ptr<transport::HmacToolAuthenticator> MakeAuthenticator(const HapticAppOptions& o) {
+/// The session key's two uses on the station: signing tool messages and
+/// checking the server's models. Both null (an open session, with a
+/// warning) when there is no key.
+struct StationAuth {
+  std::unique_ptr<transport::HmacToolAuthenticator> tools;
+  std::unique_ptr<transport::PayloadAuthenticator> models;
+};
+
+StationAuth MakeAuthenticators(const HapticAppOptions& o) {
   const auto key = transport::LoadSessionKey(o.key_file);
   if (!key) {
-    Log().warn("session '{}': no session key (--key-file or ${}): tool messages are NOT signed; "
-               "a server with a key will ignore them",
+    Log().warn("session '{}' is OPEN: no session key (--key-file or ${}): tool messages are NOT signed (a server "
+               "with a key ignores them) and models are NOT authenticated (anyone on the LCM group can set the "
+               "device's force)",
                o.session, transport::kSessionKeyEnv);
-    return nullptr;
+    return {};
   }
-  Log().info("session '{}': tool messages are signed (HMAC-SHA256, key from {})", o.session,
-             o.key_file.empty() ? std::string("$") + transport::kSessionKeyEnv : o.key_file);
-  return std::make_unique<transport::HmacToolAuthenticator>(*key, o.session);
+  Log().info("session '{}': tool messages are signed and models must be signed (HMAC-SHA256, key from {}, "
+             "models within 2 s of this clock)",
+             o.session, o.key_file.empty() ? std::string("$") + transport::kSessionKeyEnv : o.key_file);
+  return {std::make_unique<transport::HmacToolAuthenticator>(*key, o.session),
+          std::make_unique<transport::PayloadAuthenticator>(*key, transport::kHapticModelDomain, o.session)};
 }
 
-/// Fault injection per direction and the signer.
-transport::HapticLinkOptions MakeLinkOptions(const HapticAppOptions& o,
-                                             transport::ToolAuthenticator* authenticator) {
+/// Fault injection per direction and the authenticators.
+transport::HapticLinkOptions MakeLinkOptions(const HapticAppOptions& o, const StationAuth& auth,
+                                             const haptics::RendererConfig& config) {
   transport::HapticLinkOptions link_options;
   if (o.fault_direction != "model") link_options.publish_faults = o.faults;
   if (o.fault_direction != "tool") {
@@ -187,7 +198,10 @@ transport::HapticLinkOptions MakeLinkOptions(const HapticAppOptions& o,
     link_options.receive_faults.seed = o.faults.seed + 1;  // independent fates per direction
   }
   if (o.faults.active()) Log().info("fault injection ({}): {}", o.fault_direction, transport::Describe(o.faults));
-  link_options.authenticator = authenticator;
+  link_options.authenticator = auth.tools.get();
+  link_options.model_auth = auth.models.get();
+  // Refused models are explained once the watchdog has noticed the silence.
+  link_options.silence_ns = static_cast<int64_t>(config.watchdog * 1e9);
   return link_options;
 }
 
@@ -202,6 +216,15 @@ void LogSummary(const char* end_reason, const ServoLoop& loop, const haptics::Re
              "foreign session, {} out of order, {} duplicate, {} malformed, {} server restarts",
              rs.models_accepted, rs.models_rejected, rs.models_stale, ls.models_received, ls.decode_errors,
              ls.foreign_session, ls.stale, ls.duplicate, ls.malformed, ls.restarts);
+  const transport::PacketCounts& p = ls.packets;
+  using R = transport::PacketReason;
+  Log().info("model packets{}: {} accepted, {} superseded, {} garbage, {} fragments, {} other channels, {} "
+             "oversized, {} undecodable, {} foreign, {} unsigned, {} forged, {} replayed, {} outside the window, {} "
+             "invalid epoch, {} from another server, {} invalid, {} stale; {} dropped by the kernel",
+             p.packet_level ? "" : " (per LCM delivery)", p[R::kAccepted], p[R::kSuperseded], p[R::kNotLcm],
+             p[R::kFragment], p[R::kOtherChannel], p[R::kOversized], p[R::kDecodeError], p[R::kForeignSession],
+             p[R::kUnsigned], p[R::kForged], p[R::kReplayed], p[R::kOutsideWindow], p[R::kInvalidEpoch],
+             p[R::kOtherSender], p[R::kInvalid], p[R::kStale], p.kernel_dropped);
   Log().info("watchdog trips {}, cut decays {}, passivity dissipated {:.6f} J (E_obs {:.6f} J, min {:.6f} J), "
              "model age p99 {:.2f} ms, pose-to-model p99 {:.2f} ms",
              rs.watchdog_trips, rs.cut_decays_started, rs.passivity_dissipated, rs.observed_energy,
@@ -224,6 +247,8 @@ v1::HapticLinkReport LinkReport(const transport::HapticClientLinkStats& ls) {
   r.set_malformed(ReportCount(ls.malformed));
   r.set_restarts(ReportCount(ls.restarts));
   r.set_accepted(ReportCount(ls.accepted));
+  transport::ToReport(ls.packets, r.mutable_model_packets());
+  r.set_models_missed(ReportCount(ls.missed));
   return r;
 }
 
@@ -321,6 +346,7 @@ v1::HapticStats StatsReport(const HapticAppOptions& o, const RunOutcome& run, co
   r.set_max_force_n(rs.max_force);
   r.set_max_force_step_n(rs.max_force_step);
   *r.mutable_link() = LinkReport(link.stats());
+  r.mutable_link()->set_models_authenticated(link.authenticates_models());
   *r.mutable_faults() = FaultReport(link.publish_fault_stats(), link.receive_fault_stats());
   r.set_csv_rows(ReportCount(run.csv_rows));
   r.set_csv_dropped(ReportCount(loop.csv_dropped()));
@@ -382,15 +408,16 @@ int RunHapticApp(const HapticAppOptions& o) {
   const GuardOptions guard_options = MakeGuardOptions(o);
   std::unique_ptr<HapticDevice> device = MakeDevice(o);
   DeviceGuard guard(*device, guard_options);
-  haptics::HapticRenderer renderer(MakeConfig(o, guard.info()));
-  const auto authenticator = MakeAuthenticator(o);  // null: unsigned
+  const haptics::RendererConfig config = MakeConfig(o, guard.info());
+  haptics::HapticRenderer renderer(config);
+  const StationAuth auth = MakeAuthenticators(o);  // null: an open session
   // The LCM threads run SCHED_FIFO below the servo loop, so a pose is sent
   // and a model taken in while other load runs. LCM's own udpm receive
   // thread starts on the first subscription and inherits the scope's policy.
   const int lcm_priority = o.realtime ? std::min(transport::kLcmThreadPriority, o.rt_priority - 1) : 0;
   transport::ScopedThreadFifo lcm_scope(lcm_priority);
   transport::LcmBus bus(o.lcm_url);
-  transport::HapticClientLink link(bus, o.session, MakeLinkOptions(o, authenticator.get()));
+  transport::HapticClientLink link(bus, o.session, MakeLinkOptions(o, auth, config));
   lcm_scope.Restore();
 
   ServoLoop loop(o, guard, renderer, link);  // preallocates everything the loop touches

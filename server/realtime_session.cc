@@ -29,6 +29,8 @@
 #include "common/transport/dds.h"
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/lcm_packet.h"
+#include "common/transport/stream_auth.h"
 #include "common/transport/mesh_stream.h"
 #include "common/transport/proto_vec.h"
 #include "common/transport/realtime_thread.h"
@@ -372,6 +374,8 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   FillJournalStats(p_.checkpointer, r.mutable_journal());
+  transport::ToReport(link.packets, r.mutable_tool_packets());
+  r.set_models_signed(p_.link.signs_models());
   return r;
 }
 
@@ -401,10 +405,19 @@ int ServerApp::RunRealtime() {
   // subscription and inherits this scope's SCHED_FIFO priority (when
   // permitted), so poses reach the link while the physics computes.
   const auto authenticator = MakeToolAuthenticator(options_);  // null: an open session
+  // The local models are signed with the same key; the station checks them.
+  std::optional<transport::PayloadAuthenticator> model_signer;
+  if (const auto key = transport::LoadSessionKey(options_.key_file)) {
+    model_signer.emplace(*key, transport::kHapticModelDomain, options_.session);
+    Log().info("session '{}': local models are signed (HMAC-SHA256 trailer, epoch and 2 s window)",
+               options_.session);
+  }
   const int lcm_priority = options_.realtime_priority ? transport::kLcmThreadPriority : 0;
   transport::ScopedThreadFifo lcm_scope(lcm_priority);
   transport::LcmBus bus(options_.lcm_url);
-  transport::HapticServerLink link(bus, options_.session, {.authenticator = authenticator.get()});
+  transport::HapticServerLink link(
+      bus, options_.session,
+      {.authenticator = authenticator.get(), .model_auth = model_signer ? &*model_signer : nullptr});
   lcm_scope.Restore();
   auto recorder = options_.record.empty() ? nullptr
                                           : std::make_unique<SessionRecorder>(

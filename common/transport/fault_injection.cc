@@ -149,6 +149,14 @@ PublishStatus FaultyLcmPublisher::Publish(const google::protobuf::MessageLite& m
   return PublishStatus::kOk;
 }
 
+PublishStatus FaultyLcmPublisher::PublishBytes(std::span<const uint8_t> bytes, int64_t now_ns) noexcept {
+  if (!active_) return bus_.PublishBytes(channel_, bytes);
+  if (bytes.size() > kLcmMaxPayloadBytes) return PublishStatus::kTooLarge;
+  injector_.Submit(bytes, now_ns);
+  Poll(now_ns);
+  return PublishStatus::kOk;
+}
+
 int FaultyLcmPublisher::Poll(int64_t now_ns) noexcept {
   if (!active_) return 0;
   return injector_.Release(now_ns, [&](std::span<const uint8_t> bytes) { bus_.PublishBytes(channel_, bytes); });

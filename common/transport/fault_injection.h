@@ -159,6 +159,8 @@ class FaultyLcmPublisher {
 
   /// Encodes `msg` (refused if over one datagram) and sends or schedules it.
   PublishStatus Publish(const google::protobuf::MessageLite& msg, int64_t now_ns) noexcept;
+  /// Sends already serialised bytes (at most one datagram) or schedules them.
+  PublishStatus PublishBytes(std::span<const uint8_t> bytes, int64_t now_ns) noexcept;
   /// Sends the messages that are due. Returns how many were sent.
   int Poll(int64_t now_ns) noexcept;
 

@@ -13,36 +13,34 @@
 #include "common/core/log.h"
 #include "common/transport/channels.h"
 #include "common/transport/proto_vec.h"
+#include "common/transport/haptic_link_util.h"
 #include "common/transport/realtime_thread.h"
 
 namespace cutsim::transport {
 namespace {
 
+using link_detail::MakeReceiveFaults;
+using link_detail::SnapshotPackets;
+using link_detail::WaitInputOrWake;
+using link_detail::WaitMs;
+
 constexpr double kMaxToolPosition = 100.0;  // m: no tool is 100 m from the origin
 constexpr double kMaxToolSpeed = 100.0;     // m/s: no hand moves a tool that fast
 
-std::unique_ptr<FaultInjector> MakeReceiveFaults(const FaultConfig& config) {
-  ValidateFaultConfig(config);
-  if (!config.active()) return nullptr;
-  return std::make_unique<FaultInjector>(config);
+}  // namespace
+
+PacketCounts link_detail::SnapshotPackets(const PacketCounters& counters, uint64_t queued, const UdpmReceiver* receiver) {
+  PacketCounts c;
+  for (size_t i = 0; i < kPacketReasonCount; ++i) c.n[i] = counters.get(static_cast<PacketReason>(i));
+  // Queued but never taken: a newer one replaced it (or it still waits).
+  const uint64_t taken = c[PacketReason::kAccepted];
+  c.n[static_cast<size_t>(PacketReason::kSuperseded)] = queued > taken ? queued - taken : 0;
+  c.packet_level = receiver != nullptr;
+  c.kernel_dropped = receiver != nullptr ? receiver->kernel_dropped() : 0;
+  return c;
 }
 
-/// Milliseconds from `now_ns` until `due_ns` (rounded up), capped at `cap_ms`.
-int WaitMs(int64_t now_ns, int64_t due_ns, int cap_ms) {
-  if (due_ns == std::numeric_limits<int64_t>::max()) return cap_ms;
-  const int64_t until_due_ms = std::max<int64_t>(0, (due_ns - now_ns + 999'999) / 1'000'000);
-  return static_cast<int>(std::min<int64_t>(cap_ms, until_due_ms));
-}
-
-/// Waits up to `timeout_ms` for LCM's descriptor or the wake-up eventfd.
-/// Returns whether LCM has something to dispatch (EINTR counts as "maybe").
-bool WaitLcmOrWake(int lcm_fd, const WakeFd& wake, int timeout_ms) {
-  pollfd fds[2] = {{.fd = lcm_fd, .events = POLLIN, .revents = 0},
-                   {.fd = wake.fd(), .events = POLLIN, .revents = 0}};
-  const int n = ::poll(fds, 2, timeout_ms);
-  if (n < 0) return true;
-  return (fds[0].revents & (POLLIN | POLLERR | POLLHUP)) != 0;
-}
+namespace {
 
 /// A tool pose the server may use: finite, within any workspace, a usable blade.
 bool ValidTool(ToolSample* s) {
@@ -155,14 +153,21 @@ HapticServerLink::HapticServerLink(LcmBus& bus, std::string session, HapticLinkO
     : bus_(bus),
       session_(std::move(session)),
       options_(options),
+      tool_channel_(LcmChannelName(session_, LcmChannel::kTool)),
       model_channel_(LcmChannelName(session_, LcmChannel::kModel)),
-      sequencer_(options.restart_window) {
+      sequencer_(options.restart_window),
+      model_epoch_(static_cast<uint64_t>(RealtimeNowNs())) {
   ValidateFaultConfig(options_.publish_faults);
   receive_faults_ = MakeReceiveFaults(options_.receive_faults);
   publisher_ = std::make_unique<FaultyLcmPublisher>(bus_, model_channel_, options_.publish_faults);
   model_msg_.set_session(session_);
-  subscription_ = bus_.Subscribe<v1::ToolState>(LcmChannelName(session_, LcmChannel::kTool),
-                                                [this](const v1::ToolState& msg) { OnTool(msg); });
+  if (ParseUdpmAddress(bus_.url())) {
+    receiver_ = std::make_unique<UdpmReceiver>(bus_.url(), tool_channel_, packets_,
+                                               UdpmReceiver::Options{.max_payload = MaxPayloadBytes<v1::ToolState>()});
+  } else {
+    subscription_ = bus_.SubscribeRaw(tool_channel_, MaxPayloadBytes<v1::ToolState>(),
+                                      [this](std::span<const uint8_t> bytes) { OnToolBytes(bytes, MonotonicNs()); });
+  }
 }
 
 HapticServerLink::~HapticServerLink() { StopReceiving(); }
@@ -174,11 +179,10 @@ void HapticServerLink::StartReceiving(int rt_priority) {
     (void)RaiseCurrentThread(rt_priority, "server's LCM receive thread", "poses and models");
     constexpr int kIdleWaitMs = 100;  // only bounds how long Stop waits
     try {
-      const int lcm_fd = bus_.fileno();
       while (receive_running_.load(std::memory_order_relaxed)) {
         int64_t due = std::numeric_limits<int64_t>::max();
         if (receive_faults_ != nullptr) due = receive_faults_->next_due_ns();
-        const bool lcm_ready = WaitLcmOrWake(lcm_fd, wake_, WaitMs(MonotonicNs(), due, kIdleWaitMs));
+        const bool lcm_ready = WaitForInput(WaitMs(MonotonicNs(), due, kIdleWaitMs));
         wake_.Drain();
         if (lcm_ready || receive_faults_ != nullptr) ReceivePending();
       }
@@ -194,38 +198,58 @@ void HapticServerLink::StopReceiving() {
   if (receive_thread_.joinable()) receive_thread_.join();
 }
 
-void HapticServerLink::ReceivePending() {
-  bus_.HandleTimeout(0);
-  const int64_t now = MonotonicNs();
-  if (receive_faults_ != nullptr) {
-    receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) {
-      if (DecodeInto(bytes, scratch_, subscription_.channel())) ProcessTool(scratch_, now);
-    });
-  }
-  const auto& sub = subscription_.stats();
-  stats_.received.store(sub.received, std::memory_order_relaxed);
-  stats_.superseded.store(sub.superseded, std::memory_order_relaxed);
-  stats_.decode_errors.store(sub.decode_errors, std::memory_order_relaxed);
+bool HapticServerLink::WaitForInput(int timeout_ms) {
+  return WaitInputOrWake(receiver_ != nullptr ? receiver_->fd() : bus_.fileno(), wake_, timeout_ms);
 }
 
-void HapticServerLink::OnTool(const v1::ToolState& msg) {
+void HapticServerLink::ReceivePending() {
+  if (receiver_ != nullptr) {
+    receiver_->Drain([this](std::span<const uint8_t> bytes, int64_t receive_ns) {
+      stats_.received.fetch_add(1, std::memory_order_relaxed);
+      OnToolBytes(bytes, receive_ns);
+    });
+  } else {
+    bus_.HandleTimeout(0);
+  }
   const int64_t now = MonotonicNs();
+  if (receive_faults_ != nullptr) {
+    receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) { ProcessToolBytes(bytes, now); });
+  }
+  if (receiver_ == nullptr) {
+    const auto& sub = subscription_.stats();
+    stats_.received.store(sub.received, std::memory_order_relaxed);
+    stats_.superseded.store(sub.superseded, std::memory_order_relaxed);
+    stats_.subscription_errors.store(sub.decode_errors, std::memory_order_relaxed);
+  }
+}
+
+void HapticServerLink::OnToolBytes(std::span<const uint8_t> bytes, int64_t receive_ns) {
   if (receive_faults_ == nullptr) {
-    ProcessTool(msg, now);
+    ProcessToolBytes(bytes, receive_ns);
+  } else {
+    receive_faults_->Submit(bytes, receive_ns);  // the injector decides its fate
+  }
+}
+
+void HapticServerLink::ProcessToolBytes(std::span<const uint8_t> bytes, int64_t receive_ns) {
+  if (!DecodeInto(bytes, scratch_, tool_channel_)) {
+    stats_.decode_errors.fetch_add(1, std::memory_order_relaxed);
+    packets_.Add(PacketReason::kDecodeError);
     return;
   }
-  // Re-encode (the bus hands us decoded messages) and let the injector decide.
-  if (const auto bytes = encoder_.Encode(msg)) receive_faults_->Submit(*bytes, now);
+  ProcessTool(scratch_, receive_ns);
 }
 
 void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns) {
   auto bump = [](std::atomic<uint64_t>& counter) { counter.fetch_add(1, std::memory_order_relaxed); };
   if (msg.session() != session_) {
     bump(stats_.foreign_session);
+    packets_.Add(PacketReason::kForeignSession);
     return;
   }
   if (options_.authenticator != nullptr) {
-    switch (options_.authenticator->Verify(msg)) {
+    const AuthVerdict verdict = options_.authenticator->Verify(msg);
+    switch (verdict) {
       case AuthVerdict::kOk:
         break;
       case AuthVerdict::kNewEpoch:
@@ -234,35 +258,40 @@ void HapticServerLink::ProcessTool(const v1::ToolState& msg, int64_t receive_ns)
         sequencer_.Reset();
         break;
       case AuthVerdict::kUnsigned:
-        bump(stats_.unauthenticated);
         bump(stats_.auth_unsigned);
-        return;
+        break;
       case AuthVerdict::kForged:
-        bump(stats_.unauthenticated);
         bump(stats_.auth_forged);
-        return;
+        break;
       case AuthVerdict::kOutsideWindow:
       case AuthVerdict::kInvalidEpoch:
         bump(stats_.auth_outside_window);
         [[fallthrough]];
       case AuthVerdict::kReplayed:
       case AuthVerdict::kOtherSender:
-        bump(stats_.unauthenticated);
         bump(stats_.auth_replayed);
-        return;
+        break;
+    }
+    if (!Accepted(verdict)) {
+      bump(stats_.unauthenticated);
+      packets_.Add(ReasonOf(verdict));
+      return;
     }
   }
   ToolSample sample = FromProto(msg);
   if (!ValidTool(&sample)) {
     bump(stats_.invalid);
+    packets_.Add(PacketReason::kInvalid);
     return;
   }
   switch (sequencer_.Offer(sample.seq, sample.stamp_ns)) {
     case StreamSequencer::Verdict::kDuplicate:
       bump(stats_.duplicate);
+      packets_.Add(PacketReason::kStale);
       return;
     case StreamSequencer::Verdict::kStale:
       bump(stats_.stale);
+      packets_.Add(PacketReason::kStale);
       return;
     case StreamSequencer::Verdict::kRestart:
       bump(stats_.restarts);
@@ -279,6 +308,7 @@ std::optional<ToolSample> HapticServerLink::PollTool() {
   if (!receiving()) ReceivePending();
   publisher_->Poll(MonotonicNs());
   if (!tool_box_.TakeFresh()) return std::nullopt;
+  packets_.Add(PacketReason::kAccepted);
   latest_ = tool_box_.front();
   return latest_;
 }
@@ -294,7 +324,27 @@ void HapticServerLink::PublishModel(const haptics::LocalModel& model, uint64_t t
   model_msg_.set_seq(++model_seq_);
   model_msg_.set_stamp_ns(now);
   model_msg_.set_tool_seq(tool_seq);
-  if (publisher_->Publish(model_msg_, now) == PublishStatus::kOk) {
+  if (options_.model_auth != nullptr) {
+    model_msg_.set_epoch(model_epoch_);
+    model_msg_.set_wall_ns(RealtimeNowNs());
+  }
+  // Serialised into a fixed buffer (no allocation), the trailer appended.
+  const size_t size = model_msg_.ByteSizeLong();
+  const size_t trailer = options_.model_auth != nullptr ? kTrailerBytes : 0;
+  if (size + trailer > kLcmMaxPayloadBytes) {
+    stats_.models_not_sent.fetch_add(1, std::memory_order_relaxed);
+    return;
+  }
+  model_msg_.SerializeWithCachedSizesToArray(model_bytes_.data());
+  const std::span<const uint8_t> body(model_bytes_.data(), size);
+  if (trailer > 0 &&
+      !options_.model_auth->MakeTrailer(body, std::span<uint8_t, kTrailerBytes>(model_bytes_.data() + size,
+                                                                                kTrailerBytes))) {
+    stats_.models_not_sent.fetch_add(1, std::memory_order_relaxed);
+    return;
+  }
+  if (publisher_->PublishBytes(std::span<const uint8_t>(model_bytes_.data(), size + trailer), now) ==
+      PublishStatus::kOk) {
     stats_.models_published.fetch_add(1, std::memory_order_relaxed);
   } else {
     stats_.models_not_sent.fetch_add(1, std::memory_order_relaxed);
@@ -306,7 +356,7 @@ HapticServerLinkStats HapticServerLink::stats() const {
   HapticServerLinkStats s;
   s.received = stats_.received.load();
   s.superseded = stats_.superseded.load();
-  s.decode_errors = stats_.decode_errors.load();
+  s.decode_errors = stats_.decode_errors.load() + stats_.subscription_errors.load();
   s.accepted = stats_.accepted.load();
   s.foreign_session = stats_.foreign_session.load();
   s.stale = stats_.stale.load();
@@ -320,164 +370,9 @@ HapticServerLinkStats HapticServerLink::stats() const {
   s.restarts = stats_.restarts.load();
   s.models_published = stats_.models_published.load();
   s.models_not_sent = stats_.models_not_sent.load();
+  s.packets = SnapshotPackets(packets_, s.accepted, receiver_.get());
+  if (receiver_ != nullptr) s.superseded = s.packets[PacketReason::kSuperseded];
   return s;
-}
-
-// ---- HapticClientLink ----------------------------------------------------------------
-
-HapticClientLink::HapticClientLink(LcmBus& bus, std::string session, HapticLinkOptions options)
-    : bus_(bus),
-      session_(std::move(session)),
-      options_(options),
-      tool_channel_(LcmChannelName(session_, LcmChannel::kTool)),
-      sequencer_(options.restart_window) {
-  ValidateFaultConfig(options_.publish_faults);
-  receive_faults_ = MakeReceiveFaults(options_.receive_faults);
-  publisher_ = std::make_unique<FaultyLcmPublisher>(bus_, tool_channel_, options_.publish_faults);
-  tool_msg_.set_session(session_);
-  subscription_ = bus_.Subscribe<v1::HapticModel>(LcmChannelName(session_, LcmChannel::kModel),
-                                                  [this](const v1::HapticModel& msg) { OnModel(msg); });
-}
-
-HapticClientLink::~HapticClientLink() { Stop(); }
-
-void HapticClientLink::Start(int wait_ms, int rt_priority) {
-  if (running_.exchange(true)) return;
-  thread_ = std::thread([this, wait_ms, rt_priority] {
-    pthread_setname_np(pthread_self(), "cutsim-lcm");
-    (void)RaiseCurrentThread(rt_priority, "haptic client's LCM thread", "poses and models");
-    try {
-      while (running_.load(std::memory_order_relaxed)) RunOnce(wait_ms);
-    } catch (const std::exception& e) {
-      Log().error("haptic link LCM thread stopped: {}", e.what());
-    }
-  });
-}
-
-void HapticClientLink::Stop() {
-  running_.store(false);
-  wake_.Notify();
-  if (thread_.joinable()) thread_.join();
-}
-
-int HapticClientLink::RunOnce(int wait_ms) {
-  const uint64_t before = stats_.accepted.load(std::memory_order_relaxed);
-  int64_t now = MonotonicNs();
-  // Drain the wake-up before taking the mailbox: a sample published after
-  // this point notifies again, so the wait below cannot sleep on it.
-  wake_.Drain();
-  SendPendingTool(now);
-  // Wake in time for the next fault-delayed message.
-  int64_t due = publisher_->injector().next_due_ns();
-  if (receive_faults_ != nullptr) due = std::min(due, receive_faults_->next_due_ns());
-  const bool lcm_ready = WaitLcmOrWake(bus_.fileno(), wake_, WaitMs(now, due, std::max(0, wait_ms)));
-  if (lcm_ready) bus_.HandleTimeout(0);
-  now = MonotonicNs();
-  if (receive_faults_ != nullptr) {
-    receive_faults_->Release(now, [&](std::span<const uint8_t> bytes) {
-      if (DecodeInto(bytes, scratch_, subscription_.channel())) ProcessModel(scratch_, now);
-    });
-  }
-  wake_.Drain();
-  SendPendingTool(now);
-  const auto& sub = subscription_.stats();
-  stats_.models_received.store(sub.received, std::memory_order_relaxed);
-  stats_.models_superseded.store(sub.superseded, std::memory_order_relaxed);
-  stats_.decode_errors.store(sub.decode_errors, std::memory_order_relaxed);
-  return static_cast<int>(stats_.accepted.load(std::memory_order_relaxed) - before);
-}
-
-void HapticClientLink::SendPendingTool(int64_t now_ns) {
-  if (tool_box_.TakeFresh()) {
-    const ToolSample& s = tool_box_.front();
-    ToProto(s, &tool_msg_);
-    if (options_.authenticator != nullptr) options_.authenticator->Sign(&tool_msg_);
-    if (publisher_->Publish(tool_msg_, now_ns) == PublishStatus::kOk) {
-      stats_.tools_published.fetch_add(1, std::memory_order_relaxed);
-    } else {
-      stats_.tools_not_sent.fetch_add(1, std::memory_order_relaxed);
-    }
-  }
-  publisher_->Poll(now_ns);
-}
-
-void HapticClientLink::OnModel(const v1::HapticModel& msg) {
-  const int64_t now = MonotonicNs();
-  if (receive_faults_ == nullptr) {
-    ProcessModel(msg, now);
-    return;
-  }
-  if (const auto bytes = encoder_.Encode(msg)) receive_faults_->Submit(*bytes, now);
-}
-
-void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_ns) {
-  if (msg.session() != session_) {
-    stats_.foreign_session.fetch_add(1, std::memory_order_relaxed);
-    return;
-  }
-  if (!FromProto(msg, &staging_.model)) {
-    stats_.malformed.fetch_add(1, std::memory_order_relaxed);
-    return;
-  }
-  switch (sequencer_.Offer(msg.seq(), msg.stamp_ns())) {
-    case StreamSequencer::Verdict::kDuplicate:
-      stats_.duplicate.fetch_add(1, std::memory_order_relaxed);
-      return;
-    case StreamSequencer::Verdict::kStale:
-      stats_.stale.fetch_add(1, std::memory_order_relaxed);
-      return;
-    case StreamSequencer::Verdict::kRestart:
-      ++epoch_;
-      stats_.restarts.fetch_add(1, std::memory_order_relaxed);
-      break;
-    case StreamSequencer::Verdict::kAccepted:
-      break;
-  }
-  staging_.receive_ns = receive_ns;
-  staging_.tool_seq = msg.tool_seq();
-  staging_.epoch = epoch_;
-  model_box_.Write(staging_);
-  stats_.accepted.fetch_add(1, std::memory_order_relaxed);
-}
-
-uint64_t HapticClientLink::PublishTool(const ToolSample& sample) noexcept {
-  ToolSample& slot = tool_box_.back();
-  slot = sample;
-  slot.seq = ++next_tool_seq_;
-  if (slot.stamp_ns == 0) slot.stamp_ns = MonotonicNs();
-  slot.receive_ns = 0;
-  const uint64_t seq = slot.seq;
-  tool_box_.Publish();
-  stats_.tools_written.fetch_add(1, std::memory_order_relaxed);
-  wake_.Notify();  // the LCM thread sends it now, not at its next timeout
-  return seq;
-}
-
-bool HapticClientLink::TakeModel(ReceivedModel* out) noexcept { return model_box_.Read(out); }
-
-HapticClientLinkStats HapticClientLink::stats() const {
-  HapticClientLinkStats s;
-  s.tools_written = stats_.tools_written.load();
-  s.tools_published = stats_.tools_published.load();
-  s.tools_not_sent = stats_.tools_not_sent.load();
-  const uint64_t handled = s.tools_published + s.tools_not_sent;
-  s.tools_coalesced = s.tools_written > handled ? s.tools_written - handled : 0;
-  s.models_received = stats_.models_received.load();
-  s.models_superseded = stats_.models_superseded.load();
-  s.decode_errors = stats_.decode_errors.load();
-  s.foreign_session = stats_.foreign_session.load();
-  s.stale = stats_.stale.load();
-  s.duplicate = stats_.duplicate.load();
-  s.malformed = stats_.malformed.load();
-  s.restarts = stats_.restarts.load();
-  s.accepted = stats_.accepted.load();
-  return s;
-}
-
-FaultStats HapticClientLink::publish_fault_stats() const { return publisher_->injector().stats(); }
-
-FaultStats HapticClientLink::receive_fault_stats() const {
-  return receive_faults_ != nullptr ? receive_faults_->stats() : FaultStats{};
 }
 
 }  // namespace cutsim::transport

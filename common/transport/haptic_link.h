@@ -27,11 +27,12 @@
 ///
 /// Threading:
 /// * `HapticServerLink` lives on the server's physics thread. Without
-///   `StartReceiving`, `PollTool` handles pending LCM traffic with a 0 ms
-///   wait on that thread. That is not enough for a fresh pose: LCM keeps one
-///   message per subscription and drops *later* arrivals until it is
-///   handled, so polling once per 5 ms frame hands the physics the *oldest*
-///   pose since the previous frame (~3 ms old on average). With
+///   `StartReceiving`, `PollTool` reads pending tool packets (udpm
+///   receiver) or handles pending LCM traffic with a 0 ms wait on that
+///   thread. That is not enough for a fresh pose: on LCM's subscription one
+///   message waits per subscription and *later* arrivals are dropped until
+///   it is handled, so polling once per 5 ms frame hands the physics the
+///   *oldest* pose since the previous frame. With
 ///   `StartReceiving` a receive thread dispatches every pose as it arrives
 ///   into a wait-free mailbox, and `PollTool` only takes the newest one
 ///   (late pose sampling: call it right before the step). Models are still
@@ -41,17 +42,37 @@
 ///   the newest tool sample, `TakeModel` reads the newest model) and, per
 ///   tool sample, one non-blocking `write` to an eventfd (`WakeFd`) that
 ///   wakes the LCM thread, which sends the sample at once (it waits in
-///   `poll` on LCM's descriptor and the eventfd, not in a timed
-///   `lcm_handle_timeout` poll). So the loop never blocks or allocates for
+///   `poll` on its udpm receiver's socket, or LCM's descriptor, and the
+///   eventfd, not in a timed `lcm_handle_timeout` poll). So the loop never blocks or allocates for
 ///   the link, and a pose leaves as soon as the LCM thread is scheduled.
 /// * Both ends' LCM threads can run SCHED_FIFO below the haptic loop
 ///   (realtime_thread.h).
 ///
-/// Access control: with a `ToolAuthenticator` (tool_auth.h) the
-/// client signs every tool message and the server drops and counts unsigned,
-/// forged and replayed ones before anything else looks at them; with none
-/// configured, messages are not authenticated (an open session).
+/// Access control (with a session key; without one the session is open):
+/// * tool poses: the client signs every tool message (`ToolAuthenticator`,
+///   tool_auth.h) and the server's receive thread checks it before the pose
+///   can reach the mailbox;
+/// * models: the server signs every `HapticModel` with a trailer over its
+///   serialised bytes (`PayloadAuthenticator`, domain `kHapticModelDomain`)
+///   and its epoch (its CLOCK_REALTIME at start), sequence and signing time;
+///   the client's LCM thread checks the trailer on the raw bytes before it
+///   parses them, then their freshness (`EpochGate`, 2 s window), so only
+///   authentic, fresh models reach the servo loop. A restarted server (a
+///   newer epoch) is followed at once; models of an older epoch while the
+///   followed server is alive are refused (other-sender) and the client
+///   logs that two servers publish the session. When no authentic model
+///   arrived for `silence_ns` (the watchdog) but refused ones did, the LCM
+///   thread logs why, once a second; the servo loop's watchdog fades the
+///   force as for a lost server.
+///
+/// Receiving: on `udpm://` URLs each end reads its channel through its own
+/// socket (`UdpmReceiver`, udpm_receiver.h), so every datagram is judged and
+/// counted (`PacketCounts`: exactly one `PacketReason` each) before anything
+/// queues it, and a flood of junk cannot displace genuine messages from a
+/// queue. Other URLs (memq:// in tests) keep LCM's subscription, which
+/// queues one message before the link sees it and is counted per delivery.
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <memory>
@@ -65,12 +86,17 @@
 #include "common/haptics/local_model.h"
 #include "common/transport/fault_injection.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/lcm_packet.h"
 #include "common/transport/mailbox.h"
 #include "common/transport/stream_auth.h"
+#include "common/transport/udpm_receiver.h"
 #include "common/transport/wake_fd.h"
 #include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::transport {
+
+/// Domain of the model stream's tags (`PayloadAuthenticator`).
+inline constexpr const char* kHapticModelDomain = "cutsim.v1.HapticModel/hmac-sha256/1";
 
 /// One tool pose as it travels up the link.
 struct ToolSample {
@@ -124,6 +150,11 @@ struct HapticLinkOptions {
   FaultConfig receive_faults;        ///< Applied to what this end receives (before filtering).
   uint64_t restart_window = StreamSequencer::kDefaultRestartWindow;
   ToolAuthenticator* authenticator = nullptr;  ///< Not owned; null = no authentication.
+  /// Models: the server signs with it, the client checks with it. Not
+  /// owned; null = models are not authenticated.
+  PayloadAuthenticator* model_auth = nullptr;
+  int64_t model_window_ns = EpochGate::kDefaultWindowNs;  ///< Client: signing-time window of models.
+  int64_t silence_ns = 100'000'000;  ///< Client: no authentic model this long → log why (the watchdog).
 };
 
 /// Server-side counters.
@@ -145,6 +176,7 @@ struct HapticServerLinkStats {
   uint64_t restarts = 0;         ///< Client restarts detected (included in accepted).
   uint64_t models_published = 0;
   uint64_t models_not_sent = 0;  ///< Over one datagram or LCM refused.
+  PacketCounts packets;          ///< Every tool packet by reason (per datagram on udpm).
 };
 
 /// The server's end: polls tool poses, publishes local models.
@@ -189,35 +221,47 @@ class HapticServerLink {
   [[nodiscard]] HapticServerLinkStats stats() const;
   [[nodiscard]] const std::optional<ToolSample>& latest_tool() const { return latest_; }
   [[nodiscard]] uint64_t last_model_seq() const { return model_seq_; }
+  /// Whether models carry the session key's tag.
+  [[nodiscard]] bool signs_models() const { return options_.model_auth != nullptr; }
+  /// Whether tool packets are read by the packet-level receiver (udpm).
+  [[nodiscard]] bool packet_level() const { return receiver_ != nullptr; }
   [[nodiscard]] const std::string& session() const { return session_; }
 
  private:
-  void OnTool(const v1::ToolState& msg);
+  void OnToolBytes(std::span<const uint8_t> bytes, int64_t receive_ns);
+  void ProcessToolBytes(std::span<const uint8_t> bytes, int64_t receive_ns);
   void ProcessTool(const v1::ToolState& msg, int64_t receive_ns);
+  /// Waits for the receiver's (or LCM's) descriptor or the wake-up.
+  bool WaitForInput(int timeout_ms);
   /// Receiving side: handle LCM (0 ms), release fault-delayed poses, mirror counters.
   void ReceivePending();
 
   LcmBus& bus_;
   std::string session_;
   HapticLinkOptions options_;
+  std::string tool_channel_;
   std::string model_channel_;
   // Receiving side (the receive thread, or the PollTool caller without one).
   StreamSequencer sequencer_;
-  v1::ToolState scratch_;      // reused for fault-delayed messages
-  Encoder encoder_;
+  v1::ToolState scratch_;      // reused: each tool message is decoded into it
   std::unique_ptr<FaultInjector> receive_faults_;  // null when inactive
   // Physics-thread side.
   std::optional<ToolSample> latest_;
   uint64_t model_seq_ = 0;
   v1::HapticModel model_msg_;  // reused
+  uint64_t model_epoch_;        // CLOCK_REALTIME at start, ns: the signed models' epoch
+  std::array<uint8_t, kLcmMaxPayloadBytes + kTrailerBytes> model_bytes_{};  // serialised + trailer
   std::unique_ptr<FaultyLcmPublisher> publisher_;
   // Shared.
   Mailbox<ToolSample> tool_box_;
   struct AtomicStats {
     std::atomic<uint64_t> received{0}, superseded{0}, decode_errors{0}, accepted{0}, foreign_session{0},
         stale{0}, duplicate{0}, invalid{0}, unauthenticated{0}, auth_unsigned{0}, auth_forged{0},
-        auth_replayed{0}, auth_outside_window{0}, restarts{0}, models_published{0}, models_not_sent{0};
+        auth_replayed{0}, auth_outside_window{0}, restarts{0}, models_published{0}, models_not_sent{0},
+        subscription_errors{0};
   } stats_;
+  PacketCounters packets_;
+  std::unique_ptr<UdpmReceiver> receiver_;  // udpm URLs; else `subscription_`
   WakeFd wake_;  // stops the receive thread's poll
   std::atomic<bool> receive_running_{false};
   std::thread receive_thread_;
@@ -247,6 +291,8 @@ struct HapticClientLinkStats {
   uint64_t malformed = 0;         ///< Stiffness not 3×3.
   uint64_t restarts = 0;          ///< Server restarts detected.
   uint64_t accepted = 0;          ///< Handed to the mailbox.
+  uint64_t missed = 0;            ///< Gaps in the accepted models' sequence (lost on the way).
+  PacketCounts packets;           ///< Every model packet by reason (per datagram on udpm).
 };
 
 /// The haptic station's end.
@@ -286,26 +332,39 @@ class HapticClientLink {
 
   [[nodiscard]] HapticClientLinkStats stats() const;
   [[nodiscard]] const std::string& session() const { return session_; }
+  /// Whether models are checked against the session key.
+  [[nodiscard]] bool authenticates_models() const { return options_.model_auth != nullptr; }
   /// Counters of the fault injectors (LCM-thread data: read after `Stop`).
   [[nodiscard]] FaultStats publish_fault_stats() const;
   [[nodiscard]] FaultStats receive_fault_stats() const;
 
  private:
-  void OnModel(const v1::HapticModel& msg);
+  void OnModelBytes(std::span<const uint8_t> bytes, int64_t receive_ns);
+  void ProcessModelBytes(std::span<const uint8_t> bytes, int64_t receive_ns);
+  /// The authentication of one model's bytes: true with `*body` set, else counted.
+  bool Authenticate(std::span<const uint8_t> bytes, std::span<const uint8_t>* body);
+  void Refuse(PacketReason reason);
   void ProcessModel(const v1::HapticModel& msg, int64_t receive_ns);
   void SendPendingTool(int64_t now_ns);
+  /// Logs (at most once a second) why no authentic model arrives.
+  void ExplainSilence(int64_t now_ns);
 
   LcmBus& bus_;
   std::string session_;
   HapticLinkOptions options_;
   std::string tool_channel_;
+  std::string model_channel_;
   // LCM-thread state.
   StreamSequencer sequencer_;
+  EpochGate gate_;
   uint64_t epoch_ = 0;
+  int64_t last_accept_ns_ = 0;         // CLOCK_MONOTONIC of the last accepted model (or the start)
+  int64_t last_silence_warn_ns_ = 0;
+  int64_t last_two_servers_warn_ns_ = 0;
+  std::array<uint64_t, kPacketReasonCount> refused_since_warn_{};  // since the last accepted model or warning
   v1::ToolState tool_msg_;     // reused
-  v1::HapticModel scratch_;    // reused for fault-delayed messages
+  v1::HapticModel scratch_;    // reused: each model is decoded into it
   ReceivedModel staging_;
-  Encoder encoder_;
   std::unique_ptr<FaultInjector> receive_faults_;
   std::unique_ptr<FaultyLcmPublisher> publisher_;
   // Shared.
@@ -316,8 +375,10 @@ class HapticClientLink {
   struct AtomicStats {
     std::atomic<uint64_t> tools_written{0}, tools_published{0}, tools_not_sent{0},
         models_received{0}, models_superseded{0}, decode_errors{0}, foreign_session{0}, stale{0},
-        duplicate{0}, malformed{0}, restarts{0}, accepted{0};
+        duplicate{0}, malformed{0}, restarts{0}, accepted{0}, subscription_errors{0}, missed{0};
   } stats_;
+  PacketCounters packets_;
+  std::unique_ptr<UdpmReceiver> receiver_;  // udpm URLs; else `subscription_`
   std::atomic<bool> running_{false};
   std::thread thread_;
   LcmSubscription subscription_;  // last: unsubscribes first

@@ -336,34 +336,6 @@ extern "C" void LcmRawHandler(const lcm_recv_buf_t* rbuf, const char* /*channel*
 }
 }  // namespace
 
-namespace {
-
-/// Hands the raw bytes to the callback; nothing is parsed here.
-class RawLcmSubscriptionState final : public detail::LcmSubscriptionState {
- public:
-  RawLcmSubscriptionState(std::string channel, size_t max_bytes,
-                          std::function<void(std::span<const uint8_t>)> callback)
-      : LcmSubscriptionState(std::move(channel), max_bytes, "raw bytes"),
-        callback_(std::move(callback)) {}
-
- protected:
-  bool DecodeAndCall(std::span<const uint8_t> bytes, DecodeError* /*err*/) override {
-    callback_(bytes);
-    return true;
-  }
-
- private:
-  std::function<void(std::span<const uint8_t>)> callback_;
-};
-
-}  // namespace
-
-LcmSubscription LcmBus::SubscribeRaw(std::string channel, size_t max_bytes,
-                                     std::function<void(std::span<const uint8_t>)> callback) {
-  return Register(
-      std::make_unique<RawLcmSubscriptionState>(std::move(channel), max_bytes, std::move(callback)));
-}
-
 LcmSubscription LcmBus::Register(std::unique_ptr<detail::LcmSubscriptionState> state) {
   if (!IsValidChannelName(state->channel())) {
     ThrowInputError(SourceRef{.field = "channel"},

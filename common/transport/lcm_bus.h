@@ -123,6 +123,24 @@ class LcmSubscriptionState {
   int64_t last_warn_ns_ = 0;          // rate limit for decode-error warnings
 };
 
+/// Hands the raw payload to the subscriber, undecoded: for a receiver that
+/// authenticates the bytes before it parses them (haptic_link.h).
+class RawLcmSubscriptionState final : public LcmSubscriptionState {
+ public:
+  RawLcmSubscriptionState(std::string channel, size_t max_bytes,
+                          std::function<void(std::span<const uint8_t>)> callback)
+      : LcmSubscriptionState(std::move(channel), max_bytes, "bytes"), callback_(std::move(callback)) {}
+
+ protected:
+  bool DecodeAndCall(std::span<const uint8_t> bytes, DecodeError* /*err*/) override {
+    callback_(bytes);
+    return true;
+  }
+
+ private:
+  std::function<void(std::span<const uint8_t>)> callback_;
+};
+
 template <class Msg>
 class TypedLcmSubscriptionState final : public LcmSubscriptionState {
  public:
@@ -204,11 +222,14 @@ class LcmBus {
         std::move(channel), std::move(callback)));
   }
 
-  /// Subscribes to one channel's raw bytes (at most `max_bytes`; larger
-  /// messages are counted as decode errors): for receivers that
-  /// authenticate the bytes before parsing them (stream_auth.h).
+  /// As `Subscribe`, but `callback` gets the newest payload's bytes as they
+  /// arrived (at most `max_bytes`; larger ones are dropped and counted as
+  /// decode errors), valid during the call.
   [[nodiscard]] LcmSubscription SubscribeRaw(std::string channel, size_t max_bytes,
-                                             std::function<void(std::span<const uint8_t>)> callback);
+                                             std::function<void(std::span<const uint8_t>)> callback) {
+    return Register(std::make_unique<detail::RawLcmSubscriptionState>(std::move(channel), max_bytes,
+                                                                      std::move(callback)));
+  }
 
   /// Waits up to `timeout_ms` (≥ 0) for a message, then dispatches everything
   /// already queued without further waiting, and finally delivers the newest

@@ -10,8 +10,10 @@
 // counter increments (cutting = true in that frame) and the plane drops by
 // --cut-drop metres (the tissue parted under the blade), so the client sees
 // the cut decay of seed eq. (13). Publishes nothing until a tool pose arrives
-// (like the real server with no haptic client). Prints one JSON line of stats
-// on exit (SIGTERM/SIGINT or --duration).
+// (like the real server with no haptic client). With --key-file it checks
+// the tool messages' tags and signs its models, as the real server does.
+// Prints one JSON line of stats on exit (SIGTERM/SIGINT or --duration), with
+// the tool packets by reason.
 #include <atomic>
 #include <cmath>
 #include <csignal>
@@ -27,6 +29,11 @@
 #include "common/transport/fault_flags.h"
 #include "common/transport/haptic_link.h"
 #include "common/transport/lcm_bus.h"
+#include "common/transport/lcm_packet.h"
+#include "common/transport/report_json.h"
+#include "common/transport/stream_auth.h"
+#include "common/transport/tool_auth.h"
+#include "cutsim/v1/report.pb.h"
 
 namespace {
 std::atomic<bool> g_stop{false};
@@ -43,6 +50,7 @@ int main(int argc, char** argv) {
   double decay = 30.0;          // ξ, 1/s, sent in the model's cut state
   double duration = 0.0;        // s, 0 = until a signal
   double margin = 0.005;        // m, contact band above the plane
+  std::string key_file;
   cutsim::transport::FaultConfig faults;
   CLI::App app{"Test-only haptic server stand-in: a stiff plane with a scripted cut"};
   app.add_option("--session", session)->capture_default_str();
@@ -53,6 +61,7 @@ int main(int argc, char** argv) {
   app.add_option("--cut-drop", cut_drop, "Plane drop at the cut, m")->capture_default_str();
   app.add_option("--decay-per-second", decay, "ξ sent with the cut state, 1/s")->capture_default_str();
   app.add_option("--duration", duration, "Run time, s (0 = until SIGTERM)")->capture_default_str();
+  app.add_option("--key-file", key_file, "Session key: check tool tags, sign models");
   cutsim::transport::AddFaultFlags(app, &faults);
   CLI11_PARSE(app, argc, argv);
   cutsim::InitLogging("fake-haptic-server", "info");
@@ -63,6 +72,16 @@ int main(int argc, char** argv) {
     cutsim::transport::LcmBus bus(url);
     cutsim::transport::HapticLinkOptions options;
     options.publish_faults = faults;
+    std::unique_ptr<cutsim::transport::HmacToolAuthenticator> verifier;
+    std::unique_ptr<cutsim::transport::PayloadAuthenticator> signer;
+    if (!key_file.empty()) {
+      const auto key = cutsim::transport::LoadSessionKey(key_file);
+      verifier = std::make_unique<cutsim::transport::HmacToolAuthenticator>(*key, session);
+      signer = std::make_unique<cutsim::transport::PayloadAuthenticator>(*key, cutsim::transport::kHapticModelDomain,
+                                                                         session);
+      options.authenticator = verifier.get();
+      options.model_auth = signer.get();
+    }
     cutsim::transport::HapticServerLink link(bus, session, options);
     // Readiness line the tests wait for: the link is subscribed from here on.
     cutsim::Log().info("ready: session {} on {}", session, url);
@@ -126,13 +145,15 @@ int main(int argc, char** argv) {
       max_tip = max_tip.cwiseMax(tool->pose.tip);
     }
     const auto s = link.stats();
+    cutsim::v1::LinkPacketReport packets;
+    cutsim::transport::ToReport(s.packets, &packets);
     std::printf("%s\n", fmt::format(R"({{"kind":"fake_server_stats","frames":{},"contact_frames":{},"cuts":{},)"
                                     R"("tools_received":{},"tools_superseded":{},"tools_accepted":{},"decode_errors":{},)"
                                     R"("foreign_session":{},"stale":{},"duplicate":{},"invalid":{},"restarts":{},)"
-                                    R"("models_published":{},"models_not_sent":{}}})",
+                                    R"("models_published":{},"models_not_sent":{},"tool_packets":{}}})",
                                     frames, contact_frames, cuts, s.received, s.superseded, s.accepted,
                                     s.decode_errors, s.foreign_session, s.stale, s.duplicate, s.invalid, s.restarts,
-                                    s.models_published, s.models_not_sent)
+                                    s.models_published, s.models_not_sent, cutsim::transport::ReportJson(packets))
                             .c_str());
     std::fflush(stdout);
   } catch (const std::exception& e) {
