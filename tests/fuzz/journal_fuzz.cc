@@ -15,16 +15,6 @@
 #include "common/sim/simulation.h"
 #include "tests/fuzz/fuzz_util.h"
 
-namespace {
-const char* kScene = R"pb(name: "fuzz"
-mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.02 y: 0.01 z: 0.01 } nx: 2 ny: 1 nz: 1 } }
-materials { young_poisson { youngs_modulus: 20000 poisson_ratio: 0.4 } density: 1000 }
-time_step { threads: 1 }
-tool { keyframes { t: 0 tip { x: 0 } blade_dir { z: 1 } } }
-cutting { enabled: true alpha: 0.4 kappa: 1 zeta: 1 }
-)pb";
-}  // namespace
-
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   cutsim::Log().set_level(spdlog::level::off);
   return 0;
@@ -32,7 +22,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace cutsim;
-  static const sim::LoadedScene scene = sim::ParseScene(kScene, "fuzz.pbtxt", "/nonexistent");
+  static const sim::LoadedScene scene = sim::ParseScene(fuzz::kCutScene, "fuzz.pbtxt", "/nonexistent");
   // The journal of a checkpoint that does not exist ("j.ckpt").
   const std::filesystem::path path = fuzz::WriteInput(data, size, "j.ckpt.journal");
   const std::filesystem::path checkpoint = path.parent_path() / "j.ckpt";

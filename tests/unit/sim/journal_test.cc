@@ -20,29 +20,16 @@
 #include "common/sim/checkpointer.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
+#include "tests/support/block_scene.h"
 
 namespace cutsim::sim {
 namespace {
 
 namespace fs = std::filesystem;
 
-// A coarse copy of scenes/block.pbtxt cut by a scalpel dragged along y = 10 mm.
-constexpr const char* kBlockScene = R"pb(name: "journal-block"
-mesh { box { min { x: 0 y: 0 z: 0 } max { x: 0.04 y: 0.02 z: 0.01 } nx: 10 ny: 5 nz: 2 } }
-materials { name: "tissue" young_poisson { youngs_modulus: 50000 poisson_ratio: 0.4 } density: 1000 damping_psi: 0.5 }
-boundary { plane { point { x: 0 y: 0 z: 0 } normal { x: 0 y: 0 z: 1 } } kind: KIND_FIXED }
-gravity { z: -9.81 }
-time_step { frame_dt: 0.01 threads: 1 }
-tool {
-  blade_length: 0.025
-  keyframes { t: 0 tip { x: -0.003 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
-  keyframes { t: 0.8 tip { x: 0.043 y: 0.0101 z: -0.001 } blade_dir { z: 1 } }
-}
-cutting { enabled: true alpha: 0.4 kappa: 1.0 zeta: 1.0 critical_stress: 10000 }
-)pb";
-
 std::unique_ptr<Simulation> MakeBlock() {
-  return Simulation::Create(ParseScene(kBlockScene, "journal-test.pbtxt", fs::temp_directory_path()));
+  return Simulation::Create(
+      ParseScene(support::BlockScene("journal-block"), "journal-test.pbtxt", fs::temp_directory_path()));
 }
 
 std::string ReadBytes(const fs::path& p) {
