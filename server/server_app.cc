@@ -80,6 +80,11 @@ v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
   r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
   r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_tangent_assemblies(ReportCount(s.implicit.tangent_assemblies));
+  r.set_out_of_time_steps(ReportCount(s.implicit.out_of_time_steps));
+  r.set_max_residual_out_of_time(s.implicit.max_residual_out_of_time);
+  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
+  r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
+  r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
   sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
   if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   return r;

@@ -7,6 +7,8 @@
 #include <cstring>
 #include <limits>
 
+#include "common/core/clock.h"
+#include "common/core/hash.h"
 #include "common/fem/implicit_internal.h"
 #include "common/fem/node_sums.h"
 
@@ -46,6 +48,18 @@ Eigen::Vector3d PenaltyPoint(const PenaltyTerm& p, const double* x) {
   return s;
 }
 
+/// A hash of what tet t contributes to the system's pattern and values at
+/// rest: its nodes, Dm⁻¹ and rest volume.
+uint64_t TetSignature(const Model<double>& model, int32_t t) {
+  std::array<int32_t, 4> nodes{};
+  for (int c = 0; c < 4; ++c) nodes[static_cast<size_t>(c)] = model.tet_node(t, c);
+  const Mat3<double> dm_inv = model.DmInv(t);
+  const double vol = model.rest_volume(t);
+  uint64_t h = Fnv1a64(nodes.data(), sizeof(nodes));
+  h = Fnv1a64(dm_inv.data(), 9 * sizeof(double), h);
+  return Fnv1a64(&vol, sizeof(vol), h);
+}
+
 double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t nn, int nt) {
   NodeSums<1> sums(nn);
 #pragma omp parallel num_threads(nt)
@@ -58,7 +72,7 @@ double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t n
 }  // namespace
 
 ImplicitIntegrator::ImplicitIntegrator(const ImplicitOptions& options)
-    : options_(options), solver_(options.asynchronous_factorization) {
+    : options_(options), solver_(options.asynchronous_factorization, options.factor_solve) {
   last_penalties_.reserve(kExtraBlockReserve);
 }
 
@@ -306,28 +320,76 @@ bool ImplicitIntegrator::LineSearch(const Model<double>& model, const State<doub
   return false;
 }
 
+bool ImplicitIntegrator::RequestFactor(const Model<double>& model, ImplicitResult& result) {
+  // FactorValues copies A: only when the worker can take it.
+  if (solver_.busy() || !solver_.RequestFactor(system_, FactorValues())) return false;
+  result.factor_requested = true;
+  if (options_.max_correction_rank <= 0) return true;
+  Signature& sig = signatures_[solver_.requests() % 2];
+  sig.request = solver_.requests();
+  sig.tets.resize(static_cast<size_t>(model.num_tets()));
+  sig.nodes.resize(4 * static_cast<size_t>(model.num_tets()));
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    sig.tets[static_cast<size_t>(t)] = TetSignature(model, t);
+    for (int c = 0; c < 4; ++c) sig.nodes[static_cast<size_t>(4 * t + c)] = model.tet_node(t, c);
+  }
+  return true;
+}
+
+/// The changed nodes are every node, then and now, of a tet whose signature
+/// differs from the one recorded with the factor's request (a node a cut
+/// took out of a tet lost couplings too); new nodes are the correction's own.
+void ImplicitIntegrator::CorrectFactor(const Model<double>& model, ImplicitResult& result) {
+  const uint64_t request = solver_.factor_request();
+  if (options_.max_correction_rank <= 0 || request == 0 || solver_.factor_dofs() > system_.num_dofs() ||
+      (corrected_request_ == request && corrected_pattern_ == system_.pattern_id())) {
+    return;
+  }
+  corrected_request_ = request;
+  corrected_pattern_ = system_.pattern_id();
+  const Signature& sig = signatures_[request % 2];
+  if (sig.request != request) return;  // no record of what the factor saw
+  const int32_t old_nodes = solver_.factor_dofs() / 3;
+  std::vector<uint8_t> mark(static_cast<size_t>(old_nodes), 0);
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    const bool same = static_cast<size_t>(t) < sig.tets.size() && sig.tets[static_cast<size_t>(t)] == TetSignature(model, t);
+    if (same) continue;
+    for (int c = 0; c < 4; ++c) {
+      for (const int32_t n : {model.tet_node(t, c), static_cast<size_t>(t) < sig.tets.size()
+                                                        ? sig.nodes[static_cast<size_t>(4 * t + c)]
+                                                        : -1}) {
+        if (n >= 0 && n < old_nodes) mark[static_cast<size_t>(n)] = 1;
+      }
+    }
+  }
+  changed_nodes_.clear();
+  for (int32_t n = 0; n < old_nodes; ++n) {
+    if (mark[static_cast<size_t>(n)] != 0) changed_nodes_.push_back(n);
+  }
+  result.factor_corrected =
+      solver_.CorrectFactor(system_, FactorValues(), changed_nodes_, options_.max_correction_rank);
+}
+
 /// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.
-void ImplicitIntegrator::SolveDirection(double h, double tolerance, ImplicitResult& result, bool* clamped) {
+void ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result,
+                                        bool* clamped) {
   const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
   for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
   solver_.Acquire();
   if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
-    // FactorValues copies A: only when the worker can take it.
-    if (!solver_.busy() && solver_.RequestFactor(system_, FactorValues())) result.factor_requested = true;
+    RequestFactor(*model_, result);
     if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
+    if (solver_.has_factor() && solver_.factor_pattern_id() != system_.pattern_id()) CorrectFactor(*model_, result);
   }
   const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
   const double lin_tol = std::max(options_.linear_tolerance * rhs_norm, 0.1 * h * tolerance);
-  const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(),
-                                     lin_tol, options_.max_pcg_iterations, NumThreads(), extra_, matrix_free());
+  const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(), lin_tol,
+                                     options_.max_pcg_iterations, NumThreads(), extra_, matrix_free(), deadline_ns);
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
-  if (pr.iterations > options_.refactor_pcg_iterations && !solver_.busy() &&
-      solver_.RequestFactor(system_, FactorValues())) {
-    result.factor_requested = true;
-  }
+  if (pr.iterations > options_.refactor_pcg_iterations) RequestFactor(*model_, result);
   if (pr.negative_curvature) {
     result.negative_curvature = true;
     if (options_.tangent == TangentMode::kAuto) *clamped = true;
@@ -358,7 +420,7 @@ double ImplicitIntegrator::StartStep(const State<double>& state, double step_siz
 }
 
 ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double>& state, double step_size,
-                                        std::span<const PenaltyTerm> penalties) {
+                                        std::span<const PenaltyTerm> penalties, int64_t deadline_ns) {
   ImplicitResult result;
   if (!(step_size > 0) || !std::isfinite(step_size)) {
     result.status = ImplicitStatus::kNonFinite;
@@ -375,6 +437,7 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
                          : options_.relative_force_tolerance * LoadScale(model, state, penalties);
   bool clamped = options_.tangent == TangentMode::kClamped;
   k_fresh_ = false;
+  bool x_stale = false;  // x_ and force_ hold a rejected trial, not v_
   for (int it = 0;; ++it) {
     result.residual = current.residual;
     if (it < ImplicitResult::kHistory) result.residual_history[static_cast<size_t>(it)] = current.residual;
@@ -383,8 +446,11 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
       return result;
     }
     if (current.residual <= result.tolerance) break;
-    if (it >= options_.max_newton_iterations) {
-      result.status = ImplicitStatus::kCapped;
+    const bool out_of_time = it > 0 && deadline_ns > 0 && MonotonicNs() >= deadline_ns;
+    if (out_of_time || it >= options_.max_newton_iterations) {
+      result.status = out_of_time ? ImplicitStatus::kOutOfTime : ImplicitStatus::kCapped;
+      if (x_stale) current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+      result.residual = current.residual;
       break;
     }
     result.newton_iterations = it + 1;
@@ -395,10 +461,11 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     k_fresh_ = k_fresh_ || assemble;
     const bool was_clamped = clamped;
     const double last_residual = current.residual;
-    SolveDirection(h, result.tolerance, result, &clamped);
+    SolveDirection(h, result.tolerance, deadline_ns, result, &clamped);
     result.clamped = result.clamped || was_clamped;
     const bool accepted = LineSearch(model, state, h, penalties, current, result);
     reassemble_k_ = !accepted || !(current.residual <= options_.tangent_reuse_contraction * last_residual);
+    x_stale = !accepted;
     if (!accepted) {
       if (clamped != was_clamped) continue;  // retry the iteration with K⁺
       if (!assemble) continue;                // retry with K assembled here

@@ -108,6 +108,13 @@ struct ImplicitOptions {
   bool wait_for_first_factor = true;
   TangentMode tangent = TangentMode::kAuto;
   double mass_damping = 0;  ///< α, 1/s (Rayleigh mass-proportional).
+  /// After a cut, correct the old factor for the changed and added DOFs
+  /// (LinearSolver::CorrectFactor) while the new one is made, up to this
+  /// many DOFs; 0: never (the old factor covers the old DOFs, block Jacobi
+  /// the new ones).
+  int32_t max_correction_rank = 900;
+  /// How the preconditioner applies the factor (single precision by default).
+  FactorSolve factor_solve = FactorSolve::kFloat;
   /// BDF2 instead of backward Euler: x⁺ = (4xₙ − xₙ₋₁)/3 + (2h/3)·v⁺ and
   /// v⁺ = (4vₙ − vₙ₋₁)/3 + (2h/3)·a⁺, i.e. backward Euler of step 2h/3 from
   /// the extrapolated start, on the same Newton machinery. Second order,
@@ -134,6 +141,10 @@ enum class ImplicitStatus : uint8_t {
   kConverged = 0,
   kCapped,     ///< max_newton_iterations reached; the state holds the last iterate.
   kNonFinite,  ///< A residual or energy became NaN/Inf; the state is unchanged.
+  /// The step's deadline passed: the state holds the last accepted
+  /// iterate (a decrease of the step's potential), and what is left of the
+  /// residual carries into the next step.
+  kOutOfTime,
 };
 
 struct ImplicitResult {
@@ -151,10 +162,13 @@ struct ImplicitResult {
   bool pattern_rebuilt = false;     ///< The topology changed since the last step.
   bool bdf2 = false;                ///< The step was BDF2 (else backward Euler).
   bool factor_requested = false;    ///< A refactorisation was asked for.
+  bool factor_corrected = false;    ///< A low-rank correction of the factor was built.
   int32_t factor_dofs = 0;          ///< DOFs covered by the factor in use.
   /// The force residual (N) before Newton iteration k (first kHistory).
   std::array<double, kHistory> residual_history{};
   [[nodiscard]] bool ok() const { return status == ImplicitStatus::kConverged; }
+  /// The state advanced (converged, capped or out of time).
+  [[nodiscard]] bool advanced() const { return status != ImplicitStatus::kNonFinite; }
 };
 
 /// The implicit integrator's persistent workspace: the sparse pattern, the
@@ -167,10 +181,12 @@ class ImplicitIntegrator {
   /// One backward Euler (or BDF2) step of `step_size` (s). Requires
   /// !model.topology_dirty().
   /// Never throws; allocates only when the topology changed (or on the first
-  /// step). On kConverged and kCapped the state holds x⁺, v⁺ and f (the
-  /// total force at x⁺); time and step advance.
+  /// step). On kConverged, kCapped and kOutOfTime the state holds x⁺, v⁺
+  /// and f (the total force at x⁺); time and step advance. A `deadline_ns`
+  /// (CLOCK_MONOTONIC, 0: none) stops Newton and PCG there (kOutOfTime):
+  /// the first iteration always runs, so a step always makes progress.
   ImplicitResult Step(const Model<double>& model, State<double>& state, double step_size,
-                      std::span<const PenaltyTerm> penalties = {});
+                      std::span<const PenaltyTerm> penalties = {}, int64_t deadline_ns = 0);
 
   /// The model's own stiffness at a point p = Σ w_i x_i over one step of
   /// the last Step's size h, N/m: (h²·Wᵀ A⁻¹ W)⁻¹ with A the last assembled
@@ -237,7 +253,13 @@ class ImplicitIntegrator {
                 std::span<const PenaltyTerm> penalties, const double* v, double* residual);
   bool LineSearch(const Model<double>& model, const State<double>& state, double h,
                   std::span<const PenaltyTerm> penalties, Eval& current, ImplicitResult& result);
-  void SolveDirection(double h, double tolerance, ImplicitResult& result, bool* clamped);
+  void SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result, bool* clamped);
+  /// Asks the worker for a factor of the current A; records the elements'
+  /// signature under the request, to find what a later cut changed.
+  bool RequestFactor(const Model<double>& model, ImplicitResult& result);
+  /// After a topology change: corrects the factor in use for the nodes of
+  /// the elements changed since it was asked for (and the new nodes).
+  void CorrectFactor(const Model<double>& model, ImplicitResult& result);
   double LoadScale(const Model<double>& model, const State<double>& state,
                    std::span<const PenaltyTerm> penalties) const;
 
@@ -292,6 +314,17 @@ class ImplicitIntegrator {
   bool k_fresh_ = false;       // K was assembled during the last step
   bool last_clamped_ = false;  // the last step ended with K⁺
   std::vector<PenaltyTerm> last_penalties_;  // the last step's, for a re-formed A
+  // Element signatures (a hash of nodes, Dm⁻¹ and volume per tet) at the
+  // last two factor requests, by LinearSolver request count.
+  struct Signature {
+    uint64_t request = 0;
+    std::vector<uint64_t> tets;   // #T
+    std::vector<int32_t> nodes;   // #T×4: the tets' nodes then
+  };
+  std::array<Signature, 2> signatures_;
+  uint64_t corrected_request_ = 0;  // the (factor, pattern) last corrected or refused
+  int64_t corrected_pattern_ = -1;
+  std::vector<int32_t> changed_nodes_;
   // The nodal-pressure element (implicit_volumetric.cc).
   bool nodal_pressure_ = false;
   const Model<double>* model_ = nullptr;     // the model of the last pass

@@ -8,28 +8,45 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <memory>
+#include <thread>
 
 #include <Eigen/Core>
 #include <Eigen/LU>
 
+#include "common/core/clock.h"
 #include "common/fem/node_sums.h"
 
 namespace cutsim::fem {
 
+namespace {
+/// A copy of a SparseSystem's CSC pattern, shared by the snapshot and the
+/// factors made from it (a correction reads the factored values on it).
+struct Pattern {
+  std::vector<int32_t> col_ptr, row_index;
+};
+}  // namespace
+
 struct LinearSolver::Factor {
   cholmod_factor* L = nullptr;
+  SupernodalSolver<float> single;   // with FactorSolve::kFloat
+  SupernodalSolver<double> twin;    // with FactorSolve::kDouble
+  std::shared_ptr<const Pattern> pattern;
+  std::vector<double> values;       // the factored matrix  // #nnz
   int32_t dofs = 0;
   uint64_t topology_version = 0;
   int64_t pattern_id = -1;
+  uint64_t request = 0;
 };
 
 /// A copy of A for the worker and the symbolic analysis of its pattern.
 struct LinearSolver::Snapshot {
-  std::vector<int32_t> col_ptr, row_index;
+  std::shared_ptr<const Pattern> pattern;
   std::vector<double> values;
   int32_t dofs = 0;
   uint64_t topology_version = 0;
   int64_t pattern_id = -1;  // SparseSystem::pattern_id() of the pattern
+  uint64_t request = 0;
   bool pattern_changed = false;  // the worker drops `symbolic` and analyses anew
   cholmod_factor* symbolic = nullptr;
 };
@@ -68,7 +85,8 @@ std::array<double, K> SumNodes(int32_t nn, int nt, Body&& body) {
 
 }  // namespace
 
-LinearSolver::LinearSolver(bool asynchronous) : asynchronous_(asynchronous) {
+LinearSolver::LinearSolver(bool asynchronous, FactorSolve factor_solve)
+    : asynchronous_(asynchronous), factor_solve_(factor_solve) {
   solve_common_ = new cholmod_common;
   worker_common_ = new cholmod_common;
   cholmod_start(Common(solve_common_));
@@ -122,6 +140,7 @@ void LinearSolver::Resize(const SparseSystem& system) {
   const auto nd = static_cast<size_t>(system.num_dofs());
   r_.resize(nd);
   z_.resize(nd);
+  z_prev_.resize(nd);
   p_.resize(nd);
   q_.resize(nd);
   jacobi_.resize(3 * nd);
@@ -134,8 +153,10 @@ bool LinearSolver::RequestFactor(const SparseSystem& system, const double* value
     Snapshot& s = *snapshot_;
     if (s.pattern_id != system.pattern_id() || s.dofs != system.num_dofs()) {
       s.pattern_changed = true;
-      s.col_ptr.assign(system.col_ptr(), system.col_ptr() + system.num_dofs() + 1);
-      s.row_index.assign(system.row_index(), system.row_index() + system.nnz());
+      auto pattern = std::make_shared<Pattern>();
+      pattern->col_ptr.assign(system.col_ptr(), system.col_ptr() + system.num_dofs() + 1);
+      pattern->row_index.assign(system.row_index(), system.row_index() + system.nnz());
+      s.pattern = std::move(pattern);
       s.dofs = system.num_dofs();
       s.topology_version = system.topology_version();
       s.pattern_id = system.pattern_id();
@@ -143,6 +164,7 @@ bool LinearSolver::RequestFactor(const SparseSystem& system, const double* value
     s.values.resize(static_cast<size_t>(system.nnz()));
     std::copy(values, values + system.nnz(), s.values.begin());
     ++stats_.requested;
+    s.request = ++requests_;
     busy_.store(true, std::memory_order_release);
     request_pending_ = true;
   }
@@ -173,6 +195,37 @@ int64_t LinearSolver::factor_pattern_id() const {
   return front_ != nullptr ? front_->pattern_id : -1;
 }
 
+uint64_t LinearSolver::factor_request() const { return front_ != nullptr ? front_->request : 0; }
+
+int32_t LinearSolver::correction_rank() const {
+  return front_ != nullptr && correction_request_ == front_->request ? correction_.rank() : 0;
+}
+
+bool LinearSolver::CorrectFactor(const SparseSystem& system, const double* values,
+                                 std::span<const int32_t> changed_nodes, int32_t max_rank) {
+  Acquire();
+  correction_.Clear();
+  correction_request_ = 0;
+  correction_pattern_ = -1;
+  bool ok = false;
+  if (front_ != nullptr && front_->dofs <= system.num_dofs() && !front_->single.empty() && front_->pattern) {
+    const CscView a0{front_->pattern->col_ptr.data(), front_->pattern->row_index.data(), front_->values.data(),
+                     front_->dofs};
+    ok = correction_.Build(front_->single, a0, system, values, changed_nodes, max_rank);
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (ok) {
+    correction_request_ = front_->request;
+    correction_pattern_ = system.pattern_id();
+    ++stats_.corrections;
+    stats_.last_correction_rank = correction_.rank();
+    stats_.last_correction_seconds = correction_.stats().seconds;
+  } else {
+    ++stats_.corrections_refused;
+  }
+  return ok;
+}
+
 FactorStats LinearSolver::stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return stats_;
@@ -198,8 +251,8 @@ void LinearSolver::Factorize(Snapshot& s) {
   cholmod_sparse a{};
   a.nrow = a.ncol = static_cast<size_t>(s.dofs);
   a.nzmax = s.values.size();
-  a.p = s.col_ptr.data();
-  a.i = s.row_index.data();
+  a.p = const_cast<int32_t*>(s.pattern->col_ptr.data());
+  a.i = const_cast<int32_t*>(s.pattern->row_index.data());
   a.x = s.values.data();
   a.stype = -1;  // symmetric, lower triangle used
   a.itype = CHOLMOD_INT;
@@ -229,12 +282,15 @@ void LinearSolver::Factorize(Snapshot& s) {
   f->dofs = s.dofs;
   f->topology_version = s.topology_version;
   f->pattern_id = s.pattern_id;
+  f->request = s.request;
+  f->pattern = s.pattern;
   bool ok = false, shifted = false;
   if (s.symbolic != nullptr) {
     double mean_diag = 0;
     for (int32_t j = 0; j < s.dofs; ++j) {
-      for (int32_t k = s.col_ptr[static_cast<size_t>(j)]; k < s.col_ptr[static_cast<size_t>(j) + 1]; ++k) {
-        if (s.row_index[static_cast<size_t>(k)] == j) mean_diag += std::abs(s.values[static_cast<size_t>(k)]);
+      const std::vector<int32_t>& cp = s.pattern->col_ptr;
+      for (int32_t k = cp[static_cast<size_t>(j)]; k < cp[static_cast<size_t>(j) + 1]; ++k) {
+        if (s.pattern->row_index[static_cast<size_t>(k)] == j) mean_diag += std::abs(s.values[static_cast<size_t>(k)]);
       }
     }
     mean_diag /= std::max(1, s.dofs);
@@ -250,7 +306,14 @@ void LinearSolver::Factorize(Snapshot& s) {
       }
     }
   }
+  if (ok) {
+    // The solve's own copy of L, and the factored values for a correction.
+    if (factor_solve_ == FactorSolve::kFloat) ok = f->single.Assign(f->L);
+    if (factor_solve_ == FactorSolve::kDouble) ok = f->twin.Assign(f->L);
+    f->values.assign(s.values.begin(), s.values.end());
+  }
   const double seconds = Seconds(t0);
+  if (worker_delay_s_ > 0) std::this_thread::sleep_for(std::chrono::duration<double>(worker_delay_s_));
   std::vector<Factor*> to_free;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -308,11 +371,34 @@ void LinearSolver::BuildBlockJacobi(const SparseSystem& system, const double* va
   }
 }
 
+/// DOFs (a prefix) the factor in use preconditions, with its correction
+/// all of them; the rest get block Jacobi.
+int32_t LinearSolver::CoveredDofs(const SparseSystem& system) const {
+  if (front_ == nullptr || front_->dofs > system.num_dofs()) return 0;
+  if (correction_request_ == front_->request && correction_pattern_ == system.pattern_id() &&
+      correction_.size() == system.num_dofs()) {
+    return system.num_dofs();
+  }
+  return front_->dofs;
+}
+
 void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t* active,
                                        const double* r, double* z, int num_threads) {
   const int32_t nn = system.num_nodes();
-  int32_t first_node = 0;
-  if (front_ != nullptr && front_->dofs <= system.num_dofs()) {
+  const int32_t covered = CoveredDofs(system);
+  if (covered == system.num_dofs() && covered > front_->dofs) {
+    correction_.Apply(front_->single, r, z);
+  } else if (covered > 0 && factor_solve_ == FactorSolve::kFloat) {
+    if (work_f_.size() < static_cast<size_t>(front_->single.work_size())) {
+      work_f_.resize(static_cast<size_t>(front_->single.work_size()));
+    }
+    front_->single.Solve(r, z, work_f_.data());
+  } else if (covered > 0 && factor_solve_ == FactorSolve::kDouble) {
+    if (work_d_.size() < static_cast<size_t>(front_->twin.work_size())) {
+      work_d_.resize(static_cast<size_t>(front_->twin.work_size()));
+    }
+    front_->twin.Solve(r, z, work_d_.data());
+  } else if (covered > 0) {
     cholmod_common* cs = Common(solve_common_);
     cholmod_dense b{};
     b.nrow = b.nzmax = b.d = static_cast<size_t>(front_->dofs);
@@ -326,12 +412,12 @@ void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t
     if (cholmod_solve2(CHOLMOD_A, front_->L, &b, nullptr, &x, nullptr, &y, &e, cs) != 0) {
       const auto* xs = static_cast<const double*>(x->x);
       std::copy(xs, xs + front_->dofs, z);
-      first_node = front_->dofs / 3;
     }
     dense_x_ = x;
     dense_y_ = y;
     dense_e_ = e;
   }
+  const int32_t first_node = covered / 3;
   const double* jac = jacobi_.data();
 #pragma omp parallel for schedule(static) num_threads(num_threads)
   for (int32_t n = 0; n < nn; ++n) {
@@ -344,17 +430,27 @@ void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t
   }
 }
 
+void LinearSolver::Precondition(const SparseSystem& system, const double* values, const uint8_t* active,
+                                const double* r, double* z, int num_threads) {
+  const int nt = Threads(num_threads);
+  Acquire();
+  const int32_t covered = CoveredDofs(system) / 3;
+  if (covered < system.num_nodes()) BuildBlockJacobi(system, values, active, covered, nt);
+  ApplyPreconditioner(system, active, r, z, nt);
+}
+
 PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                               const double* b, double* x, double tolerance, int max_iterations,
                               int num_threads, std::span<const ExtraBlock> extra,
-                              const MatrixFreeTerm* matrix_free) {
+                              const MatrixFreeTerm* matrix_free, int64_t deadline_ns) {
   const int nt = Threads(num_threads);
   const int32_t nn = system.num_nodes();
   Acquire();
-  const int32_t covered = front_ != nullptr && front_->dofs <= system.num_dofs() ? front_->dofs / 3 : 0;
+  const int32_t covered = CoveredDofs(system) / 3;
   if (covered < nn) BuildBlockJacobi(system, values, active, covered, nt);
   double* r = r_.data();
   double* z = z_.data();
+  double* z_prev = z_prev_.data();
   double* p = p_.data();
   double* q = q_.data();
   PcgResult res;
@@ -374,11 +470,18 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
   }
   double rz_old = 0;
   for (int it = 0; it < max_iterations; ++it) {
+    std::swap(z, z_prev);
     ApplyPreconditioner(system, active, r, z, nt);
-    const double rz = SumNodes<1>(nn, nt, [&](int32_t n, std::array<double, 1>& acc) {
-      for (int d = 0; d < 3; ++d) acc[0] += r[3 * n + d] * z[3 * n + d];
-    })[0];
-    const double beta = it == 0 ? 0.0 : rz / rz_old;
+    // Flexible (Polak–Ribière) β = rᵀ(z − z_prev)/rz_old: robust to a
+    // preconditioner that is not exactly the same linear map every time.
+    const auto sums = SumNodes<2>(nn, nt, [&](int32_t n, std::array<double, 2>& acc) {
+      for (int d = 0; d < 3; ++d) {
+        acc[0] += r[3 * n + d] * z[3 * n + d];
+        acc[1] += it == 0 ? 0.0 : r[3 * n + d] * z_prev[3 * n + d];
+      }
+    });
+    const double rz = sums[0];
+    const double beta = it == 0 ? 0.0 : std::max(0.0, (rz - sums[1]) / rz_old);
     rz_old = rz;
 #pragma omp parallel num_threads(nt)
     {
@@ -420,6 +523,10 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
     if (!std::isfinite(res.residual)) return res;
     if (res.residual <= tolerance) {
       res.converged = true;
+      return res;
+    }
+    if (deadline_ns > 0 && MonotonicNs() >= deadline_ns) {
+      res.out_of_time = true;
       return res;
     }
   }

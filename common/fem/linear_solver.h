@@ -17,9 +17,20 @@
 /// the current A) the rest, until the factor of the new pattern lands. The
 /// same block Jacobi serves alone before the first factor exists.
 ///
+/// After a topology change the caller may instead correct the old factor
+/// for the changed and added DOFs (CorrectFactor, factor_correction.h): a
+/// low-rank term that makes it precondition the cut matrix almost as a
+/// fresh factor does, until the factor of the new pattern lands.
+///
 /// A snapshot that is not positive definite (an exact, indefinite tangent)
 /// is factored with a diagonal shift A + σI, σ growing from 1e-6 of the
 /// mean diagonal: a shifted factor is still a good preconditioner.
+///
+/// The preconditioner's triangular solves run in single precision by
+/// default (supernodal_solve.h) and PCG stays in double; with an inexact
+/// preconditioner PCG uses the flexible (Polak–Ribière) β, which equals
+/// the classical one for an exact one. A solve may carry a deadline: it
+/// stops there with the iterate so far.
 
 #include <atomic>
 #include <condition_variable>
@@ -29,7 +40,9 @@
 #include <thread>
 #include <vector>
 
+#include "common/fem/factor_correction.h"
 #include "common/fem/sparse_system.h"
+#include "common/fem/supernodal_solve.h"
 
 namespace cutsim::fem {
 
@@ -42,6 +55,14 @@ struct PcgResult {
   /// there with the iterate so far (a descent direction of the quadratic
   /// model for an SPD preconditioner), or the preconditioned rhs if first.
   bool negative_curvature = false;
+  bool out_of_time = false;  ///< Stopped at the deadline with the iterate so far.
+};
+
+/// How the preconditioner applies the factor.
+enum class FactorSolve : uint8_t {
+  kFloat,    ///< Own supernodal triangular solves in single precision (default).
+  kDouble,   ///< The same solves in double precision.
+  kCholmod,  ///< CHOLMOD's cholmod_solve2 (double).
 };
 
 /// A coupling outside the pattern, applied by the product only (the
@@ -70,13 +91,17 @@ struct FactorStats {
   double last_seconds = 0;   ///< Wall time of the last factorisation, s.
   double total_seconds = 0;  ///< Summed factorisation time, s.
   double last_analyze_seconds = 0;  ///< Wall time of the last symbolic analysis, s.
+  int64_t corrections = 0;          ///< Low-rank corrections built (CorrectFactor).
+  int64_t corrections_refused = 0;  ///< Corrections refused (rank cap, singular).
+  int32_t last_correction_rank = 0;
+  double last_correction_seconds = 0;  ///< Wall time of the last correction's build, s.
 };
 
 class LinearSolver {
  public:
   /// `asynchronous`: factor on a worker thread (else inline, when asked:
   /// deterministic, and the asking solve waits).
-  explicit LinearSolver(bool asynchronous = true);
+  explicit LinearSolver(bool asynchronous = true, FactorSolve factor_solve = FactorSolve::kFloat);
   ~LinearSolver();
   LinearSolver(const LinearSolver&) = delete;
   LinearSolver& operator=(const LinearSolver&) = delete;
@@ -100,6 +125,34 @@ class LinearSolver {
   [[nodiscard]] uint64_t factor_topology_version() const;
   /// SparseSystem::pattern_id() of that pattern (−1: no factor).
   [[nodiscard]] int64_t factor_pattern_id() const;
+  /// RequestFactor's count when the current factor was asked for (0: none):
+  /// tells the caller which of its requests the factor answers.
+  [[nodiscard]] uint64_t factor_request() const;
+  /// The count of accepted RequestFactor calls.
+  [[nodiscard]] uint64_t requests() const { return requests_; }
+
+  /// Corrects the current factor (of an older pattern whose DOFs are a
+  /// prefix of `system`'s) toward `values` on the DOFs of `changed_nodes`
+  /// (old nodes whose elements changed since the factor was asked for,
+  /// ascending) and of every new node (factor_correction.h). Solves then
+  /// use it until a factor of `system`'s pattern is acquired. Returns false
+  /// when refused (no factor, above `max_rank` DOFs, singular); solves
+  /// then fall back to the factor on the old DOFs and block Jacobi.
+  /// Allocates (a topology change).
+  bool CorrectFactor(const SparseSystem& system, const double* values, std::span<const int32_t> changed_nodes,
+                     int32_t max_rank);
+  /// Rank of the correction in use (0: none).
+  [[nodiscard]] int32_t correction_rank() const;
+
+  /// z = P⁻¹ r with the preconditioner a Solve would use now (the newest
+  /// factor, its correction, block Jacobi on what they do not cover) on the
+  /// DOFs with active[dof/3] != 0; `values` give the block Jacobi blocks.
+  void Precondition(const SparseSystem& system, const double* values, const uint8_t* active, const double* r,
+                    double* z, int num_threads = 1);
+
+  /// Test hook: the worker waits this long after each factorisation before
+  /// publishing it, standing in for a slow machine.
+  void set_worker_delay_for_testing(double seconds) { worker_delay_s_ = seconds; }
   /// Makes the newest finished factor current (never waits).
   void Acquire();
   [[nodiscard]] FactorStats stats() const;
@@ -107,12 +160,15 @@ class LinearSolver {
   /// Solves A x = b on the DOFs with active[dof/3] != 0 (others stay 0) by
   /// PCG from x = 0, until ‖r‖₂ ≤ tolerance or max_iterations. Picks up the
   /// newest finished factor first. Block Jacobi blocks come from `values`.
-  /// `matrix_free`, if given, adds its product to A's.
+  /// `matrix_free`, if given, adds its product to A's. A `deadline_ns`
+  /// (CLOCK_MONOTONIC, 0: none) ends the solve after the iteration that
+  /// passes it, out_of_time, with the iterate so far (at least one
+  /// iteration runs).
   /// Allocates nothing once Resize ran and a factor of this size was used.
   PcgResult Solve(const SparseSystem& system, const double* values, const uint8_t* active,
                   const double* b, double* x, double tolerance, int max_iterations,
                   int num_threads, std::span<const ExtraBlock> extra = {},
-                  const MatrixFreeTerm* matrix_free = nullptr);
+                  const MatrixFreeTerm* matrix_free = nullptr, int64_t deadline_ns = 0);
 
  private:
   struct Factor;
@@ -121,10 +177,12 @@ class LinearSolver {
   void Factorize(Snapshot& s);
   void BuildBlockJacobi(const SparseSystem& system, const double* values, const uint8_t* active,
                         int32_t first_node, int num_threads);
+  [[nodiscard]] int32_t CoveredDofs(const SparseSystem& system) const;
   void ApplyPreconditioner(const SparseSystem& system, const uint8_t* active, const double* r,
                            double* z, int num_threads);
 
   bool asynchronous_;
+  FactorSolve factor_solve_;
   void* solve_common_ = nullptr;   // cholmod_common of the solving thread
   void* worker_common_ = nullptr;  // cholmod_common of the factorising thread
   // Factor slots: front_ is used by solves; ready_ is finished and waits to
@@ -138,11 +196,19 @@ class LinearSolver {
   std::condition_variable cv_;
   std::atomic<bool> busy_{false};
   bool request_pending_ = false;
+  uint64_t requests_ = 0;
+  double worker_delay_s_ = 0;
+  // The low-rank correction of front_ toward the pattern `correction_pattern_`.
+  FactorCorrection correction_;
+  uint64_t correction_request_ = 0;  // factor_request() of the factor it corrects
+  int64_t correction_pattern_ = -1;
   bool stop_ = false;
   FactorStats stats_;
   std::thread worker_;
   // Solve workspace.  // #3N each
-  std::vector<double> r_, z_, p_, q_;
+  std::vector<double> r_, z_, z_prev_, p_, q_;
+  std::vector<float> work_f_;   // supernodal solve scratch
+  std::vector<double> work_d_;
   std::vector<double> jacobi_;  // #N×9: inverse diagonal blocks, column-major
   void* dense_x_ = nullptr;     // cholmod_dense results and workspace, reused
   void* dense_y_ = nullptr;

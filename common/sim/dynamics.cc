@@ -32,8 +32,8 @@ Dynamics<T>::~Dynamics() = default;
 
 template <typename T>
 fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
-                                       double frame_time, RunCounters& run) {
-  if (kind_ == IntegratorKind::kImplicit) return StepImplicit(fem, tool, start, frame_time, run);
+                                       double frame_time, int64_t deadline_ns, RunCounters& run) {
+  if (kind_ == IntegratorKind::kImplicit) return StepImplicit(fem, tool, start, frame_time, deadline_ns, run);
   return StepExplicit(fem, tool, start, frame_time, run);
 }
 
@@ -79,7 +79,7 @@ fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, 
 /// end positions.
 template <typename T>
 fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
-                                          double frame_time, RunCounters& run) {
+                                          double frame_time, int64_t deadline_ns, RunCounters& run) {
   fem::StepResult r;
   if constexpr (std::is_same_v<T, double>) {
     fem::Model<double>& model = fem.model();
@@ -89,23 +89,79 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
     const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
     if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(end_tip, tool_velocity, state.x.data()));
     last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
-    const fem::ImplicitResult result = implicit_->Step(model, state, frame_time, penalties_);
+    const int64_t step_before = state.step;
+    const fem::ImplicitResult result = implicit_->Step(model, state, frame_time, penalties_, deadline_ns);
     Count(result, state.step);
     r.step = state.step;
     r.dt = frame_time;
     r.substeps = 1;
-    if (result.status == fem::ImplicitStatus::kNonFinite) {
-      r.status = fem::StepStatus::kNonFiniteForce;
-      r.quantity = "implicit residual";
-      r.value = result.residual;
-      return r;
+    if (!result.advanced()) {
+      bool recovered = false;
+      for (const int substeps : {2, 4, 8}) {
+        if ((recovered = StepInSubsteps(fem, tool, start, frame_time, substeps, deadline_ns))) {
+          r.substeps = substeps;
+          break;
+        }
+      }
+      if (!recovered) {
+        r.status = fem::StepStatus::kNonFiniteForce;
+        r.step = step_before;
+        r.quantity = "implicit residual";
+        r.value = result.residual;
+        return r;
+      }
+      ++counters_.recovered_steps;
+      if (counters_.recovered_steps <= 3 || counters_.recovered_steps % 100 == 0) {
+        Log().warn("implicit step {}: the frame's step failed (a non-finite trial); redone in {} substeps with K⁺ "
+                   "({} such frames so far)",
+                   step_before, r.substeps, counters_.recovered_steps);
+      }
     }
     if (tool && tool->Loaded()) (void)tool->ContactPenalty(end_tip, tool_velocity, state.x.data());
-    run.last_dt = frame_time;
+    run.last_dt = frame_time / r.substeps;
   } else {
-    (void)fem, (void)tool, (void)start, (void)frame_time, (void)run;
+    (void)fem, (void)tool, (void)start, (void)frame_time, (void)deadline_ns, (void)run;
   }
   return r;
+}
+
+template <typename T>
+bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+                                 int substeps, int64_t deadline_ns) {
+  if constexpr (std::is_same_v<T, double>) {
+    fem::Model<double>& model = fem.model();
+    fem::State<double>& state = fem.state();
+    saved_x_.assign(state.x.begin(), state.x.end());
+    saved_v_.assign(state.v.begin(), state.v.end());
+    const double time = state.time;
+    const int64_t step = state.step;
+    fem::ImplicitOptions& options = implicit_->mutable_options();
+    const fem::TangentMode mode = options.tangent;
+    options.tangent = fem::TangentMode::kClamped;
+    const Eigen::Vector3d end_tip = tool ? tool->pose().tip : start.tip;
+    const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
+    const double h = frame_time / substeps;
+    bool ok = true;
+    for (int i = 1; i <= substeps && ok; ++i) {
+      penalties_.clear();
+      const Eigen::Vector3d tip = start.tip + (static_cast<double>(i) / substeps) * (end_tip - start.tip);
+      if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(tip, tool_velocity, state.x.data()));
+      last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
+      const fem::ImplicitResult result = implicit_->Step(model, state, h, penalties_, deadline_ns);
+      Count(result, state.step);
+      ok = result.advanced();
+    }
+    options.tangent = mode;
+    if (ok) return true;
+    std::copy(saved_x_.begin(), saved_x_.end(), state.x.begin());
+    std::copy(saved_v_.begin(), saved_v_.end(), state.v.begin());
+    state.time = time;
+    state.step = step;
+    return false;
+  } else {
+    (void)fem, (void)tool, (void)start, (void)frame_time, (void)substeps, (void)deadline_ns;
+    return false;
+  }
 }
 
 template <typename T>
@@ -118,8 +174,15 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
   c.max_pcg_iterations = std::max(c.max_pcg_iterations, r.pcg_iterations);
   c.factorizations = implicit_->linear_solver().stats().completed;
   c.tangent_assemblies += r.tangent_assemblies;
+  c.factor_corrections += r.factor_corrected ? 1 : 0;
+  if (r.status == fem::ImplicitStatus::kOutOfTime) {
+    ++c.out_of_time_steps;
+    c.max_residual_out_of_time = std::max(c.max_residual_out_of_time, r.residual);
+    return;
+  }
   if (r.status != fem::ImplicitStatus::kCapped) return;
   ++c.unconverged_steps;
+  c.max_residual_unconverged = std::max(c.max_residual_unconverged, r.residual);
   // The first few and then every hundredth: visible without flooding the log.
   if (c.unconverged_steps <= 3 || c.unconverged_steps % 100 == 0) {
     Log().warn("implicit step {}: Newton stopped at {} iterations, residual {:.3g} N > tolerance {:.3g} N "

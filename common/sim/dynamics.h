@@ -47,11 +47,16 @@ class Dynamics {
   [[nodiscard]] IntegratorKind kind() const { return kind_; }
 
   /// Steps `frame_time` seconds; the tool (or null) moved from `start` to
-  /// its current pose over the frame. Sets run.last_dt. A Newton step that
-  /// stops at its iteration cap is counted and logged (the state keeps its
-  /// last iterate); a non-finite one fails like an explicit step.
+  /// its current pose over the frame. Sets run.last_dt. The implicit step
+  /// stops at `deadline_ns` (CLOCK_MONOTONIC, 0: none) and carries its
+  /// residual into the next frame; a Newton step that stops at its
+  /// iteration cap or the deadline is counted and logged (the state keeps
+  /// its last iterate). A step that fails (a non-finite residual or
+  /// energy, e.g. a trial that inverts a patch) is redone from the same
+  /// state in 2, then 4, then 8 substeps with the clamped tangent K⁺; only
+  /// when all of them fail does the frame fail like an explicit step.
   fem::StepResult StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
-                            RunCounters& run);
+                            int64_t deadline_ns, RunCounters& run);
 
   /// The haptic stiffness at the tool's contact (file comment), N/m.
   [[nodiscard]] Eigen::Matrix3d ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const;
@@ -63,7 +68,12 @@ class Dynamics {
   fem::StepResult StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
                                RunCounters& run);
   fem::StepResult StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
-                               RunCounters& run);
+                               int64_t deadline_ns, RunCounters& run);
+  /// The recovery of a failed implicit step: `substeps` steps of
+  /// frame_time/substeps with K⁺, the contact spring moved along the
+  /// tool's path. False if one of them fails (the state is then restored).
+  bool StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+                      int substeps, int64_t deadline_ns);
   void Count(const fem::ImplicitResult& r, int64_t step);
 
   IntegratorKind kind_;
@@ -71,6 +81,7 @@ class Dynamics {
   mutable std::unique_ptr<fem::ImplicitIntegrator> implicit_;
   std::vector<fem::PenaltyTerm> penalties_;  // the frame's contact spring, 0 or 1
   fem::PenaltyTerm last_penalty_;            // the one in the last Jacobian (zero stiffness if none)
+  std::vector<double> saved_x_, saved_v_;    // the state before a recovery  // #N×3
   ImplicitCounters counters_;
 };
 

@@ -44,7 +44,8 @@ class Engine final : public Simulation {
         mesh_(std::move(scene_mesh)),
         fem_(scene_, mesh_, options),
         world_access_(fem_.state().x),
-        dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())) {
+        dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())),
+        frame_budget_ns_(static_cast<int64_t>(1e9 * std::max(0.0, options.frame_budget))) {
     if (scene_.scene.settle()) SettleTissue();
     if (scene_.scene.has_tool()) SetUpTool();
     if (scene_.scene.has_planned_incision()) scorer_.emplace(PlanOf(scene_.scene.planned_incision()));
@@ -64,10 +65,11 @@ class Engine final : public Simulation {
     if (run_.status != SimStatus::kOk) return run_.status;
     if (frame_time <= 0) frame_time = frame_dt();
     Stopwatch watch;
+    const int64_t deadline_ns = frame_budget_ns_ > 0 ? MonotonicNs() + frame_budget_ns_ : 0;
     const ToolPose start = BeginFrame();
     MoveTool(sim_time() + frame_time);
     FindContact();
-    const fem::StepResult step = StepDynamics(start, frame_time);
+    const fem::StepResult step = StepDynamics(start, frame_time, deadline_ns);
     if (CheckStep(step)) TryCut();
     Measure(frame_time);
     run_.wall_time += watch.ElapsedSeconds();
@@ -294,8 +296,8 @@ class Engine final : public Simulation {
   }
 
   /// The frame's dynamics (Dynamics: explicit substeps or one implicit step).
-  fem::StepResult StepDynamics(const ToolPose& start, double frame_time) {
-    return dynamics_.StepFrame(fem_, tool_ ? &*tool_ : nullptr, start, frame_time, run_);
+  fem::StepResult StepDynamics(const ToolPose& start, double frame_time, int64_t deadline_ns) {
+    return dynamics_.StepFrame(fem_, tool_ ? &*tool_ : nullptr, start, frame_time, deadline_ns, run_);
   }
 
   /// Counts the frame; a failed step stops the run with its diagnosis.
@@ -383,6 +385,7 @@ class Engine final : public Simulation {
   SceneFem<T> fem_;
   StateWorld<T> world_access_;  // the cut code's view of fem_'s positions
   Dynamics<T> dynamics_;
+  int64_t frame_budget_ns_;  // the dynamics' wall-clock budget per frame (0: none)
   SurfaceTracker surface_;
   std::optional<ToolState<T>> tool_;      // with a tool
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting

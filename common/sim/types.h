@@ -25,6 +25,11 @@ struct SimulationOptions {
   int threads = 0;
   std::string precision;   ///< "", "float" or "double"
   std::string integrator;  ///< "", "explicit", "implicit" or "auto"
+  /// Wall-clock budget of a frame's dynamics, s (0: none, every step runs
+  /// to its tolerance). With a budget the implicit step stops Newton and
+  /// PCG at it and carries what is left of the residual into the next
+  /// frame (ImplicitCounters reports it). Real-time sessions set one.
+  double frame_budget = 0;
 };
 
 /// Why stepping stopped, if it did.
@@ -44,6 +49,11 @@ struct ImplicitCounters {
   int64_t unconverged_steps = 0;     ///< steps stopped at the Newton cap
   int64_t factorizations = 0;        ///< factorisations completed
   int64_t tangent_assemblies = 0;    ///< Newton iterations that assembled K
+  int64_t out_of_time_steps = 0;     ///< steps stopped at the frame's budget
+  double max_residual_out_of_time = 0;  ///< N, largest residual force a budgeted step left
+  double max_residual_unconverged = 0;  ///< N, largest residual force a capped step left
+  int64_t recovered_steps = 0;       ///< failed steps redone in substeps
+  int64_t factor_corrections = 0;    ///< low-rank corrections of the factor after cuts
 };
 
 /// Numbers a run reports (the headless JSON summary).

@@ -1,0 +1,255 @@
+// The preconditioner's pieces: the single-precision supernodal solve
+// against the double solves, the low-rank correction of an old factor
+// against a fresh factor of the cut matrix, PCG's deadline, the budgeted
+// implicit step's residual report, and a refactorisation that never blocks
+// a step.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "common/fem/implicit.h"
+#include "common/fem/linear_solver.h"
+#include "tests/unit/fem/implicit_fixtures.h"
+
+namespace cutsim::fem {
+namespace {
+
+/// SPD matrix on the model's pattern: M/h² + K at the rest state, with
+/// h = 10 ms (the implicit step's A/h²).
+std::vector<double> SystemMatrix(ImplicitIntegrator& integ, const Model<double>& model) {
+  std::vector<double> k;
+  const std::vector<double> x = testing::DeformedPositions(model, 0, 1.0);
+  integ.AssembleStiffness(model, x.data(), false, k);
+  const SparseSystem& sys = integ.system();
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    sys.AddBlock(k.data(), sys.diagonal_block(n), n, 1e4 * model.node_mass(n) * Eigen::Matrix3d::Identity());
+  }
+  return k;
+}
+
+std::vector<double> Wave(int32_t n, double f) {
+  std::vector<double> b(static_cast<size_t>(n));
+  for (size_t i = 0; i < b.size(); ++i) b[i] = std::sin(f * static_cast<double>(i)) + 0.1;
+  return b;
+}
+
+double RelativeDifference(const std::vector<double>& a, const std::vector<double>& b) {
+  double d = 0, s = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    d += (a[i] - b[i]) * (a[i] - b[i]);
+    s += b[i] * b[i];
+  }
+  return std::sqrt(d / s);
+}
+
+std::vector<double> Precondition(LinearSolver& solver, const SparseSystem& sys, const std::vector<double>& values,
+                                 const std::vector<double>& r) {
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  std::vector<double> z(r.size());
+  solver.Precondition(sys, values.data(), active.data(), r.data(), z.data());
+  return z;
+}
+
+// The float solve agrees with CHOLMOD's double solve to a float's
+// round-off times the factor's growth; the own double solve to round-off,
+// and it inverts A.
+TEST(SupernodalSolve, SingleAndDoubleAgreeWithCholmod) {
+  Model<double> model = testing::MakeCantilever(12, 0.12, 3e4, false);
+  ImplicitIntegrator integ;
+  const std::vector<double> a = SystemMatrix(integ, model);
+  const SparseSystem& sys = integ.system();
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.37);
+  std::vector<std::vector<double>> z;
+  for (const FactorSolve mode : {FactorSolve::kCholmod, FactorSolve::kDouble, FactorSolve::kFloat}) {
+    LinearSolver solver(false, mode);
+    solver.Resize(sys);
+    ASSERT_TRUE(solver.RequestFactor(sys, a.data()));
+    z.push_back(Precondition(solver, sys, a, r));
+  }
+  EXPECT_LT(RelativeDifference(z[1], z[0]), 1e-12);
+  const double float_error = RelativeDifference(z[2], z[0]);
+  EXPECT_LT(float_error, 1e-5);
+  EXPECT_GT(float_error, 1e-12);  // it is a float solve
+  std::vector<double> az(r.size());
+  sys.MultiplyTeam(a.data(), z[1].data(), az.data());
+  EXPECT_LT(RelativeDifference(az, r), 1e-10);
+}
+
+/// The cantilever before and after a cut through the node at (x, y, z)
+/// = (lx/2, 0.01, 0.01), and the nodes of every tet the cut changed.
+struct CutFixture {
+  Model<double> model = testing::MakeCantilever(8, 0.08, 3e4, false, 0, 0, 8);
+  State<double> state{model};
+  ImplicitIntegrator before, after;
+  std::vector<double> a0, b;
+  std::vector<int32_t> changed;
+  int32_t old_dofs = 0;
+
+  CutFixture() {
+    a0 = SystemMatrix(before, model);
+    old_dofs = before.system().num_dofs();
+    std::vector<int32_t> tets_before(static_cast<size_t>(4 * model.num_tets()));
+    for (int32_t t = 0; t < model.num_tets(); ++t) {
+      for (int c = 0; c < 4; ++c) tets_before[static_cast<size_t>(4 * t + c)] = model.tet_node(t, c);
+    }
+    for (const double y : {0.0, 0.01, 0.02}) {
+      for (const double z : {0.01, 0.02}) {
+        const int32_t mid = Find(0.04, y, z);
+        testing::SplitNodeAsACut(model, state, mid, [&](const Vec3<double>& c) { return c(0) > 0.04; });
+      }
+    }
+    std::vector<uint8_t> mark(static_cast<size_t>(old_dofs / 3), 0);
+    for (int32_t t = 0; t < model.num_tets(); ++t) {
+      bool same = true;
+      for (int c = 0; c < 4; ++c) same = same && tets_before[static_cast<size_t>(4 * t + c)] == model.tet_node(t, c);
+      if (same) continue;
+      for (int c = 0; c < 4; ++c) {
+        const int32_t n = tets_before[static_cast<size_t>(4 * t + c)];
+        mark[static_cast<size_t>(n)] = 1;
+      }
+    }
+    for (int32_t n = 0; n < static_cast<int32_t>(mark.size()); ++n) {
+      if (mark[static_cast<size_t>(n)] != 0) changed.push_back(n);
+    }
+    b = SystemMatrix(after, model);
+  }
+  int32_t Find(double x, double y, double z) const {
+    for (int32_t n = 0; n < model.num_nodes(); ++n) {
+      const Vec3<double> p = model.rest_position(n);
+      if (std::abs(p(0) - x) < 1e-9 && std::abs(p(1) - y) < 1e-9 && std::abs(p(2) - z) < 1e-9) return n;
+    }
+    return 0;
+  }
+};
+
+// Corrected for the changed and added DOFs, the old factor preconditions
+// the cut matrix as a fresh factor of it does (to the float solve's
+// round-off); without the correction it is far off.
+TEST(FactorCorrection, EqualsAFreshFactorOfTheCutMatrix) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  ASSERT_GT(sys.num_dofs(), f.old_dofs);
+  ASSERT_FALSE(f.changed.empty());
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
+
+  LinearSolver fresh(false);
+  fresh.Resize(sys);
+  ASSERT_TRUE(fresh.RequestFactor(sys, f.b.data()));
+  const std::vector<double> z_fresh = Precondition(fresh, sys, f.b, r);
+
+  LinearSolver old(false);
+  old.Resize(f.before.system());
+  ASSERT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
+  old.Resize(sys);
+  const std::vector<double> z_stale = Precondition(old, sys, f.b, r);
+  ASSERT_TRUE(old.CorrectFactor(sys, f.b.data(), f.changed, 10000));
+  EXPECT_EQ(old.correction_rank(), 3 * static_cast<int32_t>(f.changed.size()) + sys.num_dofs() - f.old_dofs);
+  const std::vector<double> z_corrected = Precondition(old, sys, f.b, r);
+
+  EXPECT_LT(RelativeDifference(z_corrected, z_fresh), 1e-4);
+  EXPECT_GT(RelativeDifference(z_stale, z_fresh), 1e-2);
+
+  // PCG with it converges in the iterations of a fresh factor.
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  std::vector<double> x(r.size());
+  const PcgResult pr = old.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-8, 100, 1);
+  EXPECT_TRUE(pr.converged);
+  EXPECT_LE(pr.iterations, 4);
+}
+
+// Above its rank cap the correction is refused and PCG falls back to the
+// old factor on the old DOFs and block Jacobi on the new ones.
+TEST(FactorCorrection, RefusedAboveItsRankAndPcgStillConverges) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  LinearSolver old(false);
+  old.Resize(f.before.system());
+  ASSERT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
+  old.Resize(sys);
+  EXPECT_FALSE(old.CorrectFactor(sys, f.b.data(), f.changed, 6));
+  EXPECT_EQ(old.correction_rank(), 0);
+  EXPECT_EQ(old.stats().corrections_refused, 1);
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  std::vector<double> x(r.size());
+  const PcgResult pr = old.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-8, 500, 1);
+  EXPECT_TRUE(pr.converged);
+  EXPECT_GT(pr.iterations, 4);
+}
+
+// A deadline in the past stops PCG after its first iteration.
+TEST(LinearSolverDeadline, StopsAtTheDeadlineWithTheIterateSoFar) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, false);
+  ImplicitIntegrator integ;
+  const std::vector<double> a = SystemMatrix(integ, model);
+  const SparseSystem& sys = integ.system();
+  LinearSolver solver(false);
+  solver.Resize(sys);
+  // Block Jacobi only (no factor): many iterations to go.
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.5);
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  std::vector<double> x(r.size());
+  const PcgResult pr = solver.Solve(sys, a.data(), active.data(), r.data(), x.data(), 1e-12, 500, 1, {}, nullptr, 1);
+  EXPECT_TRUE(pr.out_of_time);
+  EXPECT_FALSE(pr.converged);
+  EXPECT_EQ(pr.iterations, 1);
+  EXPECT_GT(*std::max_element(x.begin(), x.end()), 0.0);
+}
+
+// A step whose deadline has passed runs one Newton iteration, reports
+// kOutOfTime with its residual in newtons, and advances the state; the
+// next steps, without a deadline, take the carried residual down.
+TEST(BudgetedStep, ReportsTheResidualItCarries) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
+  State<double> state(model);
+  ImplicitOptions options;
+  options.asynchronous_factorization = false;
+  options.relative_force_tolerance = 1e-9;
+  ImplicitIntegrator integ(options);
+  const ImplicitResult budgeted = integ.Step(model, state, 0.01, {}, 1);
+  EXPECT_EQ(budgeted.status, ImplicitStatus::kOutOfTime);
+  EXPECT_EQ(budgeted.newton_iterations, 1);
+  EXPECT_GT(budgeted.residual, budgeted.tolerance);
+  EXPECT_TRUE(budgeted.advanced());
+  EXPECT_NEAR(state.time, 0.01, 1e-15);
+  EXPECT_LT(budgeted.residual, budgeted.residual_history[0]);  // the one iteration made progress
+  const ImplicitResult next = integ.Step(model, state, 0.01);
+  EXPECT_EQ(next.status, ImplicitStatus::kConverged);
+}
+
+// With a factorisation that takes a second, a step after a cut runs on the
+// old factor and its correction and returns while the worker still
+// factors: a refactorisation never blocks a step.
+TEST(AsyncFactor, SlowRefactorisationNeverBlocksAStep) {
+  Model<double> model = testing::MakeCantilever(8, 0.08, 3e4, true, 0, 0, 8);
+  State<double> state(model);
+  ImplicitOptions options;
+  options.asynchronous_factorization = true;
+  options.force_tolerance = 1e-7;
+  ImplicitIntegrator integ(options);
+  ASSERT_TRUE(integ.Step(model, state, 0.01).ok());  // waits for the first factor
+  integ.mutable_linear_solver().WaitForFactor();     // the worker idle, its newest factor in use
+  integ.mutable_linear_solver().set_worker_delay_for_testing(2.0);
+  const int32_t original_nodes = model.num_nodes();
+  for (int32_t n = 0; n < original_nodes; ++n) {
+    const Vec3<double> p = model.rest_position(n);
+    if (std::abs(p(0) - 0.04) < 1e-9 && p(2) > 0.005) {
+      testing::SplitNodeAsACut(model, state, n, [](const Vec3<double>& c) { return c(0) > 0.04; });
+    }
+  }
+  const ImplicitResult r = integ.Step(model, state, 0.01);
+  EXPECT_TRUE(r.pattern_rebuilt);
+  EXPECT_TRUE(r.factor_requested);
+  EXPECT_TRUE(r.factor_corrected);
+  EXPECT_EQ(r.status, ImplicitStatus::kConverged)
+      << r.newton_iterations << " Newton, " << r.pcg_iterations << " PCG, residual " << r.residual << " N, tolerance "
+      << r.tolerance << " N, halvings " << r.line_search_halvings;
+  EXPECT_TRUE(integ.linear_solver().busy());  // the new factor is still being made
+  EXPECT_LT(r.factor_dofs, integ.system().num_dofs());
+  integ.mutable_linear_solver().WaitForFactor();
+}
+
+}  // namespace
+}  // namespace cutsim::fem
