@@ -395,11 +395,15 @@ int ServerApp::RunRealtime() {
   }
   presence.Start();
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
-  auto simulation = sim::Simulation::Create(
-      scene, {.threads = options_.threads, .precision = options_.precision, .integrator = options_.integrator});
+  const double frame_dt =
+      options_.frame_rate > 0 ? 1.0 / options_.frame_rate : scene.scene.time_step().frame_dt();
+  const double budget = options_.frame_budget >= 0 ? options_.frame_budget : kDefaultFrameBudget;
+  auto simulation = sim::Simulation::Create(scene, {.threads = options_.threads,
+                                                    .precision = options_.precision,
+                                                    .integrator = options_.integrator,
+                                                    .frame_budget = budget * frame_dt});
   sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
   (void)checkpointer.Begin(*simulation, options_.resume);
-  const double frame_dt = options_.frame_rate > 0 ? 1.0 / options_.frame_rate : simulation->frame_dt();
 
   // The haptic link. LCM's udpm receive thread starts on the first
   // subscription and inherits this scope's SCHED_FIFO priority (when

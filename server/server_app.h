@@ -39,6 +39,10 @@ struct ServerOptions {
   double viewer_fps = 10.0;        ///< mesh frames to viewers per second
   bool realtime_priority = true;   ///< SCHED_FIFO for physics and LCM threads when permitted (--no-rt: off)
   double frame_rate = 0.0;         ///< physics frames per second; 0: the scene's frame_dt
+  /// Wall-clock budget of a frame's dynamics as a fraction of the frame
+  /// (--frame-budget): Newton and PCG stop there and carry the residual.
+  /// Negative: the default (kDefaultFrameBudget in real time, none headless).
+  double frame_budget = -1.0;
   double client_timeout = 1.0;     ///< s without tool poses: the haptic client is gone
   std::string stats_json;          ///< write the exit statistics here too
   std::string session_report;      ///< --session-report: JSON + SVG plot of the measures and score at the end
@@ -62,6 +66,10 @@ struct ServerOptions {
 /// Exit status when the run itself succeeded but an output (recording,
 /// checkpoint, statistics, final state) could not be written completely.
 inline constexpr int kExitOutputFailed = 5;
+/// The real-time default of --frame-budget: the implicit step gets 60 % of
+/// the frame, the rest is for the cut step, the local model's stiffness,
+/// the viewers' frame and the pacing's margin.
+inline constexpr double kDefaultFrameBudget = 0.6;
 
 /// Runs `write`; logs and returns false if it throws.
 bool WriteOutput(const std::function<void()>& write);

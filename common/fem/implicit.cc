@@ -107,12 +107,13 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     }
     solver_.Resize(system_);
     have_k_ = false;
+    b_values_valid_ = false;
     result.pattern_rebuilt = true;
   }
   model_ = &model;
   for (int32_t n = 0; n < system_.num_nodes(); ++n) {
     const uint8_t on = !model.fixed(n) && model.node_mass(n) > 0 ? 1 : 0;
-    if (active_[static_cast<size_t>(n)] != on) have_k_ = false;  // K's identity rows moved
+    if (active_[static_cast<size_t>(n)] != on) have_k_ = b_values_valid_ = false;  // identity rows moved
     active_[static_cast<size_t>(n)] = on;
   }
 }
@@ -371,7 +372,7 @@ void ImplicitIntegrator::CorrectFactor(const Model<double>& model, ImplicitResul
 }
 
 /// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.
-void ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result,
+bool ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result,
                                         bool* clamped) {
   const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
@@ -389,11 +390,14 @@ void ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t dead
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
-  if (pr.iterations > options_.refactor_pcg_iterations) RequestFactor(*model_, result);
+  // A solve that needed many iterations, or ran out of time before it
+  // converged, asks for a fresher factor.
+  if (pr.iterations > options_.refactor_pcg_iterations || pr.out_of_time) RequestFactor(*model_, result);
   if (pr.negative_curvature) {
     result.negative_curvature = true;
     if (options_.tangent == TangentMode::kAuto) *clamped = true;
   }
+  return pr.out_of_time;
 }
 
 /// Sets the start of the step: x0_, v0_ (backward Euler: the state; BDF2:
@@ -430,7 +434,14 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
   const int32_t nn = system_.num_nodes();
   const double h = StartStep(state, step_size, result.pattern_rebuilt);
   result.bdf2 = h != step_size;
-  DampingPass(model, x0_.data(), h, 1.0 + h * options_.mass_damping, true, b_values_.data());
+  // M + h(C + αM): C depends on the state; without strain-rate damping the
+  // values stay those of the last step while h, the pattern and the active
+  // set do.
+  if (model.damped() || b_values_h_ != h || !b_values_valid_) {
+    DampingPass(model, x0_.data(), h, 1.0 + h * options_.mass_damping, true, b_values_.data());
+    b_values_h_ = h;
+    b_values_valid_ = true;
+  }
   Eval current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
   result.tolerance = options_.force_tolerance > 0
                          ? options_.force_tolerance
@@ -446,7 +457,9 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
       return result;
     }
     if (current.residual <= result.tolerance) break;
-    const bool out_of_time = it > 0 && deadline_ns > 0 && MonotonicNs() >= deadline_ns;
+    const bool late = it > 0 && deadline_ns > 0 && MonotonicNs() >= deadline_ns;
+    const bool out_of_time = late && current.residual <= options_.carry_limit * result.tolerance;
+    result.over_budget = result.over_budget || (late && !out_of_time);
     if (out_of_time || it >= options_.max_newton_iterations) {
       result.status = out_of_time ? ImplicitStatus::kOutOfTime : ImplicitStatus::kCapped;
       if (x_stale) current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
@@ -461,10 +474,13 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     k_fresh_ = k_fresh_ || assemble;
     const bool was_clamped = clamped;
     const double last_residual = current.residual;
-    SolveDirection(h, result.tolerance, deadline_ns, result, &clamped);
+    const bool truncated =
+        SolveDirection(h, result.tolerance, result.over_budget ? 0 : deadline_ns, result, &clamped);
     result.clamped = result.clamped || was_clamped;
     const bool accepted = LineSearch(model, state, h, penalties, current, result);
-    reassemble_k_ = !accepted || !(current.residual <= options_.tangent_reuse_contraction * last_residual);
+    // A solve cut short by the deadline says nothing about the tangent.
+    reassemble_k_ = !accepted ||
+                    (!truncated && !(current.residual <= options_.tangent_reuse_contraction * last_residual));
     x_stale = !accepted;
     if (!accepted) {
       if (clamped != was_clamped) continue;  // retry the iteration with K⁺

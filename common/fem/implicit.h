@@ -113,6 +113,10 @@ struct ImplicitOptions {
   /// many DOFs; 0: never (the old factor covers the old DOFs, block Jacobi
   /// the new ones).
   int32_t max_correction_rank = 900;
+  /// The most residual a step may carry past its deadline, as a multiple
+  /// of the force tolerance: above it Newton goes on past the deadline
+  /// (the frame overruns) rather than let an error grow from frame to frame.
+  double carry_limit = 50;
   /// How the preconditioner applies the factor (single precision by default).
   FactorSolve factor_solve = FactorSolve::kFloat;
   /// BDF2 instead of backward Euler: x⁺ = (4xₙ − xₙ₋₁)/3 + (2h/3)·v⁺ and
@@ -163,6 +167,7 @@ struct ImplicitResult {
   bool bdf2 = false;                ///< The step was BDF2 (else backward Euler).
   bool factor_requested = false;    ///< A refactorisation was asked for.
   bool factor_corrected = false;    ///< A low-rank correction of the factor was built.
+  bool over_budget = false;         ///< Went on past the deadline: the residual was above carry_limit.
   int32_t factor_dofs = 0;          ///< DOFs covered by the factor in use.
   /// The force residual (N) before Newton iteration k (first kHistory).
   std::array<double, kHistory> residual_history{};
@@ -183,8 +188,10 @@ class ImplicitIntegrator {
   /// Never throws; allocates only when the topology changed (or on the first
   /// step). On kConverged, kCapped and kOutOfTime the state holds x⁺, v⁺
   /// and f (the total force at x⁺); time and step advance. A `deadline_ns`
-  /// (CLOCK_MONOTONIC, 0: none) stops Newton and PCG there (kOutOfTime):
-  /// the first iteration always runs, so a step always makes progress.
+  /// (CLOCK_MONOTONIC, 0: none) stops Newton and PCG there (kOutOfTime)
+  /// once the residual is within carry_limit: the first iteration always
+  /// runs, so a step always makes progress, and a large residual is never
+  /// carried.
   ImplicitResult Step(const Model<double>& model, State<double>& state, double step_size,
                       std::span<const PenaltyTerm> penalties = {}, int64_t deadline_ns = 0);
 
@@ -253,7 +260,8 @@ class ImplicitIntegrator {
                 std::span<const PenaltyTerm> penalties, const double* v, double* residual);
   bool LineSearch(const Model<double>& model, const State<double>& state, double h,
                   std::span<const PenaltyTerm> penalties, Eval& current, ImplicitResult& result);
-  void SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result, bool* clamped);
+  /// Returns whether PCG stopped at the deadline.
+  bool SolveDirection(double h, double tolerance, int64_t deadline_ns, ImplicitResult& result, bool* clamped);
   /// Asks the worker for a factor of the current A; records the elements'
   /// signature under the request, to find what a later cut changed.
   bool RequestFactor(const Model<double>& model, ImplicitResult& result);
@@ -290,7 +298,9 @@ class ImplicitIntegrator {
   SparseSystem system_;
   LinearSolver solver_;
   std::vector<uint8_t> active_;      // #N: free and with mass
-  std::vector<double> b_values_;     // M + h(C + αM) + h²K_pen  // #nnz
+  std::vector<double> b_values_;     // M + h(C + αM)  // #nnz
+  double b_values_h_ = 0;            // the h of b_values_
+  bool b_values_valid_ = false;      // b_values_ is for the current pattern, active set and masses
   std::vector<double> a_values_;     // b_values_ + h²K          // #nnz
   std::vector<double> k_values_;     // K (K⁺ if k_clamped_) at an earlier iterate  // #nnz
   std::vector<double> x0_, v0_;      // start of step  // #N×3

@@ -98,7 +98,7 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
     if (!result.advanced()) {
       bool recovered = false;
       for (const int substeps : {2, 4, 8}) {
-        if ((recovered = StepInSubsteps(fem, tool, start, frame_time, substeps, deadline_ns))) {
+        if ((recovered = StepInSubsteps(fem, tool, start, frame_time, substeps))) {
           r.substeps = substeps;
           break;
         }
@@ -127,7 +127,7 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
 
 template <typename T>
 bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
-                                 int substeps, int64_t deadline_ns) {
+                                 int substeps) {
   if constexpr (std::is_same_v<T, double>) {
     fem::Model<double>& model = fem.model();
     fem::State<double>& state = fem.state();
@@ -147,7 +147,7 @@ bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const Too
       const Eigen::Vector3d tip = start.tip + (static_cast<double>(i) / substeps) * (end_tip - start.tip);
       if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(tip, tool_velocity, state.x.data()));
       last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
-      const fem::ImplicitResult result = implicit_->Step(model, state, h, penalties_, deadline_ns);
+      const fem::ImplicitResult result = implicit_->Step(model, state, h, penalties_);
       Count(result, state.step);
       ok = result.advanced();
     }
@@ -159,7 +159,7 @@ bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const Too
     state.step = step;
     return false;
   } else {
-    (void)fem, (void)tool, (void)start, (void)frame_time, (void)substeps, (void)deadline_ns;
+    (void)fem, (void)tool, (void)start, (void)frame_time, (void)substeps;
     return false;
   }
 }
@@ -175,6 +175,7 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
   c.factorizations = implicit_->linear_solver().stats().completed;
   c.tangent_assemblies += r.tangent_assemblies;
   c.factor_corrections += r.factor_corrected ? 1 : 0;
+  c.over_budget_steps += r.over_budget ? 1 : 0;
   if (r.status == fem::ImplicitStatus::kOutOfTime) {
     ++c.out_of_time_steps;
     c.max_residual_out_of_time = std::max(c.max_residual_out_of_time, r.residual);

@@ -71,9 +71,11 @@ class Dynamics {
                                int64_t deadline_ns, RunCounters& run);
   /// The recovery of a failed implicit step: `substeps` steps of
   /// frame_time/substeps with K⁺, the contact spring moved along the
-  /// tool's path. False if one of them fails (the state is then restored).
+  /// tool's path, each to its tolerance (no deadline: a recovery must not
+  /// carry an error). False if one of them fails (the state is then
+  /// restored).
   bool StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
-                      int substeps, int64_t deadline_ns);
+                      int substeps);
   void Count(const fem::ImplicitResult& r, int64_t step);
 
   IntegratorKind kind_;

@@ -50,6 +50,7 @@ struct ImplicitCounters {
   int64_t factorizations = 0;        ///< factorisations completed
   int64_t tangent_assemblies = 0;    ///< Newton iterations that assembled K
   int64_t out_of_time_steps = 0;     ///< steps stopped at the frame's budget
+  int64_t over_budget_steps = 0;     ///< steps that went past it, their residual above the carry limit
   double max_residual_out_of_time = 0;  ///< N, largest residual force a budgeted step left
   double max_residual_unconverged = 0;  ///< N, largest residual force a capped step left
   int64_t recovered_steps = 0;       ///< failed steps redone in substeps

@@ -207,6 +207,7 @@ TEST(BudgetedStep, ReportsTheResidualItCarries) {
   ImplicitOptions options;
   options.asynchronous_factorization = false;
   options.relative_force_tolerance = 1e-9;
+  options.carry_limit = 1e12;  // any residual may be carried
   ImplicitIntegrator integ(options);
   const ImplicitResult budgeted = integ.Step(model, state, 0.01, {}, 1);
   EXPECT_EQ(budgeted.status, ImplicitStatus::kOutOfTime);
@@ -217,6 +218,24 @@ TEST(BudgetedStep, ReportsTheResidualItCarries) {
   EXPECT_LT(budgeted.residual, budgeted.residual_history[0]);  // the one iteration made progress
   const ImplicitResult next = integ.Step(model, state, 0.01);
   EXPECT_EQ(next.status, ImplicitStatus::kConverged);
+}
+
+// A late step never carries more than carry_limit × the tolerance: it goes
+// on past the deadline (over_budget) until its residual is within it.
+TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
+  State<double> state(model);
+  ImplicitOptions options;
+  options.asynchronous_factorization = false;
+  options.relative_force_tolerance = 1e-9;
+  options.carry_limit = 1e3;
+  options.tangent_reuse_contraction = 0;  // plain Newton: one PCG solve does not converge it
+  ImplicitIntegrator integ(options);
+  const ImplicitResult r = integ.Step(model, state, 0.01, {}, 1);
+  EXPECT_TRUE(r.over_budget);
+  EXPECT_GT(r.newton_iterations, 1);
+  EXPECT_LE(r.residual, options.carry_limit * r.tolerance);
+  EXPECT_GT(r.residual_history[1], options.carry_limit * r.tolerance);  // it was late and above the limit
 }
 
 // With a factorisation that takes a second, a step after a cut runs on the
