@@ -10,8 +10,14 @@
 // h / step time. Then, for 10 ms steps, a cut-like topology change (a slit:
 // the nodes on the mid plane x = L/2 above mid height are split, tets on the
 // +x side move to the copies) and the PCG iterations of each step before
-// and after it, with the DOFs the factor in use covers. Exits 1 when a
-// step does not converge.
+// and after it, with the DOFs the factor in use covers, in the same run
+// with the low-rank correction of the old factor and without it (the old
+// factor on the old DOFs, block Jacobi on the new ones), and the wall time
+// of the first step after the slit. Then the preconditioner's solves on
+// the case's system matrix (M + h²K, h = 10 ms) in the same run: CHOLMOD's
+// double solve, the own supernodal solve in double and in float (median
+// time of a solve, relative difference to CHOLMOD's). Exits 1 when a step
+// does not converge.
 //
 //   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
 //                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
@@ -152,6 +158,50 @@ Phase RunSteps(ImplicitIntegrator& integ, const Model<double>& model, State<doub
   return p;
 }
 
+/// Median time of the preconditioner's solve on M + h²K (h = 10 ms, at
+/// rest) with each FactorSolve, and the relative difference to CHOLMOD's.
+void PrintSolves(const Model<double>& model) {
+  ImplicitIntegrator integ(g_options);
+  std::vector<double> a;
+  std::vector<double> x(static_cast<size_t>(3 * model.node_capacity()));
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    for (int d = 0; d < 3; ++d) x[static_cast<size_t>(3 * n + d)] = model.rest_position(n)(d);
+  }
+  integ.AssembleStiffness(model, x.data(), false, a);
+  const SparseSystem& sys = integ.system();
+  for (auto& v : a) v *= 1e-4;
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    sys.AddBlock(a.data(), sys.diagonal_block(n), n, model.node_mass(n) * Eigen::Matrix3d::Identity());
+  }
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  std::vector<double> r(static_cast<size_t>(sys.num_dofs())), z(r.size()), z_ref(r.size());
+  for (size_t i = 0; i < r.size(); ++i) r[i] = std::sin(0.37 * static_cast<double>(i)) + 0.1;
+  std::printf("   \"solves\": [");
+  const char* names[] = {"cholmod_double", "supernodal_double", "supernodal_float"};
+  int k = 0;
+  for (const FactorSolve mode : {FactorSolve::kCholmod, FactorSolve::kDouble, FactorSolve::kFloat}) {
+    LinearSolver solver(false, mode);
+    solver.Resize(sys);
+    solver.RequestFactor(sys, a.data());
+    std::vector<double> t;
+    for (int rep = 0; rep < 30; ++rep) {
+      const auto t0 = std::chrono::steady_clock::now();
+      solver.Precondition(sys, a.data(), active.data(), r.data(), z.data());
+      t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+    if (mode == FactorSolve::kCholmod) z_ref = z;
+    double d = 0, s = 0;
+    for (size_t i = 0; i < z.size(); ++i) {
+      d += (z[i] - z_ref[i]) * (z[i] - z_ref[i]);
+      s += z_ref[i] * z_ref[i];
+    }
+    std::printf("%s\n    {\"solve\": \"%s\", \"median_s\": %.6f, \"relative_difference\": %.3g}", k == 0 ? "" : ",",
+                names[k], Median(t), std::sqrt(d / s));
+    ++k;
+  }
+  std::printf("]}");
+}
+
 void RunCase(const Case& c, int steps, bool first) {
   Model<double> model = MakeModel(c);
   std::printf("%s  {\"case\": \"%s\", \"tets\": %d, \"nodes\": %d, \"youngs_pa\": %g,"
@@ -181,18 +231,31 @@ void RunCase(const Case& c, int steps, bool first) {
                 static_cast<long long>(integ.system().nnz()), h / med);
   }
   std::printf("],\n");
-  // Topology change at 10 ms steps.
-  State<double> state(model);
-  ImplicitIntegrator integ(g_options);
-  std::vector<int> before, after, dofs_before, dofs_after;
-  RunSteps(integ, model, state, 0.01, steps / 2 + 1, &before, &dofs_before);
-  Slit(c, model, state);
-  const Phase p = RunSteps(integ, model, state, 0.01, steps, &after, &dofs_after);
-  if (p.not_converged > 0) g_failed = true;
-  std::printf("   \"cut\": {\"nodes_after\": %d, \"dofs_after\": %d, \"pcg_before\": %s, \"pcg_after\": %s,"
-              " \"factor_dofs_after\": %s, \"median_step_after_s\": %.6f, \"not_converged\": %d}}",
-              model.num_nodes(), 3 * model.num_nodes(), Array(before).c_str(), Array(after).c_str(),
-              Array(dofs_after).c_str(), Median(p.seconds), p.not_converged);
+  // Topology change at 10 ms steps, with and without the correction.
+  std::printf("   \"cut\": [");
+  for (const bool corrected : {true, false}) {
+    Model<double> cut_model = MakeModel(c);
+    State<double> state(cut_model);
+    ImplicitOptions options = g_options;
+    if (!corrected) options.max_correction_rank = 0;
+    ImplicitIntegrator integ(options);
+    std::vector<int> before, after, dofs_before, dofs_after;
+    RunSteps(integ, cut_model, state, 0.01, steps / 2 + 1, &before, &dofs_before);
+    integ.mutable_linear_solver().WaitForFactor();  // both runs start from a factor of the same step
+    Slit(c, cut_model, state);
+    const Phase p = RunSteps(integ, cut_model, state, 0.01, steps, &after, &dofs_after);
+    if (p.not_converged > 0) g_failed = true;
+    const FactorStats fs = integ.linear_solver().stats();
+    std::printf("%s\n    {\"correction\": %s, \"nodes_after\": %d, \"dofs_after\": %d, \"pcg_before\": %s,"
+                " \"pcg_after\": %s, \"factor_dofs_after\": %s, \"first_step_after_s\": %.6f,"
+                " \"median_step_after_s\": %.6f, \"correction_rank\": %d, \"correction_s\": %.4f,"
+                " \"not_converged\": %d}",
+                corrected ? "" : ",", corrected ? "true" : "false", cut_model.num_nodes(), 3 * cut_model.num_nodes(),
+                Array(before).c_str(), Array(after).c_str(), Array(dofs_after).c_str(), p.seconds.front(),
+                Median(p.seconds), fs.last_correction_rank, fs.last_correction_seconds, p.not_converged);
+  }
+  std::printf("],\n");
+  PrintSolves(model);
   std::fflush(stdout);
 }
 

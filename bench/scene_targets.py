@@ -6,7 +6,7 @@ one JSON object: per scene its real-time factor, integrator and target, and
 whether the target is met. Exits 1 when a target is missed, 2 on bad input.
 
 Targets (real-time factor = simulated s per wall s, on this machine's cores):
-  organ  >= 1.0  (real time at organ scale)
+  organ  >= 1.5  (real time at organ scale, with headroom for the session)
   block  >= 3.0  (headroom for a real-time session's pacing and link)
   ligament, beam: reported, no target.
 """
@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-TARGETS = {"organ": 1.0, "block": 3.0}
+TARGETS = {"organ": 1.5, "block": 3.0}
 
 
 def main() -> int:

@@ -6,7 +6,15 @@
 //
 //   stability_bench [--out stability.json] [--long-steps 1000000] [--strokes 300] [--only TEXT]
 //                   [--scene scenes/block.pbtxt]
+//                   [--suite-scenes scenes/organ.pbtxt,scenes/block.pbtxt] [--suite-strokes 100]
+//
+// Then the randomized stroke suite (tests/support/stroke_suite.h) on each
+// of --suite-scenes (a scene file that does not exist is skipped): a case
+// fails when a stroke stops the run, or a cut leaves an invalid mesh or
+// moves the mass.
 #include <cstdio>
+#include <filesystem>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -15,6 +23,7 @@
 #include "bench/json_text.h"
 #include "common/core/log.h"
 #include "tests/support/stability_cases.h"
+#include "tests/support/stroke_suite.h"
 
 namespace cutsim::support::stability {
 namespace {
@@ -61,6 +70,11 @@ int Main(int argc, char** argv) {
   app.add_option("--cells", size.cells, "Cube side in cells of the loading cases");
   std::string only;
   app.add_option("--only", only, "Only the cases whose name contains this (e.g. \"long run\", \"corner\")");
+  std::string suite_scenes = "scenes/organ.pbtxt,scenes/block.pbtxt,scenes/skin_pad.pbtxt";
+  int suite_strokes = 100;
+  app.add_option("--suite-scenes", suite_scenes, "Comma-separated scenes of the randomized stroke suite (\"\": none)");
+  app.add_option("--suite-strokes", suite_strokes, "Strokes per scene of the randomized stroke suite")
+      ->check(CLI::Range(0, 100000));
   bool fixed_only = false;
   app.add_flag("--fixed-dt-only", fixed_only, "Only the fixed-dt cases at 0.5 / 0.75 / 1.0 of the start's limit");
   CLI11_PARSE(app, argc, argv);
@@ -98,6 +112,31 @@ int Main(int argc, char** argv) {
     }
   } else {
     results = RunAll(size, scene_path, print_row, only);
+  }
+  if (!fixed_only && suite_strokes > 0) {
+    std::stringstream list(suite_scenes);
+    for (std::string path; std::getline(list, path, ',');) {
+      if (path.empty() || !std::filesystem::exists(path)) continue;
+      if (!only.empty() && ("stroke suite " + path).find(only) == std::string::npos) continue;
+      const strokes::SuiteResult sr = strokes::RunStrokes(path, suite_strokes, 39);
+      Result r;
+      r.name = "stroke suite: " + std::to_string(sr.strokes) + " random strokes on " + path;
+      r.holds = sr.ok() && sr.strokes == suite_strokes;
+      r.expected_ok = r.holds;
+      r.physical = r.holds;
+      r.steps = sr.frames;
+      r.sim_time = sr.sim_time;
+      r.wall = sr.wall;
+      r.cuts = sr.cuts;
+      r.step_status = sr.stopped == 0 ? "ok" : "stopped";
+      r.reason = std::to_string(sr.stopped) + " stopped, " + std::to_string(sr.invalid_meshes) + " invalid meshes, " +
+                 std::to_string(sr.mass_changes) + " mass changes after " + std::to_string(sr.cut_frames) +
+                 " cut frames (" + std::to_string(sr.cuts) + " cuts); " + std::to_string(sr.recovered_steps) +
+                 " implicit steps recovered in substeps" +
+                 (sr.first_failure.empty() ? "" : "; first: " + sr.first_failure);
+      print_row(r);
+      results.push_back(std::move(r));
+    }
   }
   if (!out_path.empty() && !WriteTextFile("stability_bench", out_path, ResultsJson(results))) return 1;
   std::vector<std::string> missed;

@@ -92,7 +92,7 @@ cat "$out/scene_targets.json" 2>/dev/null || true
 
 echo "== real-time sessions on the block and the organ (scripted haptic client cutting each)"
 # Exit 77: no network namespace here (deploy/netns-run.sh), a skip.
-for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 9"; do
+for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 10"; do
   read -r scene path seconds <<<"$session"
   rc=0
   bench/scene_session.sh "$PWD/$bin" "$PWD/$out" "$scene" "$path" "$seconds" \
@@ -140,6 +140,11 @@ echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG it
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
   > "$out/implicit.json"
 cat "$out/implicit.json" 2>/dev/null || true
+
+echo "== budget_accuracy (the organ's stroke with the real-time frame budget against converged steps)"
+run budget_accuracy "$out/budget_accuracy.log" /usr/bin/python3 bench/budget_accuracy.py "$PWD/$bin" \
+  "$PWD/$out/budget" scenes/organ.pbtxt 0.6 > "$out/budget_accuracy.json"
+cat "$out/budget_accuracy.json" 2>/dev/null || true
 
 echo "== haptic loop under load (real server physics on the other core) vs bare loop"
 # Exit 77: no network namespace here (deploy/netns-run.sh), a skip, not a failure.

@@ -79,6 +79,7 @@ class FrameStats {
 struct SessionCounters {
   uint64_t frames = 0;
   uint64_t overruns = 0;
+  uint64_t late_overruns = 0;  ///< Overruns after the session's first second.
   uint64_t tool_messages = 0;  ///< Frames that applied a fresh tool pose.
   uint64_t models_published = 0;
   uint64_t viewer_frames = 0;
@@ -331,6 +332,7 @@ void RealtimeLoop::Pace(int64_t frame_start) {
   p_.governor.Update(end);
   if (end > deadline_ns_) {
     ++counters_.overruns;
+    if (end - start_ns_ > 1'000'000'000) ++counters_.late_overruns;
     deadline_ns_ = end;
   } else {
     SleepUntilNs(deadline_ns_);
@@ -346,6 +348,14 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_frames(ReportCount(counters_.frames));
   r.set_sim_time(s.sim_time);
   r.set_frame_overruns(ReportCount(counters_.overruns));
+  r.set_frame_overruns_after_first_second(ReportCount(counters_.late_overruns));
+  r.set_out_of_time_steps(ReportCount(s.implicit.out_of_time_steps));
+  r.set_over_budget_steps(ReportCount(s.implicit.over_budget_steps));
+  r.set_max_residual_out_of_time(s.implicit.max_residual_out_of_time);
+  r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
+  r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
+  r.set_pcg_iterations(ReportCount(s.implicit.pcg_iterations));
+  r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_frame_time_p50_ms(1e3 * frame_time_.Percentile(0.5));
   r.set_frame_time_p99_ms(1e3 * frame_time_.Percentile(0.99));
   r.set_frame_time_max_ms(1e3 * frame_time_.max());
@@ -397,7 +407,16 @@ int ServerApp::RunRealtime() {
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   const double frame_dt =
       options_.frame_rate > 0 ? 1.0 / options_.frame_rate : scene.scene.time_step().frame_dt();
-  const double budget = options_.frame_budget >= 0 ? options_.frame_budget : kDefaultFrameBudget;
+  // A wall-clock budget makes a step depend on timing; a recorded session
+  // keeps every step at its tolerance (so its replay is exact) unless
+  // --frame-budget asks for one.
+  const double budget = options_.frame_budget >= 0 ? options_.frame_budget
+                        : options_.record.empty()   ? kDefaultFrameBudget
+                                                    : 0.0;
+  if (budget > 0) {
+    Log().info("frame budget: the implicit step stops at {:.3g} ms of each {:.3g} ms frame (--frame-budget {:.2g})",
+               1e3 * budget * frame_dt, 1e3 * frame_dt, budget);
+  }
   auto simulation = sim::Simulation::Create(scene, {.threads = options_.threads,
                                                     .precision = options_.precision,
                                                     .integrator = options_.integrator,

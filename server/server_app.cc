@@ -86,6 +86,8 @@ v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
   r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
   r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
   r.set_over_budget_steps(ReportCount(s.implicit.over_budget_steps));
+  r.set_max_correction_rank(ReportCount(s.implicit.max_correction_rank));
+  r.set_max_correction_seconds(s.implicit.max_correction_seconds);
   sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
   if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   return r;

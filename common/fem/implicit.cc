@@ -443,6 +443,14 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     b_values_valid_ = true;
   }
   Eval current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+  if (!current.finite) {
+    // The guess x + h·v (the velocity held over the step) can invert a
+    // nodal patch after a cut or a fast stroke, where Φ is +∞; the state
+    // itself, v⁺ = 0, is a finite start.
+    std::fill(v_.begin(), v_.end(), 0.0);
+    current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+    result.restarted_at_rest = true;
+  }
   result.tolerance = options_.force_tolerance > 0
                          ? options_.force_tolerance
                          : options_.relative_force_tolerance * LoadScale(model, state, penalties);

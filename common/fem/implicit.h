@@ -168,6 +168,7 @@ struct ImplicitResult {
   bool factor_requested = false;    ///< A refactorisation was asked for.
   bool factor_corrected = false;    ///< A low-rank correction of the factor was built.
   bool over_budget = false;         ///< Went on past the deadline: the residual was above carry_limit.
+  bool restarted_at_rest = false;   ///< The guess x + h·v was not finite; Newton started from v⁺ = 0.
   int32_t factor_dofs = 0;          ///< DOFs covered by the factor in use.
   /// The force residual (N) before Newton iteration k (first kHistory).
   std::array<double, kHistory> residual_history{};

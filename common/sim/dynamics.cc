@@ -175,6 +175,11 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
   c.factorizations = implicit_->linear_solver().stats().completed;
   c.tangent_assemblies += r.tangent_assemblies;
   c.factor_corrections += r.factor_corrected ? 1 : 0;
+  if (r.factor_corrected) {
+    const fem::FactorStats fs = implicit_->linear_solver().stats();
+    c.max_correction_rank = std::max(c.max_correction_rank, fs.last_correction_rank);
+    c.max_correction_seconds = std::max(c.max_correction_seconds, fs.last_correction_seconds);
+  }
   c.over_budget_steps += r.over_budget ? 1 : 0;
   if (r.status == fem::ImplicitStatus::kOutOfTime) {
     ++c.out_of_time_steps;
