@@ -66,6 +66,9 @@ TEST(ServerHeadlessTest, SessionReportScoresTheLigamentCut) {
   // full 8 mm.
   EXPECT_LT(JsonNumber(r.out, "mean_deviation"), 0.001) << r.out;
   EXPECT_NEAR(JsonNumber(r.out, "depth_error"), 0.0, 0.001) << r.out;
+  // The blade crosses the 8 mm in one cut step and severs it: the whole
+  // planned cut surface is opened.
+  EXPECT_GE(JsonNumber(r.out, "coverage"), 0.9) << r.out;
   std::ifstream in(report);
   const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   EXPECT_EQ(JsonNumber(json, "mean_deviation"), JsonNumber(r.out, "mean_deviation")) << json;
