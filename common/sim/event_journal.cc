@@ -322,6 +322,7 @@ void EventJournal::WriteNewJournal(const v1::JournalHeader& header, std::span<co
   std::string bytes = FrameJournalRecord(head);
   for (const std::string& payload : carried) bytes += FrameJournalRecord(payload);
 
+  CheckOutputPath(path_.string(), "event journal");  // the rename below would replace a device or a pipe
   const std::string tmp = path_.string() + ".tmp";
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) ThrowFileError(tmp, fmt::format("cannot create the event journal: {}", ErrnoText()));
