@@ -10,6 +10,7 @@
 
 #include <fmt/format.h>
 
+#include "common/core/input_file.h"
 #include "common/core/error.h"
 #include "common/core/log.h"
 
@@ -18,6 +19,7 @@ namespace cutsim::haptic_client {
 CsvWriter::CsvWriter(std::string path, CsvRing& ring) : path_(std::move(path)), ring_(ring) {
   const std::filesystem::path p(path_);
   if (p.has_parent_path()) std::filesystem::create_directories(p.parent_path());
+  CheckOutputPath(path_, "haptic log (--csv)");  // Finish renames over it: never over a device or a pipe
   tmp_ = path_ + ".tmp";
   file_ = std::fopen(tmp_.c_str(), "w");
   if (file_ == nullptr) ThrowFileError(path_, fmt::format("cannot write the CSV: {}", std::strerror(errno)));

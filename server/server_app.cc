@@ -161,7 +161,7 @@ void AddRealtimeOptions(CLI::App& app, ServerOptions& o) {
   app.add_option("--frame-rate", o.frame_rate,
                  "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
       ->check(CLI::Range(1.0, 10000.0));
-  app.add_option("--stats-json", o.stats_json, "Also write the exit statistics to this file");
+  app.add_option("--stats-json", o.stats_json, "Also write the exit statistics (the JSON summary) to this file");
 }
 
 /// The session report, in every mode.
@@ -251,6 +251,9 @@ int ServerApp::Run() {
   }
   if (!options_.checkpoint.empty()) {
     CheckOutputPath(sim::JournalPathFor(options_.checkpoint).string(), "event journal (beside --checkpoint)");
+  }
+  if (!options_.session_report.empty()) {
+    CheckOutputPath(SessionPlotPath(options_.session_report), "session report's plot (--session-report, .svg)");
   }
   if (options_.resume && !options_.checkpoint.empty() && std::filesystem::exists(options_.checkpoint)) {
     (void)CheckInputFile(options_.checkpoint, "checkpoint (--checkpoint)", sim::kMaxCheckpointBytes);
@@ -400,7 +403,12 @@ int ServerApp::RunHeadless() {
   }
   v1::HeadlessSummary summary = HeadlessReport(*simulation);
   FillJournalStats(checkpointer, summary.mutable_journal());
-  std::printf("%s\n", transport::ReportJson(summary).c_str());
+  const std::string json = transport::ReportJson(summary);
+  // --stats-json: the same summary, to a file as well.
+  if (!options_.stats_json.empty()) {
+    outputs_ok &= WriteOutput([&] { WriteFileAtomically(options_.stats_json, json + "\n"); });
+  }
+  std::printf("%s\n", json.c_str());
   if (std::fflush(stdout) != 0) outputs_ok = false;
   return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }

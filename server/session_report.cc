@@ -142,11 +142,15 @@ std::string SessionPlotSvg(const v1::SessionReport& r) {
   return svg;
 }
 
-void WriteSessionReport(const std::string& path, const v1::SessionReport& report) {
-  WriteFileAtomically(path, transport::ReportJson(report) + "\n");
+std::string SessionPlotPath(const std::string& path) {
   std::filesystem::path svg(path);
   svg.replace_extension(".svg");
-  WriteFileAtomically(svg.string(), SessionPlotSvg(report));
+  return svg.string();
+}
+
+void WriteSessionReport(const std::string& path, const v1::SessionReport& report) {
+  WriteFileAtomically(path, transport::ReportJson(report) + "\n");
+  WriteFileAtomically(SessionPlotPath(path), SessionPlotSvg(report));
 }
 
 }  // namespace cutsim::server

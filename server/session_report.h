@@ -19,6 +19,9 @@ namespace cutsim::server {
 /// deviation of each scored cut step with the plan's tolerance band.
 [[nodiscard]] std::string SessionPlotSvg(const v1::SessionReport& report);
 
+/// The plot's path beside the report FILE: FILE with the extension .svg.
+[[nodiscard]] std::string SessionPlotPath(const std::string& path);
+
 /// Writes FILE and FILE's .svg sibling, each atomically
 /// (common/core/input_file.h). Throws InputError naming the file on any
 /// write error.

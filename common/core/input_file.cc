@@ -24,6 +24,17 @@ std::string KindOf(mode_t mode) {
   return "not a regular file";
 }
 
+/// Every output is written beside itself and renamed over its path, which
+/// would replace whatever is there: an existing path (or what a link at it
+/// points to) must be a regular file.
+void RequireRegularOrAbsent(const std::string& path, std::string_view what) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0 || S_ISREG(st.st_mode)) return;
+  ThrowFileError(path, fmt::format("cannot write the {}: it is {}; cutsim writes a new file and renames it over the "
+                                   "path, which would replace it (give the path of a regular file or a new one)",
+                                   what, KindOf(st.st_mode)));
+}
+
 /// Closes a file descriptor on scope exit.
 class FdCloser {
  public:
@@ -93,16 +104,10 @@ void RequireCountFits(int64_t count, int64_t min_bytes_each, uint64_t bytes_left
 
 void CheckOutputPath(const std::string& path, std::string_view what) {
   if (path.empty()) ThrowInputError(SourceRef{.field = std::string(what)}, "no file given (empty path)");
+  RequireRegularOrAbsent(path, what);
   struct stat st {};
-  if (::stat(path.c_str(), &st) == 0) {
-    if (S_ISDIR(st.st_mode)) ThrowFileError(path, fmt::format("cannot write the {}: it is a directory", what));
-    if (::access(path.c_str(), W_OK) != 0) {
-      ThrowFileError(path, fmt::format("cannot write the {}: {}", what, std::strerror(errno)));
-    }
-    if (!S_ISREG(st.st_mode) && !S_ISCHR(st.st_mode)) {
-      ThrowFileError(path, fmt::format("cannot write the {}: it is {}", what, KindOf(st.st_mode)));
-    }
-    if (S_ISCHR(st.st_mode)) return;  // a device is written in place
+  if (::stat(path.c_str(), &st) == 0 && ::access(path.c_str(), W_OK) != 0) {
+    ThrowFileError(path, fmt::format("cannot write the {}: {}", what, std::strerror(errno)));
   }
   // Files are written beside themselves and renamed into place: the
   // directory must be writable too.
@@ -119,6 +124,7 @@ void CheckOutputPath(const std::string& path, std::string_view what) {
 }
 
 void WriteFileAtomically(const std::string& path, std::string_view content) {
+  RequireRegularOrAbsent(path, "output");
   const std::string tmp = path + ".tmp";
   auto fail = [&](std::string_view step) {
     const int err = errno;

@@ -82,6 +82,7 @@ ToolPath ToolPath::Read(const std::filesystem::path& path) {
 }
 
 void ToolPath::Write(const std::filesystem::path& path) const {
+  CheckOutputPath(path.string(), "tool path");  // the rename below would replace a device or a pipe
   const std::filesystem::path tmp = path.string() + ".tmp";
   {
     std::ofstream out(tmp);

@@ -186,6 +186,7 @@ void WriteMsh(const std::string& path, const TetMesh& mesh, MshFormat format) {
   if (format.version == 2.2 && !format.binary) return internal::WriteMsh22Ascii(path, mesh);
   const std::vector<int32_t> tags = internal::GmshTags(path, mesh);
   // gmsh picks the format from the extension, so the temp file must end in .msh.
+  CheckOutputPath(path, "mesh");  // the rename below would replace a device or a pipe
   const std::string tmp = path + ".tmp.msh";
   {
     GmshSession session;

@@ -12,6 +12,7 @@
 #include <system_error>
 
 #include "common/core/error.h"
+#include "common/core/input_file.h"
 #include "common/render/palette.h"
 
 namespace cutsim::render {
@@ -43,6 +44,7 @@ void WritePng(const std::filesystem::path& path, const Image& image) {
     ThrowFileError(name, fmt::format("cannot write an invalid {}x{} image with {} bytes",
                                      image.width, image.height, image.rgba.size()));
   }
+  CheckOutputPath(name, "image");  // the rename below would replace a device or a pipe
   const std::filesystem::path tmp = std::filesystem::path(name + ".tmp");
   {
     FilePtr file(std::fopen(tmp.c_str(), "wb"));

@@ -30,8 +30,12 @@ inline constexpr Rgb kBackgroundRgb{30, 34, 44};
 inline constexpr Rgb kTissueRgb{228, 152, 142};
 /// Faces opened by a cut: amber (hue ≈ 45°, saturation ≈ 0.87).
 inline constexpr Rgb kCutFaceRgb{235, 185, 30};
-/// The cutting tool: steel grey-blue (saturation ≈ 0.13).
+/// The cutting tool's blade: steel grey-blue (saturation ≈ 0.13).
 inline constexpr Rgb kToolRgb{180, 188, 206};
+/// The scalpel's handle: a darker, bluer anodised grey (hue ≈ 221°,
+/// saturation 0.5, never the background at any light level), so the
+/// bright blade reads apart from it.
+inline constexpr Rgb kHandleRgb{70, 92, 140};
 /// The force on the tool (arrow and gauge): green (hue ≈ 133°,
 /// saturation ≈ 0.70), a hue no surface uses.
 inline constexpr Rgb kForceRgb{60, 200, 90};

@@ -5,8 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <numbers>
+#include <utility>
 
 #include "common/core/error.h"
 #include "common/render/osmesa_context.h"
@@ -15,7 +17,7 @@
 namespace cutsim::render {
 namespace {
 
-constexpr int kToolSides = 16;  // facets around the tool cylinder
+constexpr int kToolSides = 16;  // facets around a cylinder or cone (the force arrow)
 
 // Lighting budget (see palette.h): ambient + key + fill ≤ 1 keeps every lit
 // colour an unclamped multiple of its base colour, so hue survives shading.
@@ -58,9 +60,10 @@ void ValidateSurface(const SurfaceInput& surface, const RenderOptions& options) 
   if (options.tool) {
     const ToolSegment& t = *options.tool;
     if (!t.pose.tip.allFinite() || !t.pose.blade_dir.allFinite() || !std::isfinite(t.length) ||
-        !std::isfinite(t.radius)) {
-      Fail("render.tool", "tip, blade direction, length and radius must be finite");
+        !std::isfinite(t.radius) || !t.edge_dir.allFinite()) {
+      Fail("render.tool", "tip, blade and edge directions, length and radius must be finite");
     }
+    if (!(t.pose.blade_dir.norm() > 0.0)) Fail("render.tool", "the blade direction must not be zero");
   }
   if (options.force) {
     const ForceOverlay& f = *options.force;
@@ -249,10 +252,87 @@ void DrawCone(const Eigen::Vector3d& base, const Eigen::Vector3d& apex, double r
 
 }  // namespace
 
-void SurfaceRenderer::DrawTool(const ToolSegment& tool, double scene_radius) {
-  const double radius = tool.radius > 0.0 ? tool.radius : 0.03 * scene_radius;
+namespace {
+
+/// The blade's outline in its plane, tip first: (along the blade toward
+/// the handle, across toward the edge) in blade lengths and belly widths.
+/// The edge bellies out from the tip; the spine runs straight back from it.
+constexpr double kBladeOutline[][2] = {{0.0, 0.0},  {0.06, 0.30}, {0.16, 0.62}, {0.30, 0.86}, {0.48, 0.98},
+                                       {0.70, 1.0}, {1.0, 0.92},  {1.0, -0.05}, {0.5, -0.05}};
+
+/// A flat box: `centre`, half-extents `h` along the unit axes a, e, n.
+void DrawSlab(const Eigen::Vector3d& centre, const Eigen::Vector3d& a, const Eigen::Vector3d& e,
+              const Eigen::Vector3d& n, const Eigen::Vector3d& h) {
+  const Eigen::Vector3d axes[3] = {a * h[0], e * h[1], n * h[2]};
+  glBegin(GL_QUADS);
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Vector3d& u = axes[(k + 1) % 3];
+    const Eigen::Vector3d& w = axes[(k + 2) % 3];
+    for (const double side : {-1.0, 1.0}) {
+      const Eigen::Vector3d c = centre + side * axes[k];
+      const Eigen::Vector3d normal = side * axes[k].normalized();
+      glNormal3d(normal.x(), normal.y(), normal.z());
+      // Counter-clockwise about `normal` (u × w is along axes[k]).
+      const double s = side;
+      for (const auto& [p, q] : {std::pair{-1.0, -1.0}, std::pair{s, -s}, std::pair{1.0, 1.0}, std::pair{-s, s}}) {
+        const Eigen::Vector3d v = c + p * u + q * w;
+        glVertex3d(v.x(), v.y(), v.z());
+      }
+    }
+  }
+  glEnd();
+}
+
+}  // namespace
+
+void SurfaceRenderer::DrawTool(const ToolSegment& tool, const Eigen::Vector3d& eye) {
+  if (!(tool.length > 0.0)) return;
+  const Eigen::Vector3d a = tool.pose.blade_dir.normalized();
+  // The blade's plane: across it toward the edge (e), and its face normal (n).
+  Eigen::Vector3d e = tool.edge_dir - tool.edge_dir.dot(a) * a;
+  Eigen::Vector3d n;
+  if (e.norm() > 1e-9) {
+    e.normalize();
+    n = a.cross(e);
+  } else {
+    n = (eye - tool.pose.tip) - (eye - tool.pose.tip).dot(a) * a;  // the flat side toward the camera
+    if (n.norm() > 1e-12) {
+      n.normalize();
+      e = n.cross(a);
+    } else {
+      Perpendiculars(a, e, n);
+    }
+  }
+  const double half_width = tool.radius > 0.0 ? tool.radius : 0.1 * tool.length;
+  const double belly = 2.2 * half_width;
+  const Eigen::Vector3d& tip = tool.pose.tip;
+
+  // The blade: a flat fan (lit on both sides) round a point inside the outline.
   glColor4ub(kToolRgb[0], kToolRgb[1], kToolRgb[2], 255);
-  DrawCylinder(tool.pose.tip, tool.base(), radius);
+  const auto at = [&](double along, double across) -> Eigen::Vector3d {
+    return tip + along * tool.length * a + across * belly * e;
+  };
+  const Eigen::Vector3d centre = at(0.6, 0.45);
+  glBegin(GL_TRIANGLE_FAN);
+  glNormal3d(n.x(), n.y(), n.z());
+  glVertex3d(centre.x(), centre.y(), centre.z());
+  constexpr size_t kCorners = std::size(kBladeOutline);
+  for (size_t i = 0; i <= kCorners; ++i) {  // backwards: counter-clockwise about n
+    const auto& c = kBladeOutline[(kCorners - i) % kCorners];
+    const Eigen::Vector3d p = at(c[0], c[1]);
+    glVertex3d(p.x(), p.y(), p.z());
+  }
+  glEnd();
+
+  // The handle: a flat bar from the blade's base, a narrow neck first.
+  glColor4ub(kHandleRgb[0], kHandleRgb[1], kHandleRgb[2], 255);
+  const double thickness = 0.3 * half_width;
+  const double neck = 0.15 * tool.length;
+  DrawSlab(tip + (tool.length + 0.5 * neck) * a + 0.4 * belly * e, a, e, n,
+           {0.5 * neck, 0.5 * half_width, 0.7 * thickness});
+  const double handle = ToolSegment::kHandleLengths * tool.length - neck;
+  DrawSlab(tip + (tool.length + neck + 0.5 * handle) * a + 0.4 * belly * e, a, e, n,
+           {0.5 * handle, half_width, thickness});
 }
 
 void SurfaceRenderer::DrawForceArrow(const ForceOverlay& force, double scene_radius) {
@@ -306,7 +386,7 @@ Image SurfaceRenderer::Render(const Camera& camera, const SurfaceInput& surface,
   // that keeps float vertex coordinates precise far from the world origin.
   Eigen::AlignedBox3d box = BoundingBox(surface.positions);
   if (options.tool) {
-    box.extend(options.tool->base());
+    box.extend(options.tool->end());
     box.extend(options.tool->pose.tip);
   }
   const Eigen::Vector3d origin = box.isEmpty() ? camera.target : box.center();
@@ -354,7 +434,7 @@ Image SurfaceRenderer::Render(const Camera& camera, const SurfaceInput& surface,
   }
   if (options.tool || options.force) {
     glLoadMatrixd(camera.ViewMatrix().data());  // tool and arrow are drawn in world coordinates
-    if (options.tool) DrawTool(*options.tool, scene_radius);
+    if (options.tool) DrawTool(*options.tool, camera.eye);
     if (options.force) DrawForceArrow(*options.force, scene_radius);
   }
   if (options.force) DrawForceGauge(*options.force, camera.width, camera.height);

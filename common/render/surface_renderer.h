@@ -31,15 +31,28 @@ struct SurfaceInput {
   std::span<const double> vertex_scalar = {};
 };
 
-/// The cutting tool, drawn as a steel cylinder from the pose's tip along
-/// its blade direction (toward the handle) for `length`.
+/// The cutting tool, drawn as a scalpel: a flat, pointed steel blade from
+/// the pose's tip along its blade direction (toward the handle) for
+/// `length`, its cutting edge bellied toward `edge_dir`, then a darker flat
+/// handle kHandleLengths × `length` long.
 struct ToolSegment {
-  ToolPose pose;        ///< Tip and blade direction, world frame.
-  double length = 0.0;  ///< Cylinder length, m; ≤ 0 draws nothing.
-  double radius = 0.0;  ///< Cylinder radius, m; ≤ 0 picks 3% of the scene's bounding radius.
+  /// The handle's length in blade lengths.
+  static constexpr double kHandleLengths = 2.0;
 
-  /// The handle end of the cylinder, m.
+  ToolPose pose;        ///< Tip and blade direction, world frame.
+  double length = 0.0;  ///< Blade length (the cutting part), m; ≤ 0 draws nothing.
+  /// Half the handle's width, m; ≤ 0 picks 0.1 × `length`. The blade is up
+  /// to 2.2 times as wide at its belly.
+  double radius = 0.0;
+  /// The direction the cutting edge faces (the way the blade cuts), world;
+  /// only its part across the blade direction counts. Zero: the blade turns
+  /// its flat side to the camera.
+  Eigen::Vector3d edge_dir = Eigen::Vector3d::Zero();
+
+  /// Where the blade meets the handle, m.
   [[nodiscard]] Eigen::Vector3d base() const { return pose.tip + length * pose.blade_dir; }
+  /// The handle's far end, m.
+  [[nodiscard]] Eigen::Vector3d end() const { return pose.tip + (1.0 + kHandleLengths) * length * pose.blade_dir; }
 };
 
 /// The force on the tool, drawn as a green arrow from `at` along `force` and
@@ -96,7 +109,7 @@ class SurfaceRenderer {
   void EnsureContext(int width, int height);
   void BuildVertexArrays(const SurfaceInput& surface, const RenderOptions& options,
                          const Eigen::Vector3d& origin);
-  void DrawTool(const ToolSegment& tool, double scene_radius);
+  void DrawTool(const ToolSegment& tool, const Eigen::Vector3d& eye);
   void DrawForceArrow(const ForceOverlay& force, double scene_radius);
   void DrawForceGauge(const ForceOverlay& force, int width, int height);
 

@@ -292,6 +292,7 @@ void WriteCheckpointFile(const std::filesystem::path& path, const v1::Checkpoint
   std::string bytes;
   if (!file.SerializeToString(&bytes)) ThrowFileError(path.string(), "cannot serialise the checkpoint");
 
+  CheckOutputPath(path.string(), "checkpoint");  // the rename below would replace a device or a pipe
   const std::filesystem::path tmp = path.string() + ".tmp";
   {
     Fd fd(::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644));

@@ -98,17 +98,16 @@ bool PeriodicCheckpointer::Resume(Simulation& sim) {
     journal = ReadJournalFile(journal_path_);
     CheckJournalIdentity(journal->header, IdentityHeader(sim), jsource);
     const v1::JournalHeader& h = journal->header;
+    // Two sessions' files side by side: resuming either would lose the
+    // other's cuts (and the next checkpoint would overwrite the first), so
+    // the user chooses, by moving one away.
     if (body && h.lineage() != body->lineage()) {
-      if (h.base_topology_version() != 0) {
-        ThrowInputError({.file = jsource, .field = "lineage"},
-                        fmt::format("journal of another session (lineage {:016x}) than checkpoint {} ({:016x}), "
-                                    "continuing version {}: the two do not belong together",
-                                    h.lineage(), path_.string(), body->lineage(), h.base_topology_version()));
-      }
-      Log().warn("checkpoint {} is of an earlier session than event journal {}, which a session started from the "
-                 "scene wrote: resuming that session from the uncut scene and its journal",
-                 path_.string(), jsource);
-      use_checkpoint = false;
+      ThrowInputError({.file = jsource, .field = "lineage"},
+                      fmt::format("journal of another session (lineage {:016x}, continuing version {}) than "
+                                  "checkpoint {} (lineage {:016x}, {} events): the two do not belong together; "
+                                  "move away the one whose session should not resume",
+                                  h.lineage(), h.base_topology_version(), path_.string(), body->lineage(),
+                                  body->events_size()));
     }
     if (!use_checkpoint && h.base_topology_version() != 0) {
       ThrowInputError({.file = jsource, .field = "base_topology_version"},

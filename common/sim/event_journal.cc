@@ -67,6 +67,29 @@ bool AllZero(const std::string& bytes, size_t from) {
   return std::all_of(bytes.begin() + static_cast<std::ptrdiff_t>(from), bytes.end(), [](char c) { return c == 0; });
 }
 
+/// Bytes of checksummed payload a search for a record after a bad one may
+/// hash: bounds the work a hostile file can ask for.
+constexpr size_t kMaxTailScanBytes = size_t{64} << 20;
+
+/// Whether a whole record (a length in range that fits, and a payload that
+/// passes its checksum) starts anywhere in bytes[from, end). A tail that
+/// holds none is what a torn write or stray bytes left, not a journal with
+/// records past a corrupted one. A search that would hash more than
+/// kMaxTailScanBytes answers yes: the file is then refused, never trusted.
+bool HoldsAWholeRecord(const std::string& bytes, size_t from) {
+  size_t hashed = 0;
+  for (size_t p = from; p + kJournalFrameBytes <= bytes.size(); ++p) {
+    const uint64_t length = GetLe(bytes, p, 4);
+    if (length == 0 || length > kMaxJournalRecordBytes || length > bytes.size() - p - kJournalFrameBytes) continue;
+    hashed += static_cast<size_t>(length);
+    if (hashed > kMaxTailScanBytes) return true;
+    if (Fnv1a64(bytes.data() + p + kJournalFrameBytes, static_cast<size_t>(length)) == GetLe(bytes, p + 4, 8)) {
+      return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 std::filesystem::path JournalPathFor(const std::filesystem::path& checkpoint) {
@@ -113,6 +136,10 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
         torn("zeros to the end of the file");
         break;
       }
+      if (have_header && !HoldsAWholeRecord(bytes, offset + 1)) {
+        torn(fmt::format("{} bytes to the end of the file hold no whole record", left));
+        break;
+      }
       ThrowInputError({.file = source, .field = at(offset)},
                       fmt::format("record length {} outside 1..{} bytes: the journal is corrupted", length,
                                   kMaxJournalRecordBytes));
@@ -126,6 +153,10 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
     if (Fnv1a64(payload.data(), payload.size()) != checksum) {
       if (end == bytes.size() || AllZero(bytes, offset + kJournalFrameBytes)) {
         torn("the last record's checksum fails");
+        break;
+      }
+      if (have_header && !HoldsAWholeRecord(bytes, offset + 1)) {
+        torn(fmt::format("{} bytes to the end of the file hold no whole record", left));
         break;
       }
       ThrowInputError({.file = source, .field = at(offset)},
@@ -322,6 +353,7 @@ void EventJournal::WriteNewJournal(const v1::JournalHeader& header, std::span<co
   std::string bytes = FrameJournalRecord(head);
   for (const std::string& payload : carried) bytes += FrameJournalRecord(payload);
 
+  CheckOutputPath(path_.string(), "event journal");  // the rename below would replace a device or a pipe
   const std::string tmp = path_.string() + ".tmp";
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) ThrowFileError(tmp, fmt::format("cannot create the event journal: {}", ErrnoText()));

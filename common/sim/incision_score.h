@@ -13,8 +13,15 @@
 /// - the **depth reached** is the deepest node of an opened face within
 ///   the plan's tolerance band, measured below the nearest point of the
 ///   plan along its normal; the **depth error** is reached − planned;
-/// - **coverage** is the fraction of the plan's length that has a cut point
-///   within the tolerance band;
+/// - **coverage** is the fraction of the planned cut surface that is opened:
+///   the plan swept from the surface to the planned depth along −normal is
+///   a grid of cells (arc length × depth); the opened faces within the band
+///   are projected onto it (arc of the nearest plan point, depth below it)
+///   and cover the cells whose centres they contain. Only cells that lie in
+///   the tissue count (SetTissue), so a complete transection on the line
+///   scores 1 whatever the cross-section's shape, a cut to half the depth
+///   ½, and a cut the blade crossed in one step counts the whole wall it
+///   opened;
 /// - **damage outside the incision**: the opened area outside the band, the
 ///   volume cut off and the largest stress outside the incision
 ///   (SessionMetrics), peak and mean force and time in contact.
@@ -52,7 +59,7 @@ struct IncisionScore {
   double max_deviation = 0.0;        ///< m
   double depth_reached = 0.0;        ///< m, below the plan, within the band
   double depth_error = 0.0;          ///< m, reached − planned (negative: too shallow)
-  double coverage = 0.0;             ///< fraction of the plan's length with a cut point in the band
+  double coverage = 0.0;             ///< fraction of the planned cut surface (in the tissue) that is opened
   double opened_area_outside = 0.0;  ///< m², faces opened outside the band (rest area)
   double cut_off_volume = 0.0;       ///< m³ (SessionMetrics)
   double max_stress_outside = 0.0;   ///< Pa (SessionMetrics)
@@ -72,7 +79,16 @@ class IncisionScorer {
   /// normal, depth and tolerance > 0).
   explicit IncisionScorer(PlannedIncision plan);
 
+  /// Cells of the planned cut surface along the plan and in depth.
+  static constexpr int kArcCells = 128;
+  static constexpr int kDepthCells = 32;
+
   [[nodiscard]] const PlannedIncision& plan() const { return plan_; }
+
+  /// The tissue at rest: the cells of the planned cut surface whose centres
+  /// lie in one of its tets are the ones coverage counts. Without it every
+  /// cell counts. O(cells × tets) once, at load.
+  void SetTissue(const mesh::TetMesh& rest);
 
   /// Distance from the planned line across the surface, m.
   [[nodiscard]] double Deviation(const Eigen::Vector3d& rest_point) const;
@@ -99,9 +115,17 @@ class IncisionScorer {
   };
   /// The plan's point nearest to `p` across the surface.
   [[nodiscard]] Nearest NearestOnPlan(const Eigen::Vector3d& p) const;
+  /// The plan's point at arc length `arc` (m) from its start.
+  [[nodiscard]] Eigen::Vector3d PointAt(double arc) const;
+  /// Marks in `covered` (#kArcCells·kDepthCells) the cells whose centres
+  /// lie in the triangle a, b, c projected onto the planned cut surface.
+  void CoverCells(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                  std::vector<uint8_t>& covered) const;
 
   PlannedIncision plan_;
   double length_ = 0.0;  // m, the plan's arc length
+  std::vector<uint8_t> in_tissue_;  // #kArcCells·kDepthCells, cell (i, j) at i·kDepthCells + j
+  int64_t cells_in_tissue_ = 0;
   std::vector<CutPoint> kept_;
   int64_t count_ = 0;
   double sum_deviation_ = 0.0;

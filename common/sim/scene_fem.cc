@@ -38,7 +38,7 @@ fem::Material MaterialOf(const v1::Material& m) {
 }
 
 /// The scene's material for a mesh region: the first that lists it, else
-/// the one without regions (`catch_all`), else −1.
+/// the one without regions or box (`catch_all`), else −1.
 int MaterialOfRegion(const v1::Scene& scene, int32_t region, int catch_all) {
   for (int i = 0; i < scene.materials_size(); ++i) {
     for (int r : scene.materials(i).regions()) {
@@ -110,19 +110,37 @@ std::vector<int32_t> NodesOnPlane(const v1::Plane& plane, const mesh::Positions&
 std::vector<fem::Material> MaterialsPerTet(const v1::Scene& scene, const mesh::TetMesh& mesh,
                                            const std::string& source) {
   std::vector<fem::Material> by_material;
+  std::vector<int> boxed;  // materials that select by box, in scene order
   int catch_all = -1;
   for (int i = 0; i < scene.materials_size(); ++i) {
     by_material.push_back(MaterialOf(scene.materials(i)));
-    if (scene.materials(i).regions_size() == 0) catch_all = i;
+    if (scene.materials(i).has_box()) {
+      boxed.push_back(i);
+    } else if (scene.materials(i).regions_size() == 0) {
+      catch_all = i;
+    }
   }
   std::vector<fem::Material> per_tet(static_cast<size_t>(mesh.num_tets()));
   for (int32_t t = 0; t < mesh.num_tets(); ++t) {
     const int32_t region = mesh.regions.empty() ? 0 : mesh.regions[static_cast<size_t>(t)];
-    const int chosen = MaterialOfRegion(scene, region, catch_all);
+    int chosen = -1;
+    if (!boxed.empty()) {
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (int c = 0; c < 4; ++c) centroid += mesh.nodes.row(mesh.tets(t, c)).transpose() / 4.0;
+      for (int i : boxed) {
+        const v1::Box& box = scene.materials(i).box();
+        if ((centroid.array() >= ToEigen(box.min()).array()).all() &&
+            (centroid.array() <= ToEigen(box.max()).array()).all()) {
+          chosen = i;
+          break;
+        }
+      }
+    }
+    if (chosen < 0) chosen = MaterialOfRegion(scene, region, catch_all);
     if (chosen < 0) {
       ThrowInputError({.file = source, .field = "materials"},
                       fmt::format("mesh region {} (tet {}) has no material; list it in a "
-                                  "material's `regions` or add a material without regions",
+                                  "material's `regions`, cover it with a `box` or add a material without either",
                                   region, t));
     }
     per_tet[static_cast<size_t>(t)] = by_material[static_cast<size_t>(chosen)];
@@ -189,11 +207,27 @@ template <typename T>
 void SceneFem<T>::ApplyBoundaryConditions(const LoadedScene& scene, const SceneMesh& mesh) {
   const auto& s = scene.scene;
   const std::string source = scene.path.string();
+  // Which condition holds each node still and which moves it: a node both
+  // fixed and displaced (or loaded and displaced) has no meaning.
+  std::vector<int> fixed_by(static_cast<size_t>(model_.num_nodes()), -1);
+  std::vector<int> moved_by(fixed_by), loaded_by(fixed_by);
   for (int i = 0; i < s.boundary_size(); ++i) {
     const auto& bc = s.boundary(i);
     const auto nodes = SelectNodes(bc, mesh, source, i);
+    std::vector<int>& mark = bc.kind() == BoundaryCondition::KIND_FIXED          ? fixed_by
+                             : bc.kind() == BoundaryCondition::KIND_DISPLACEMENT ? moved_by
+                                                                                : loaded_by;
+    for (int32_t n : nodes) mark[static_cast<size_t>(n)] = i;
     if (bc.kind() == BoundaryCondition::KIND_FIXED) {
       for (int32_t n : nodes) model_.SetFixed(n, true);
+      continue;
+    }
+    if (bc.kind() == BoundaryCondition::KIND_DISPLACEMENT) {
+      // Once per node, however often the ids list it.
+      std::vector<int32_t> unique = nodes;
+      std::sort(unique.begin(), unique.end());
+      unique.erase(std::unique(unique.begin(), unique.end()), unique.end());
+      for (int32_t n : unique) prescribed_.Add(model_, n, ToEigen(bc.displacement()), bc.ramp_time());
       continue;
     }
     // A force condition spreads its total force evenly over its nodes.
@@ -204,8 +238,25 @@ void SceneFem<T>::ApplyBoundaryConditions(const LoadedScene& scene, const SceneM
       model_.SetPrescribedForce(n, (prior + per_node).template cast<T>());
     }
   }
+  for (size_t n = 0; n < moved_by.size(); ++n) {
+    const int other = fixed_by[n] >= 0 ? fixed_by[n] : loaded_by[n];
+    if (moved_by[n] < 0 || other < 0) continue;
+    ThrowInputError({.file = source, .field = fmt::format("boundary[{}]", moved_by[n])},
+                    fmt::format("prescribes the displacement of node {} that boundary[{}] {}; a node is either "
+                                "displaced or {}",
+                                mesh.permutation.new_to_old.empty() ? static_cast<int64_t>(n)
+                                                                    : mesh.permutation.new_to_old[n],
+                                other, fixed_by[n] >= 0 ? "fixes" : "loads", fixed_by[n] >= 0 ? "fixed" : "loaded"));
+  }
   num_free_ = 0;
   for (int32_t n = 0; n < model_.num_nodes(); ++n) num_free_ += model_.fixed(n) ? 0 : 1;
+}
+
+template <typename T>
+void SceneFem<T>::PrescribeMotion(double t, std::span<const cutting::TopologyEvent> events) {
+  if (prescribed_.empty()) return;
+  prescribed_.Follow(events);
+  prescribed_.Apply(model_, state_, t);
 }
 
 template <typename T>

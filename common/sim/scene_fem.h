@@ -1,25 +1,28 @@
 #pragma once
 /// @file
 /// Scene → FEM: the model and state a scene describes (one material per
-/// tet, boundary conditions), the step options (threads, safety factor,
+/// tet, boundary conditions: fixed, loaded and displaced nodes), the step options (threads, safety factor,
 /// viscosity treatment, fixed step) and the rest tolerances. The first
 /// stage of a Simulation; every other stage takes its model and state as
 /// arguments.
 
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "common/fem/integrator.h"
 #include "common/fem/model.h"
 #include "common/fem/state.h"
+#include "common/sim/prescribed_motion.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/scene_mesh.h"
 #include "common/sim/types.h"
 
 namespace cutsim::sim {
 
-/// One fem::Material per tet from the scene's region → material mapping.
+/// One fem::Material per tet: the first material whose `box` holds the
+/// tet's rest centroid, else the scene's region → material mapping.
 /// Throws InputError (field "materials") for a region without a material.
 [[nodiscard]] std::vector<fem::Material> MaterialsPerTet(const v1::Scene& scene, const mesh::TetMesh& mesh,
                                                          const std::string& source);
@@ -76,6 +79,13 @@ class SceneFem {
   [[nodiscard]] int num_free() const { return num_free_; }
   [[nodiscard]] const RestTolerances& rest() const { return rest_; }
 
+  /// The prescribed displacements (KIND_DISPLACEMENT conditions).
+  [[nodiscard]] const PrescribedMotion<T>& prescribed() const { return prescribed_; }
+  /// Moves the prescribed nodes to their positions at time `t` (s), after
+  /// taking in the cut's node copies from `events` (every topology event so
+  /// far, in order). Nothing to do without KIND_DISPLACEMENT conditions.
+  void PrescribeMotion(double t, std::span<const cutting::TopologyEvent> events);
+
   /// Kinetic energy, J; the largest net force on a free node, N; the largest
   /// displacement from rest, m.
   [[nodiscard]] double KineticEnergy() const;
@@ -91,6 +101,7 @@ class SceneFem {
   fem::Model<T> model_;
   fem::State<T> state_;
   fem::StepOptions step_options_;
+  PrescribedMotion<T> prescribed_;
   int threads_ = 1;
   int num_free_ = 0;
   RestTolerances rest_;

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <numbers>
 #include <tuple>
+#include <utility>
+#include <vector>
 
 #include <fmt/format.h>
 #include <google/protobuf/io/tokenizer.h>
@@ -60,11 +62,23 @@ void RequireNonNegative(const std::string& source, const std::string& field, dou
   if (value < 0.0) FieldError(source, field, fmt::format("must be >= 0 (got {})", value));
 }
 
-void RequireFiniteVec(const std::string& source, const std::string& field,
-                      const cutsim::v1::Vec3& v) {
-  RequireFinite(source, field + ".x", v.x());
-  RequireFinite(source, field + ".y", v.y());
-  RequireFinite(source, field + ".z", v.z());
+/// A finite value at most `limit` (in `unit`).
+void RequireAtMost(const std::string& source, const std::string& field, double value, double limit,
+                   const char* unit) {
+  RequireFinite(source, field, value);
+  if (value > limit) FieldError(source, field, fmt::format("{:g} {} is above {:g} {}", value, unit, limit, unit));
+}
+
+/// A vector with every component finite and within ±`limit` (positions by
+/// default: ±kMaxCoordinate m).
+void RequireFiniteVec(const std::string& source, const std::string& field, const cutsim::v1::Vec3& v,
+                      double limit = kMaxCoordinate, const char* unit = "m") {
+  for (const auto& [axis, value] : {std::pair{".x", v.x()}, std::pair{".y", v.y()}, std::pair{".z", v.z()}}) {
+    RequireFinite(source, field + axis, value);
+    if (std::abs(value) > limit) {
+      FieldError(source, field + axis, fmt::format("{:g} {} is outside ±{:g} {}", value, unit, limit, unit));
+    }
+  }
 }
 
 double Norm(const cutsim::v1::Vec3& v) {
@@ -163,6 +177,40 @@ void ValidateMaterial(cutsim::v1::Material& m, const std::string& s, int index) 
   RequirePositive(s, f + ".density", m.density());
   RequireNonNegative(s, f + ".damping_psi", m.damping_psi());
   RequireNonNegative(s, f + ".damping_phi", m.damping_phi());
+  if (m.has_box()) {
+    if (m.regions_size() > 0) FieldError(s, f + ".box", "a material selects its tets by `regions` or by `box`, not both");
+    RequireFiniteVec(s, f + ".box.min", m.box().min());
+    RequireFiniteVec(s, f + ".box.max", m.box().max());
+    const auto& lo = m.box().min();
+    const auto& hi = m.box().max();
+    if (!(hi.x() > lo.x() && hi.y() > lo.y() && hi.z() > lo.z())) {
+      FieldError(s, f + ".box", "max must exceed min on every axis");
+    }
+  }
+}
+
+/// The kind of a boundary condition and the fields it reads: a field that
+/// another kind reads is refused rather than ignored.
+void ValidateBoundaryKind(const cutsim::v1::BoundaryCondition& bc, const std::string& s, const std::string& f) {
+  using BC = cutsim::v1::BoundaryCondition;
+  if (!BC::Kind_IsValid(bc.kind())) {
+    FieldError(s, f + ".kind", fmt::format("unknown value {}", static_cast<int>(bc.kind())));
+  }
+  RequireFiniteVec(s, f + ".force", bc.force(), kMaxBoundaryForce, "N");
+  RequireFiniteVec(s, f + ".displacement", bc.displacement(), kMaxBoundaryDisplacement, "m");
+  RequireNonNegative(s, f + ".ramp_time", bc.ramp_time());
+  if (bc.ramp_time() > kMaxSimSeconds) {
+    FieldError(s, f + ".ramp_time", fmt::format("{:g} s is above {:g} s", bc.ramp_time(), kMaxSimSeconds));
+  }
+  const bool has_force = bc.has_force() && Norm(bc.force()) > 0.0;
+  const bool has_displacement = bc.has_displacement() && Norm(bc.displacement()) > 0.0;
+  if (has_force && bc.kind() != BC::KIND_FORCE) {
+    FieldError(s, f + ".force", "is only read with kind: KIND_FORCE");
+  }
+  if (bc.kind() != BC::KIND_DISPLACEMENT) {
+    if (has_displacement) FieldError(s, f + ".displacement", "is only read with kind: KIND_DISPLACEMENT");
+    if (bc.ramp_time() > 0.0) FieldError(s, f + ".ramp_time", "is only read with kind: KIND_DISPLACEMENT");
+  }
 }
 
 }  // namespace
@@ -205,10 +253,10 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   int catch_all = 0;
   for (int i = 0; i < scene.materials_size(); ++i) {
     ValidateMaterial(*scene.mutable_materials(i), s, i);
-    if (scene.materials(i).regions_size() == 0) ++catch_all;
+    if (scene.materials(i).regions_size() == 0 && !scene.materials(i).has_box()) ++catch_all;
   }
   if (catch_all > 1) {
-    FieldError(s, "materials", "only one material may omit `regions` (it covers all other regions)");
+    FieldError(s, "materials", "only one material may omit both `regions` and `box` (it covers all other tets)");
   }
 
   for (int i = 0; i < scene.boundary_size(); ++i) {
@@ -229,17 +277,15 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
         break;
       case BC::kPlane:
         RequireFiniteVec(s, f + ".plane.point", bc.plane().point());
+        RequireFiniteVec(s, f + ".plane.normal", bc.plane().normal(), kMaxCoordinate, "");
         if (!(Norm(bc.plane().normal()) > 0.0)) FieldError(s, f + ".plane.normal", "must be non-zero");
         RequireNonNegative(s, f + ".plane.tolerance", bc.plane().tolerance());
         break;
     }
-    RequireFiniteVec(s, f + ".force", bc.force());
-    if (!v1::BoundaryCondition::Kind_IsValid(bc.kind())) {
-      FieldError(s, f + ".kind", fmt::format("unknown value {}", static_cast<int>(bc.kind())));
-    }
+    ValidateBoundaryKind(bc, s, f);
   }
 
-  RequireFiniteVec(s, "gravity", scene.gravity());
+  RequireFiniteVec(s, "gravity", scene.gravity(), kMaxGravity, "m/s²");
   RequireNonNegative(s, "mass_damping", scene.mass_damping());
 
   auto& ts = *scene.mutable_time_step();
@@ -311,7 +357,7 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
       if (k.t() <= prev_t) FieldError(s, f + ".t", "times must increase strictly");
       prev_t = k.t();
       RequireFiniteVec(s, f + ".tip", k.tip());
-      RequireFiniteVec(s, f + ".blade_dir", k.blade_dir());
+      RequireFiniteVec(s, f + ".blade_dir", k.blade_dir(), kMaxCoordinate, "");
     }
   }
 
@@ -336,9 +382,7 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   RequireNonNegative(s, "haptics.decay_per_second", h.decay_per_second());
   if (h.device_scale() == 0.0) h.set_device_scale(1.0);
   RequirePositive(s, "haptics.device_scale", h.device_scale());
-  RequireFinite(s, "haptics.device_offset.x", h.device_offset().x());
-  RequireFinite(s, "haptics.device_offset.y", h.device_offset().y());
-  RequireFinite(s, "haptics.device_offset.z", h.device_offset().z());
+  RequireFiniteVec(s, "haptics.device_offset", h.device_offset());
   // The haptic station sets its own limits (the scene never reaches it), so
   // a scene that sets them would have no effect: refused, not ignored.
   for (const auto& [field, value, flag] : {std::tuple{"haptics.watchdog", h.watchdog(), "--watchdog"},
@@ -354,6 +398,80 @@ void ValidateScene(cutsim::v1::Scene& scene, const std::string& s) {
   }
   if (scene.has_camera()) {
     FieldError(s, "camera", "is not read from the scene: the viewer frames the mesh's bounding box");
+  }
+  CheckMagnitudes(scene, s);
+}
+
+void CheckMagnitudes(const cutsim::v1::Scene& scene, const std::string& s) {
+  struct Bound {
+    std::string field;
+    double value;
+    double limit;
+    const char* unit;
+  };
+  std::vector<Bound> bounds;
+  const auto& mesh = scene.mesh();
+  if (mesh.has_cylinder()) {
+    bounds.push_back({"mesh.cylinder.radius", mesh.cylinder().radius(), kMaxCoordinate, "m"});
+    bounds.push_back({"mesh.cylinder.length", mesh.cylinder().length(), kMaxCoordinate, "m"});
+  }
+  if (mesh.has_surface()) {
+    bounds.push_back({"mesh.surface.max_edge_length", mesh.surface().max_edge_length(), kMaxCoordinate, "m"});
+  }
+  if (mesh.has_organ()) bounds.push_back({"mesh.organ.edge_length", mesh.organ().edge_length(), kMaxCoordinate, "m"});
+  for (int i = 0; i < scene.materials_size(); ++i) {
+    const auto& m = scene.materials(i);
+    const std::string f = fmt::format("materials[{}]", i);
+    if (m.has_lame()) {
+      bounds.push_back({f + ".lame.lambda", m.lame().lambda(), kMaxModulus, "Pa"});
+      bounds.push_back({f + ".lame.mu", m.lame().mu(), kMaxModulus, "Pa"});
+    } else {
+      bounds.push_back({f + ".young_poisson.youngs_modulus", m.young_poisson().youngs_modulus(), kMaxModulus, "Pa"});
+    }
+    bounds.push_back({f + ".density", m.density(), kMaxDensity, "kg/m³"});
+    bounds.push_back({f + ".damping_psi", m.damping_psi(), kMaxViscosity, "Pa·s"});
+    bounds.push_back({f + ".damping_phi", m.damping_phi(), kMaxViscosity, "Pa·s"});
+  }
+  for (int i = 0; i < scene.boundary_size(); ++i) {
+    if (!scene.boundary(i).has_plane()) continue;
+    bounds.push_back({fmt::format("boundary[{}].plane.tolerance", i), scene.boundary(i).plane().tolerance(),
+                      kMaxCoordinate, "m"});
+  }
+  bounds.push_back({"mass_damping", scene.mass_damping(), kMaxRate, "1/s"});
+  bounds.push_back({"time_step.implicit.force_tolerance", scene.time_step().implicit().force_tolerance(),
+                    kMaxBoundaryForce, "N"});
+  bounds.push_back({"rest.kinetic_energy", scene.rest().kinetic_energy(), kMaxEnergy, "J"});
+  bounds.push_back({"rest.residual_force", scene.rest().residual_force(), kMaxBoundaryForce, "N"});
+  if (scene.has_tool()) {
+    bounds.push_back({"tool.blade_length", scene.tool().blade_length(), kMaxCoordinate, "m"});
+    bounds.push_back({"tool.contact_stiffness", scene.tool().contact_stiffness(), kMaxContactStiffness, "N/m"});
+    bounds.push_back({"tool.contact_damping", scene.tool().contact_damping(), kMaxContactStiffness, "N·s/m"});
+  }
+  if (scene.has_planned_incision()) {
+    bounds.push_back({"planned_incision.depth", scene.planned_incision().depth(), kMaxCoordinate, "m"});
+    bounds.push_back({"planned_incision.tolerance", scene.planned_incision().tolerance(), kMaxCoordinate, "m"});
+  }
+  if (scene.has_cutting() && scene.cutting().enabled()) {
+    bounds.push_back({"cutting.alpha", scene.cutting().alpha(), kMaxCuttingFactor, ""});
+    bounds.push_back({"cutting.kappa", scene.cutting().kappa(), kMaxCuttingFactor, ""});
+    bounds.push_back({"cutting.critical_stress", scene.cutting().critical_stress(), kMaxModulus, "Pa"});
+  }
+  bounds.push_back({"haptics.decay_per_second", scene.haptics().decay_per_second(), kMaxRate, "1/s"});
+  bounds.push_back({"haptics.device_scale", scene.haptics().device_scale(), kMaxScale, ""});
+  for (const Bound& b : bounds) RequireAtMost(s, b.field, b.value, b.limit, b.unit);
+  // Moduli below a pascal leave no stiffness to speak of next to round-off.
+  for (int i = 0; i < scene.materials_size(); ++i) {
+    const auto& m = scene.materials(i);
+    const std::string f = fmt::format("materials[{}]", i);
+    const auto [field, value] = m.has_lame() ? std::pair{f + ".lame.mu", m.lame().mu()}
+                                             : std::pair{f + ".young_poisson.youngs_modulus",
+                                                         m.young_poisson().youngs_modulus()};
+    if (value < kMinModulus) {
+      FieldError(s, field, fmt::format("{:g} Pa is below {:g} Pa", value, kMinModulus));
+    }
+    if (m.density() < kMinDensity) {
+      FieldError(s, f + ".density", fmt::format("{:g} kg/m³ is below {:g} kg/m³", m.density(), kMinDensity));
+    }
   }
 }
 

@@ -24,7 +24,25 @@ inline constexpr double kMinFixedDt = 1.0 / kMaxStepsPerSimSecond;  ///< s, time
 inline constexpr double kMinScale = 1e-6;                 ///< mesh.scale
 inline constexpr double kMaxScale = 1e6;
 inline constexpr double kMaxSimSeconds = 86400.0;         ///< s: --duration, --max-time, tool path ends
+inline constexpr double kMaxCoordinate = 1e3;           ///< m, every position, length and distance in a scene
+inline constexpr double kMaxGravity = 1e3;              ///< m/s², each component of gravity
+inline constexpr double kMinModulus = 1.0;              ///< Pa, E or μ
+inline constexpr double kMaxModulus = 1e12;             ///< Pa, E, λ, μ, cutting.critical_stress
+inline constexpr double kMinDensity = 1e-3;             ///< kg/m³
+inline constexpr double kMaxDensity = 1e5;              ///< kg/m³
+inline constexpr double kMaxViscosity = 1e6;            ///< Pa·s, damping_psi, damping_phi
+inline constexpr double kMaxRate = 1e6;                 ///< 1/s, mass_damping, haptics.decay_per_second
+inline constexpr double kMaxEnergy = 1e9;               ///< J, rest.kinetic_energy
+inline constexpr double kMaxContactStiffness = 1e9;     ///< N/m (N·s/m), tool contact stiffness and damping
+inline constexpr double kMaxCuttingFactor = 1e6;        ///< cutting.alpha, cutting.kappa
+inline constexpr double kMaxBoundaryDisplacement = 1.0;     ///< m, each component of boundary[i].displacement
+inline constexpr double kMaxBoundaryForce = 1e6;            ///< N, each component of boundary[i].force
 inline constexpr uint64_t kMaxSceneFileBytes = uint64_t{16} << 20;  ///< 16 MiB
+
+/// Throws `InputError` naming the field unless every magnitude of `scene`
+/// (moduli, densities, lengths, rates, …) lies within the limits above.
+/// Called by ValidateScene.
+void CheckMagnitudes(const cutsim::v1::Scene& scene, const std::string& source_name);
 
 /// Throws `InputError` at `where` unless 0 ≤ threads ≤ kMaxThreads.
 void CheckThreads(int64_t threads, const SourceRef& where);

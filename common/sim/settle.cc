@@ -1,9 +1,12 @@
 #include "common/sim/settle.h"
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 #include <Eigen/Core>
+
+#include "common/fem/forces.h"
 
 namespace cutsim::sim {
 
@@ -16,6 +19,26 @@ constexpr double kSettleStep = 1e3;
 /// second one normally starts converged.
 constexpr int kMaxSettleSteps = 8;
 
+/// The force tolerance when the scene sets none: the implicit step's
+/// relative tolerance times the largest free-node net force at the start
+/// (weight, loads and the elastic forces of the prescribed displacements).
+/// Fixed for the whole solve: relative to the current residual it would
+/// shrink with it and no step would ever start converged.
+double StartTolerance(const fem::Model<double>& model, fem::State<double>& state,
+                      const fem::ImplicitOptions& options) {
+  std::vector<double> f(state.x.size(), 0.0);
+  (void)fem::ComputeInternalForces(model, state, fem::ForceMode::kElastic, f.data(), options.num_threads);
+  const Eigen::Vector3d g = model.gravity();
+  double scale = 0;
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    if (model.fixed(n)) continue;
+    const Eigen::Vector3d net = Eigen::Map<const Eigen::Vector3d>(f.data() + 3 * n) + model.node_mass(n) * g +
+                                Eigen::Map<const Eigen::Vector3d>(model.prescribed_forces() + 3 * n);
+    if (std::isfinite(net.norm())) scale = std::max(scale, net.norm());
+  }
+  return scale > 0 ? options.relative_force_tolerance * scale : 0.0;
+}
+
 }  // namespace
 
 SettleResult Settle(const fem::Model<double>& model, fem::State<double>& state, fem::ImplicitOptions options) {
@@ -24,6 +47,7 @@ SettleResult Settle(const fem::Model<double>& model, fem::State<double>& state, 
   options.bdf2 = false;
   options.max_newton_iterations = std::max(options.max_newton_iterations, 50);
   const std::vector<double> x_start = state.x;
+  if (!(options.force_tolerance > 0)) options.force_tolerance = StartTolerance(model, state, options);
   fem::ImplicitIntegrator solver(options);
   for (int k = 0; k < kMaxSettleSteps; ++k) {
     // From rest each time: a step's start velocity would extrapolate the

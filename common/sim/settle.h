@@ -1,7 +1,9 @@
 #pragma once
 /// @file
 /// Settle: the load-time stage that brings the tissue to its static
-/// equilibrium under gravity and the boundary forces (scene `settle`), so a
+/// equilibrium under gravity and the boundary forces, with the fixed nodes
+/// and the prescribed displacements (at their t = 0 values) held where
+/// they are (scene `settle`), so a
 /// session starts from tissue resting in its loaded shape rather than from
 /// the meshed shape released at t = 0.
 ///

@@ -46,9 +46,15 @@ class Engine final : public Simulation {
         world_access_(fem_.state().x),
         dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())),
         frame_budget_ns_(static_cast<int64_t>(1e9 * std::max(0.0, options.frame_budget))) {
+    // The prescribed nodes start where the scene puts them at t = 0, so the
+    // settle stage finds the equilibrium with them in place.
+    fem_.PrescribeMotion(0.0, {});
     if (scene_.scene.settle()) SettleTissue();
     if (scene_.scene.has_tool()) SetUpTool();
-    if (scene_.scene.has_planned_incision()) scorer_.emplace(PlanOf(scene_.scene.planned_incision()));
+    if (scene_.scene.has_planned_incision()) {
+      scorer_.emplace(PlanOf(scene_.scene.planned_incision()));
+      scorer_->SetTissue(mesh_.mesh);
+    }
     RebuildSurface();
     const fem::Model<T>& model = fem_.model();
     Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}, {} integrator",
@@ -58,7 +64,8 @@ class Engine final : public Simulation {
                IntegratorName(dynamics_.kind()));
   }
 
-  /// One frame: the tool moves and finds its contact, the tissue steps
+  /// One frame: the prescribed nodes take their positions at the frame's
+  /// end, the tool moves and finds its contact, the tissue steps
   /// under the contact force, the cut test runs, and the session's
   /// measures take the frame in.
   SimStatus AdvanceFrame(double frame_time) override {
@@ -67,6 +74,7 @@ class Engine final : public Simulation {
     Stopwatch watch;
     const int64_t deadline_ns = frame_budget_ns_ > 0 ? MonotonicNs() + frame_budget_ns_ : 0;
     const ToolPose start = BeginFrame();
+    fem_.PrescribeMotion(sim_time() + frame_time, TopologyEvents());
     MoveTool(sim_time() + frame_time);
     FindContact();
     const fem::StepResult step = StepDynamics(start, frame_time, deadline_ns);

@@ -1,7 +1,11 @@
 // The headless server as a user runs it: real process, real scene files.
+#include <sys/stat.h>
+
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -66,6 +70,9 @@ TEST(ServerHeadlessTest, SessionReportScoresTheLigamentCut) {
   // full 8 mm.
   EXPECT_LT(JsonNumber(r.out, "mean_deviation"), 0.001) << r.out;
   EXPECT_NEAR(JsonNumber(r.out, "depth_error"), 0.0, 0.001) << r.out;
+  // The blade crosses the 8 mm in one cut step and severs it: the whole
+  // planned cut surface is opened.
+  EXPECT_GE(JsonNumber(r.out, "coverage"), 0.9) << r.out;
   std::ifstream in(report);
   const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   EXPECT_EQ(JsonNumber(json, "mean_deviation"), JsonNumber(r.out, "mean_deviation")) << json;
@@ -78,6 +85,57 @@ TEST(ServerHeadlessTest, SessionReportScoresTheLigamentCut) {
   EXPECT_NE(svg.find("<circle"), std::string::npos);
   EXPECT_NE(svg.find("tolerance"), std::string::npos);
   EXPECT_FALSE(std::filesystem::exists(report + ".tmp"));
+}
+
+// Outputs never replace what is not theirs, and every one is checked before
+// the session starts: a device, a pipe or a directory at an output's path
+// (the session report's .svg included) is refused at once, naming the flag
+// and the path, and is still there afterwards.
+TEST(ServerHeadlessTest, OutputsThatAreNotRegularFilesAreRefusedBeforeTheSession) {
+  TempDir dir;
+  const std::string scene = Write(dir, "beam.pbtxt", kSmallBeam);
+  const std::string fifo = dir.path() + "/pipe";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::filesystem::create_directory(dir.path() + "/report.svg");
+  struct Case {
+    std::vector<std::string> flags;
+    std::string flag, path, kind;
+  };
+  const std::vector<Case> cases = {
+      {{"--session-report", "/dev/full"}, "--session-report", "/dev/full", "character device"},
+      {{"--out", fifo}, "--out", fifo, "pipe"},
+      {{"--checkpoint", "/dev/null"}, "--checkpoint", "/dev/null", "character device"},
+      {{"--stats-json", fifo}, "--stats-json", fifo, "pipe"},
+      {{"--session-report", dir.path() + "/report.json"}, ".svg", dir.path() + "/report.svg", "directory"},
+  };
+  for (const Case& c : cases) {
+    std::vector<std::string> args = {BinPath("cutsim-server"), "--headless", "--scene", scene, "--duration", "30"};
+    args.insert(args.end(), c.flags.begin(), c.flags.end());
+    const auto r = RunProcess(args, 60s);
+    EXPECT_EQ(r.exit_code, 2) << r.err;
+    EXPECT_NE(r.err.find(c.flag), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(c.path), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(c.kind), std::string::npos) << r.err;
+    EXPECT_EQ(r.out.find("\"sim_time\""), std::string::npos) << "the session ran: " << r.out;
+  }
+  EXPECT_TRUE(std::filesystem::is_character_file("/dev/full"));
+  EXPECT_TRUE(std::filesystem::is_character_file("/dev/null"));
+  EXPECT_TRUE(std::filesystem::is_fifo(fifo));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() + "/report.json")) << "nothing written when an output is refused";
+}
+
+// Headless honours --stats-json: the summary it prints, written to the file.
+TEST(ServerHeadlessTest, StatsJsonIsWrittenInHeadlessMode) {
+  TempDir dir;
+  const std::string scene = Write(dir, "beam.pbtxt", kSmallBeam);
+  const std::string stats = dir.path() + "/stats.json";
+  const auto r = RunProcess({BinPath("cutsim-server"), "--headless", "--scene", scene, "--duration", "0.05",
+                             "--stats-json", stats, "--no-progress"},
+                            60s);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::ifstream in(stats);
+  const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(json, r.out);
 }
 
 TEST(ServerHeadlessTest, BadSceneNamesFileAndLine) {

@@ -3,6 +3,7 @@
 
 #include "common/core/input_file.h"
 
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -10,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <utility>
 
 #include <gtest/gtest.h>
 
@@ -81,7 +83,21 @@ TEST(RequireCountFits, RefusesCountsTheFileCannotHold) {
 
 TEST_F(InputFileTest, OutputPathsAreCheckedBeforeTheWork) {
   EXPECT_NO_THROW(CheckOutputPath((dir_ / "new.vtu").string(), "final state"));
-  EXPECT_NO_THROW(CheckOutputPath("/dev/null", "recording"));
+  // A device, a pipe or a directory would be replaced by the rename that
+  // puts an output in place: refused, naming what it is.
+  for (const auto& [path, kind] : {std::pair{std::string("/dev/null"), "character device"},
+                                   std::pair{std::string("/dev/full"), "character device"},
+                                   std::pair{dir_.string(), "directory"}}) {
+    const std::string e = ErrorOf([&] { CheckOutputPath(path, "final state (--out)"); });
+    EXPECT_NE(e.find(kind), std::string::npos) << e;
+    EXPECT_NE(e.find("--out"), std::string::npos) << e;
+    EXPECT_NE(e.find(path), std::string::npos) << e;
+  }
+  const std::string fifo = (dir_ / "fifo").string();
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_NE(ErrorOf([&] { CheckOutputPath(fifo, "checkpoint (--checkpoint)"); }).find("pipe"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { WriteFileAtomically(fifo, "{}"); }).find("pipe"), std::string::npos);
+  EXPECT_TRUE(std::filesystem::is_fifo(fifo)) << "the pipe was replaced";
   const std::string missing_dir = ErrorOf([&] { CheckOutputPath((dir_ / "no/such/dir.ckpt").string(), "checkpoint"); });
   EXPECT_NE(missing_dir.find("does not exist"), std::string::npos) << missing_dir;
   EXPECT_NE(ErrorOf([&] { CheckOutputPath(dir_.string(), "checkpoint"); }).find("directory"), std::string::npos);

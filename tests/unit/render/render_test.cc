@@ -4,6 +4,8 @@
 #include <utility>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
+#include <string>
 #include <vector>
 
 #include "common/core/error.h"
@@ -151,11 +153,13 @@ TEST(PaletteTest, BaseColoursClassifyAtEveryLightLevel) {
         << k;
     EXPECT_FALSE(IsCutFaceColour(lit(kTissueRgb, 0), lit(kTissueRgb, 1), lit(kTissueRgb, 2))) << k;
     EXPECT_FALSE(IsCutFaceColour(lit(kToolRgb, 0), lit(kToolRgb, 1), lit(kToolRgb, 2))) << k;
+    EXPECT_FALSE(IsCutFaceColour(lit(kHandleRgb, 0), lit(kHandleRgb, 1), lit(kHandleRgb, 2))) << k;
+    EXPECT_FALSE(IsBackground(lit(kHandleRgb, 0), lit(kHandleRgb, 1), lit(kHandleRgb, 2))) << k;
     EXPECT_FALSE(IsBackground(lit(kCutFaceRgb, 0), lit(kCutFaceRgb, 1), lit(kCutFaceRgb, 2))) << k;
     EXPECT_FALSE(IsBackground(lit(kTissueRgb, 0), lit(kTissueRgb, 1), lit(kTissueRgb, 2))) << k;
     EXPECT_FALSE(IsBackground(lit(kToolRgb, 0), lit(kToolRgb, 1), lit(kToolRgb, 2))) << k;
     EXPECT_TRUE(IsForceColour(lit(kForceRgb, 0), lit(kForceRgb, 1), lit(kForceRgb, 2))) << k;
-    for (const Rgb& other : {kTissueRgb, kCutFaceRgb, kToolRgb, kBackgroundRgb}) {
+    for (const Rgb& other : {kTissueRgb, kCutFaceRgb, kToolRgb, kHandleRgb, kBackgroundRgb}) {
       EXPECT_FALSE(IsForceColour(lit(other, 0), lit(other, 1), lit(other, 2))) << k;
     }
   }
@@ -177,6 +181,60 @@ TEST_F(RenderTest, ToolAddsSteelPixels) {
   const Image with = RenderCube({}, options);
   EXPECT_GT(NonBackgroundFraction(with), NonBackgroundFraction(without));
   EXPECT_EQ(CountCutFacePixels(with), 0);
+}
+
+/// Pixels of the scalpel: the blade (kToolRgb) and the handle (kHandleRgb),
+/// told apart by saturation (lighting scales all channels alike), with the
+/// mean image row of each.
+struct ScalpelPixels {
+  int blade = 0, handle = 0;
+  double blade_row = 0, handle_row = 0;
+};
+ScalpelPixels CountScalpel(const Image& image) {
+  const double blade_sat = ToHueSaturation(kToolRgb[0], kToolRgb[1], kToolRgb[2]).saturation;
+  const double handle_sat = ToHueSaturation(kHandleRgb[0], kHandleRgb[1], kHandleRgb[2]).saturation;
+  ScalpelPixels s;
+  for (int y = 0; y < image.height; ++y) {
+    for (int x = 0; x < image.width; ++x) {
+      const uint8_t* p = image.pixel(x, y);
+      if (IsBackground(p[0], p[1], p[2]) || std::max({p[0], p[1], p[2]}) < 40) continue;
+      const HueSaturation hs = ToHueSaturation(p[0], p[1], p[2]);
+      if (hs.hue_deg < 200 || hs.hue_deg > 240) continue;
+      if (std::abs(hs.saturation - blade_sat) < 0.04) {
+        ++s.blade;
+        s.blade_row += y;
+      } else if (std::abs(hs.saturation - handle_sat) < 0.04) {
+        ++s.handle;
+        s.handle_row += y;
+      }
+    }
+  }
+  if (s.blade > 0) s.blade_row /= s.blade;
+  if (s.handle > 0) s.handle_row /= s.handle;
+  return s;
+}
+
+TEST_F(RenderTest, ScalpelIsAFlatBladeBelowItsHandle) {
+  // A vertical scalpel in front of the cube, tip down, seen from the side.
+  camera_.eye = {0.5, -4.0, 0.5};
+  camera_.target = {0.5, 0.0, 0.5};
+  camera_.up = {0.0, 0.0, 1.0};
+  RenderOptions options;
+  options.tool = ToolSegment{.pose = {.tip = {0.5, -0.3, -0.2}, .blade_dir = {0, 0, 1}}, .length = 0.5};
+  const Image face_on = RenderCube({}, options);
+  if (const char* dir = std::getenv("CUTSIM_RENDER_DUMP")) WritePng(std::string(dir) + "/scalpel.png", face_on);
+  const ScalpelPixels s = CountScalpel(face_on);
+  EXPECT_GT(s.blade, 200);
+  EXPECT_GT(s.handle, 200);
+  // Oriented by the blade direction: the blade at the bottom (the tip), the
+  // handle above it.
+  EXPECT_GT(s.blade_row, s.handle_row + 20);
+  // Flat: turned edge-on (its edge toward the camera) the blade nearly vanishes.
+  options.tool->edge_dir = {0, -1, 0};
+  const ScalpelPixels edge_on = CountScalpel(RenderCube({}, options));
+  EXPECT_LT(5 * edge_on.blade, s.blade);
+  EXPECT_GT(edge_on.handle, 0);
+  EXPECT_EQ(CountCutFacePixels(face_on), 0);
 }
 
 /// Pixels of the force colour in the image (left part: the gauge; rest: the arrow).

@@ -6,12 +6,14 @@
 #include <cmath>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include "common/core/error.h"
+#include "common/mesh/generators.h"
 #include "common/sim/incision_score.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
@@ -37,7 +39,7 @@ TEST(IncisionScorer, DeviationIsTheDistanceAcrossTheSurface) {
   EXPECT_NEAR(s.Deviation({-0.003, -0.004, 0.01}), 0.005, 1e-15);
 }
 
-TEST(IncisionScorer, MeanMaxAndCoverageFollowTheCutPoints) {
+TEST(IncisionScorer, MeanAndMaxFollowTheCutPoints) {
   IncisionScorer s(LPlan());
   // Cut points along the first half of the x leg at 0.5 mm off, one stray.
   for (int i = 0; i <= 20; ++i) s.AddCutPoint(0.1 * i, {0.0005 * i, 0.0005, 0.01});
@@ -48,9 +50,57 @@ TEST(IncisionScorer, MeanMaxAndCoverageFollowTheCutPoints) {
   EXPECT_EQ(score.cut_points, 22);
   EXPECT_NEAR(score.mean_deviation, (21 * 0.0005 + 0.004) / 22, 1e-12);
   EXPECT_NEAR(score.max_deviation, 0.004, 1e-12);
-  // The band covers x ∈ [0, 11 mm] of the 30 mm plan (10 mm of points ± 1 mm
-  // at the far end; the near end is the plan's start).
-  EXPECT_NEAR(score.coverage, 0.011 / 0.03, 0.02);
+  // Coverage is what is opened, not where the blade touched: nothing yet.
+  EXPECT_EQ(score.coverage, 0.0);
+}
+
+/// Walls y = `y` (rest frame) over x ∈ [x0, x1], z ∈ [z0, z1], two
+/// triangles each, all opened, scored against a straight 30 mm plan along
+/// x on the top z = 10 mm of a block, 10 mm deep.
+struct Wall {
+  double x0, x1, z0, z1, y;
+};
+IncisionScore ScoreWalls(const std::vector<Wall>& walls, const mesh::TetMesh* tissue = nullptr) {
+  IncisionScorer s({.points = {{0, 0, 0.01}, {0.03, 0, 0.01}}, .normal = {0, 0, 1}, .depth = 0.01, .tolerance = 0.002});
+  if (tissue != nullptr) s.SetTissue(*tissue);
+  std::vector<double> rest;
+  mesh::Triangles tri(static_cast<Eigen::Index>(2 * walls.size()), 3);
+  for (size_t w = 0; w < walls.size(); ++w) {
+    const Wall& q = walls[w];
+    const auto base = static_cast<int32_t>(rest.size() / 3);
+    for (const auto& [x, z] : {std::pair{q.x0, q.z0}, std::pair{q.x1, q.z0}, std::pair{q.x1, q.z1}, std::pair{q.x0, q.z1}}) {
+      rest.insert(rest.end(), {x, q.y, z});
+    }
+    tri.row(static_cast<Eigen::Index>(2 * w)) << base, base + 1, base + 2;
+    tri.row(static_cast<Eigen::Index>(2 * w + 1)) << base, base + 2, base + 3;
+  }
+  const std::vector<uint8_t> opened(2 * walls.size(), 1);
+  return s.Score<double>(rest.data(), tri, opened, SessionMetrics{}, 1.0);
+}
+
+TEST(IncisionScorer, CoverageIsTheOpenedShareOfThePlannedCutSurface) {
+  // A complete transection on the line, and the same wall opened on both
+  // sides of the cut (both count once).
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}}).coverage, 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}, {0, 0.03, 0, 0.01, -0.0005}}).coverage, 1.0);
+  // Half the depth, half the length, a quarter.
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0.005, 0.01, 0.0005}}).coverage, 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}).coverage, 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0.005, 0.01, 0.0005}}).coverage, 0.25);
+  // Two strokes that together open the whole wall.
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.016, 0, 0.01, 0.0005}, {0.014, 0.03, 0, 0.01, 0.0005}}).coverage, 1.0);
+  // Off the band: nothing covered, all of it opened outside.
+  const IncisionScore off = ScoreWalls({{0, 0.03, 0, 0.01, 0.003}});
+  EXPECT_EQ(off.coverage, 0.0);
+  EXPECT_NEAR(off.opened_area_outside, 0.03 * 0.01, 1e-12);
+}
+
+TEST(IncisionScorer, CoverageCountsOnlyThePlannedSurfaceInTheTissue) {
+  // The tissue ends halfway along the plan: cutting all of it is complete.
+  const mesh::TetMesh half = mesh::MakeBox({0, -0.01, 0}, {0.015, 0.01, 0.01}, 3, 4, 2);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}, &half).coverage, 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0.005, 0.01, 0.0005}}, &half).coverage, 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0, 0.01, 0.0005}}, &half).coverage, 0.0);
 }
 
 TEST(IncisionScorer, DepthAndOpenedAreaComeFromTheOpenedFaces) {
@@ -121,7 +171,7 @@ TEST(IncisionScoreSession, ScriptedCutsScoreAsTheirOffsets) {
   EXPECT_LT(on.score.mean_deviation, 0.0005);
   EXPECT_LT(on.score.max_deviation, 0.001);
   EXPECT_NEAR(on.score.depth_error, 0.0, 0.001);
-  EXPECT_GT(on.score.coverage, 0.6);
+  EXPECT_GT(on.score.coverage, 0.9);
   EXPECT_EQ(on.score.opened_area_outside, 0.0);
   // 3 mm off: the deviation is the offset (the tissue is scored at rest, so
   // the drag of the blade does not count), the cut's walls lie outside the

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include "common/core/error.h"
@@ -153,6 +154,35 @@ TEST_F(JournalTest, TornTailKeepsTheValidPrefix) {
   EXPECT_EQ(ReadJournalFile(path).entries.size(), all.entries.size() - 1);
 }
 
+TEST_F(JournalTest, StrayBytesAfterTheLastRecordAreATornTail) {
+  const fs::path path = WriteWholeJournal();
+  const std::string whole = ReadBytes(path);
+  const JournalContents all = ReadJournalFile(path);
+  // 300 random bytes appended, several seeds: they hold no whole record, so
+  // every record before them is kept with the torn-tail warning.
+  for (uint32_t seed = 1; seed <= 20; ++seed) {
+    std::string tail(300, '\0');
+    uint32_t x = seed * 2654435761u;
+    for (char& c : tail) {
+      x ^= x << 13;
+      x ^= x >> 17;
+      x ^= x << 5;
+      c = static_cast<char>(x & 0xff);
+    }
+    WriteBytes(path, whole + tail);
+    const JournalContents j = ReadJournalFile(path);
+    EXPECT_TRUE(j.torn) << seed;
+    EXPECT_EQ(j.entries.size(), all.entries.size()) << seed;
+    EXPECT_EQ(j.valid_bytes, whole.size()) << seed;
+  }
+  // Stray bytes with a whole record after them are not a tail: refused.
+  const uint64_t first = all.entries.front().offset;
+  std::string bytes = whole;
+  bytes.insert(first, std::string(7, '\x42'));
+  WriteBytes(path, bytes);
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }).find("corrupted"), std::string::npos);
+}
+
 TEST_F(JournalTest, CorruptRecordInTheMiddleIsRefusedNamingFileAndOffset) {
   const fs::path path = WriteWholeJournal();
   std::string bytes = ReadBytes(path);
@@ -263,6 +293,32 @@ TEST_F(JournalTest, JournalAloneResumesOnTheUncutScene) {
   ASSERT_TRUE(cp_fresh.Begin(*fresh, true));
   ExpectSameTopology(*session_, *fresh);
   EXPECT_EQ(fresh->sim_time(), 0.0);
+}
+
+TEST_F(JournalTest, AnotherSessionsJournalBesideACheckpointIsRefusedNamingBoth) {
+  // The suite's checkpoint, and beside it the journal of a session started
+  // from the scene (another lineage, continuing version 0).
+  const fs::path ckpt = dir_ / "block.ckpt";
+  fs::copy_file(suite_dir_ / "block.ckpt", ckpt);
+  const std::string before = ReadBytes(ckpt);
+  const v1::CheckpointBody self = session_->CheckpointState();
+  {
+    EventJournal journal(JournalPathFor(ckpt));
+    v1::JournalHeader header;
+    header.set_scene_name(self.scene_name());
+    header.set_scene_fingerprint(self.scene_fingerprint());
+    header.set_precision(self.precision());
+    header.set_lineage(0x99);
+    journal.Start(header, {});
+  }
+  auto sim = MakeBlock();
+  PeriodicCheckpointer cp(ckpt, 0.0);
+  const std::string err = ErrorOf([&] { (void)cp.Begin(*sim, true); });
+  EXPECT_NE(err.find("lineage 0000000000000099"), std::string::npos) << err;
+  EXPECT_NE(err.find(fmt::format("lineage {:016x}", ReadCheckpointFile(ckpt).lineage())), std::string::npos) << err;
+  EXPECT_NE(err.find(ckpt.string()), std::string::npos) << err;
+  EXPECT_EQ(ReadBytes(ckpt), before) << "the checkpoint is untouched";
+  EXPECT_EQ(sim->topology_version(), 0u) << "nothing applied";
 }
 
 TEST_F(JournalTest, BadEventsAreRefusedNamingTheRecordsOffset) {
