@@ -31,9 +31,14 @@ export function makeScalpel(THREE) {
   outline.lineTo(0, 0);
   const bladeGeometry = new THREE.ExtrudeGeometry(outline, { depth: 1, bevelEnabled: false, curveSegments: 10 });
   bladeGeometry.translate(0, 0, -0.5);
-  const blade = new THREE.Mesh(bladeGeometry, new THREE.MeshLambertMaterial({ color: BLADE_COLOUR, side: THREE.DoubleSide }));
+  // The blade glows a little so steel reads as steel from any side.
+  const blade = new THREE.Mesh(bladeGeometry, new THREE.MeshLambertMaterial({
+    color: BLADE_COLOUR, emissive: 0x23262c, side: THREE.DoubleSide }));
   const handleGeometry = new THREE.BoxGeometry(1, 1, 1).translate(0, 0.5, 0);
-  const handle = new THREE.Mesh(handleGeometry, new THREE.MeshLambertMaterial({ color: HANDLE_COLOUR }));
+  // The handle is see-through, so it never hides the tissue under the blade.
+  const handle = new THREE.Mesh(handleGeometry, new THREE.MeshLambertMaterial({
+    color: HANDLE_COLOUR, transparent: true, opacity: 0.45, depthWrite: false }));
+  handle.renderOrder = 2;
   group.add(blade, handle);
   group.visible = false;
 

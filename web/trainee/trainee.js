@@ -221,8 +221,12 @@ function applyMesh(buffer) {
       scene.add(surfaceMesh);
     }
     if (!view.framed && frame.V > 0) {
-      // The tissue and the workspace together: the tool can reach all of it.
-      frameOn(geometry.boundingBox.clone().union(workspaceBox()));
+      // The tissue fills the view, with room around it for the tool.
+      const box = geometry.boundingBox.clone();
+      const centre = box.getCenter(new THREE.Vector3());
+      box.min.sub(centre).multiplyScalar(1.6).add(centre);
+      box.max.sub(centre).multiplyScalar(1.6).add(centre);
+      frameOn(box);
       view.framed = true;
     }
     stats.meshSnapshots += 1;

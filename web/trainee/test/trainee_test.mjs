@@ -138,7 +138,7 @@ async function main() {
   const layout = await page.evaluate(() => {
     const h = document.getElementById('hud').getBoundingClientRect();
     const v = document.getElementById('view').getBoundingClientRect();
-    const cues = ['force-bar', 'depth-bar'].map((id) => document.getElementById(id).getBoundingClientRect());
+    const cues = ['force-bar', 'depth-bar'].map((id) => document.getElementById(id).parentElement.getBoundingClientRect());
     return { hudRight: h.right, viewLeft: v.left, viewWidth: v.width,
       cuesInView: cues.every((c) => c.bottom <= window.innerHeight && c.right <= window.innerWidth && c.width > 0) };
   });
@@ -154,7 +154,8 @@ async function main() {
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowDown'); await sleep(15); }
   await sleep(300);
   const depth = await page.evaluate(() => window.trainee.state.frame.tip[2]);
-  check('keys-set-the-depth', Math.abs(depth + 0.006) < 3e-4, `tip z ${depth} m`);
+  const commanded = await page.evaluate(() => ({ w: window.trainee.state.w, sent: window.trainee.stats.samplesSent }));
+  check('keys-set-the-depth', Math.abs(depth + 0.006) < 3e-4, `tip z ${depth} m (commanded ${JSON.stringify(commanded)})`);
   // Cut: hold Space and draw across the ligament along +y over 2 s.
   await page.keyboard.down('Space');
   for (let i = 0; i <= 100; ++i) {
