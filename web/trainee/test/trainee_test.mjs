@@ -152,7 +152,9 @@ async function main() {
   await page.mouse.move(p.x, p.y, { steps: 10 });
   await page.focus('#view');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowDown'); await sleep(15); }
-  await sleep(300);
+  // The station follows the page one input period behind: wait for it.
+  await page.waitForFunction(() => Math.abs(window.trainee.state.frame.tip[2] + 0.006) < 3e-4, null,
+    { timeout: 5000 }).catch(() => {});
   const depth = await page.evaluate(() => window.trainee.state.frame.tip[2]);
   const commanded = await page.evaluate(() => ({ w: window.trainee.state.w, sent: window.trainee.stats.samplesSent }));
   check('keys-set-the-depth', Math.abs(depth + 0.006) < 3e-4, `tip z ${depth} m (commanded ${JSON.stringify(commanded)})`);
@@ -163,7 +165,7 @@ async function main() {
     await page.mouse.move(p.x, p.y);
     await sleep(20);
   }
-  await sleep(300);
+  await page.waitForFunction(() => window.trainee.stats.maxCuts >= 1, null, { timeout: 5000 }).catch(() => {});
   await page.keyboard.up('Space');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowUp'); await sleep(10); }
   await sleep(500);
