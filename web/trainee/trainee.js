@@ -82,6 +82,11 @@ const clamp01 = (x) => Math.min(1, Math.max(0, x));
 // ---------------------------------------------------------------------------
 // Scene
 
+// The view is drawn on the animation frames after something changed (a
+// force frame that moves the tool or changes the force, a mesh frame, the
+// camera), so a still page costs nothing.
+let dirty = true;
+
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
 THREE.ColorManagement.enabled = false;
 renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
@@ -169,6 +174,7 @@ function placeCamera() {
   camera.updateProjectionMatrix();
   $('view-state').textContent = `view ${THREE.MathUtils.radToDeg(view.azimuth).toFixed(0)}° around, `
     + `${THREE.MathUtils.radToDeg(view.polar).toFixed(0)}° from above`;
+  dirty = true;
 }
 
 /** Frames `box` (world) in the view. */
@@ -192,6 +198,7 @@ function resize() {
   renderer.setSize(width, height, false);
   camera.aspect = width / Math.max(height, 1);
   camera.updateProjectionMatrix();
+  dirty = true;
 }
 window.addEventListener('resize', resize);
 
@@ -240,6 +247,7 @@ function applyMesh(buffer) {
     surfaceMesh.geometry.computeBoundingSphere();
   }
   stats.meshFrames += 1;
+  dirty = true;
 }
 
 function onHello(m) {
@@ -377,6 +385,10 @@ canvas.addEventListener('pointerup', (e) => {
 });
 canvas.addEventListener('wheel', (e) => {
   e.preventDefault();
+  if (e.shiftKey) {
+    zoom(e.deltaY > 0 ? 1.1 : 1 / 1.1);  // Shift + wheel: zoom, the tool stays
+    return;
+  }
   stepDepth(-Math.sign(e.deltaY));
   send(e.timeStamp);
 }, { passive: false });
@@ -384,6 +396,11 @@ canvas.addEventListener('wheel', (e) => {
 function orbit(dAzimuth, dPolar) {
   view.azimuth += dAzimuth;
   view.polar = Math.min(Math.PI * 0.95, Math.max(0.02, view.polar + dPolar));
+  placeCamera();
+}
+
+function zoom(factor) {
+  view.distance = Math.min(2, Math.max(0.01, view.distance * factor));
   placeCamera();
 }
 
@@ -406,6 +423,8 @@ window.addEventListener('keydown', (e) => {
     case 'l': case 'L': moved = false; orbit(kOrbit, 0); break;
     case 'i': case 'I': moved = false; orbit(0, -kOrbit / 2); break;
     case 'k': case 'K': moved = false; orbit(0, kOrbit / 2); break;
+    case '+': case '=': moved = false; zoom(1 / 1.2); break;
+    case '-': case '_': moved = false; zoom(1.2); break;
     default: return;
   }
   e.preventDefault();
@@ -435,6 +454,11 @@ setInterval(() => {
 function onFrame(m) {
   const now = performance.now();
   stats.framesReceived += 1;
+  const last = state.frame;
+  if (!last || m.contact !== last.contact || m.buttons !== last.buttons || m.cuts !== last.cuts
+      || m.tip.some((x, i) => x !== last.tip[i]) || m.force.some((x, i) => x !== last.force[i])) {
+    dirty = true;
+  }
   state.frame = m;
   const f = Math.hypot(m.force[0], m.force[1], m.force[2]);
   stats.maxForceSeen = Math.max(stats.maxForceSeen, f);
@@ -554,8 +578,16 @@ function placeTool() {
 
 let fpsWindowStart = performance.now();
 let fpsFrames = 0;
+let lastBlade = '';
 function draw(now) {
   requestAnimationFrame(draw);
+  const blade = `${state.tiltX} ${state.tiltY}`;
+  if (blade !== lastBlade) {
+    lastBlade = blade;
+    dirty = true;
+  }
+  if (!dirty) return;
+  dirty = false;
   placeTool();
   renderer.render(scene, camera);
   stats.rendered += 1;

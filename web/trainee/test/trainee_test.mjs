@@ -165,6 +165,7 @@ async function main() {
     await page.mouse.move(p.x, p.y);
     await sleep(20);
   }
+  const fps = await page.evaluate(() => window.trainee.stats.fps);  // drawn per second while the tool moves
   await page.waitForFunction(() => window.trainee.stats.maxCuts >= 1, null, { timeout: 5000 }).catch(() => {});
   await page.keyboard.up('Space');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowUp'); await sleep(10); }
@@ -188,15 +189,15 @@ async function main() {
   check('view-turns-without-moving-the-tool', turned.sent === sent && turned.view !== viewBefore,
     JSON.stringify({ ...turned, before: viewBefore, sentBefore: sent }));
   for (const key of ['k', 'j', 'j']) await page.keyboard.press(key);
-  const fps = await page.evaluate(() => window.trainee.stats.fps);
 
   await hostileChecks(page);
 
   let bench = null;
   if (args.bench > 0) {
     await page.evaluate(() => { window.trainee.stats.latencyMs = []; window.trainee.stats.pending = []; });
-    const a = await to(0.025, 0.02);
-    const b = await to(0.035, 0.02);
+    // Above the ligament (the tip is back at +20 mm), inside the view.
+    const a = await to(0.01, 0.0);
+    const b = await to(0.02, 0.0);
     for (let i = 0; i < args.bench; ++i) {
       const f = 0.5 + 0.5 * Math.sin(i / 10);
       await page.mouse.move(a.x + f * (b.x - a.x), a.y);
