@@ -136,6 +136,10 @@ elif [[ $rc -ne 0 ]]; then
 fi
 cat "$out/trainee_latency.json" 2>/dev/null || true
 
+echo "== observer bridge under 1100 idle connections from one peer (page time for another peer, server CPU)"
+run bridge_flood "$out/bridge_flood.log" "$bin/bridge_flood_bench" --idle 1100 --seconds 5 >"$out/bridge_flood.json"
+cat "$out/bridge_flood.json" 2>/dev/null || true
+
 echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
   > "$out/implicit.json"

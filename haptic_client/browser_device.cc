@@ -148,14 +148,56 @@ DeviceInfo BrowserDevice::DefaultInfo() {
   return info;
 }
 
-BrowserDevice::BrowserDevice(const BrowserDeviceOptions& o, DeviceInfo info) : info_(std::move(info)) {
+std::map<std::string, std::filesystem::path> TraineePageFiles(const std::string& page_dir,
+                                                             const std::string& three_dir) {
+  const std::filesystem::path dir(page_dir);
+  const std::filesystem::path three =
+      three_dir.empty() ? dir / ".." / "observer" / "node_modules" / "three" : std::filesystem::path(three_dir);
+  return {{"/index.html", dir / "index.html"},
+          {"/trainee.js", dir / "trainee.js"},
+          {"/trainee.css", dir / "trainee.css"},
+          {"/common/scalpel.js", dir / ".." / "common" / "scalpel.js"},
+          {"/common/mesh_frames.js", dir / ".." / "common" / "mesh_frames.js"},
+          {"/vendor/three.module.js", three / "build" / "three.module.js"},
+          {"/vendor/three.core.js", three / "build" / "three.core.js"},
+          {"/vendor/OrbitControls.js", three / "examples" / "jsm" / "controls" / "OrbitControls.js"}};
+}
+
+namespace {
+
+/// The page's first message: the workspace, the mapping to the world, the
+/// blade and the plan.
+std::string Hello(const DeviceInfo& info, const BrowserDeviceOptions& o) {
+  const Eigen::Vector3d& lo = info.workspace_min;
+  const Eigen::Vector3d& hi = info.workspace_max;
+  std::string plan;
+  for (const Eigen::Vector3d& p : o.planned_incision) {
+    plan += fmt::format("{}[{},{},{}]", plan.empty() ? "" : ",", p.x(), p.y(), p.z());
+  }
+  return fmt::format(R"({{"kind":"hello","workspace_min":[{},{},{}],"workspace_max":[{},{},{}],"max_force":{},)"
+                     R"("world_scale":{},"world_offset":[{},{},{}],"blade_length":{},"plan":[{}],"mesh":{}}})",
+                     lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), info.max_force, o.world_scale,
+                     o.world_offset.x(), o.world_offset.y(), o.world_offset.z(), o.blade_length, plan,
+                     o.view ? "true" : "false");
+}
+
+}  // namespace
+
+BrowserDevice::BrowserDevice(const BrowserDeviceOptions& o, DeviceInfo info)
+    : info_(std::move(info)), stream_(info_) {
+  if (!(std::isfinite(o.world_scale) && o.world_scale > 0.0) || !o.world_offset.allFinite()) {
+    ThrowInputError({.field = "--workspace-scale"}, "the workspace mapping must be finite with a positive scale");
+  }
+  if (!(std::isfinite(o.blade_length) && o.blade_length > 0.0 && o.blade_length < 1.0)) {
+    ThrowInputError({.field = "tool.blade_length"}, fmt::format("{} m is out of range (0, 1) m", o.blade_length));
+  }
+  hello_ = Hello(info_, o);
   web::TraineeServerOptions so;
   so.address = o.address;
   so.port = o.port;
   so.token = o.token;
-  const std::filesystem::path dir(o.page_dir);
-  so.files = {{"/index.html", dir / "index.html"}, {"/trainee.js", dir / "trainee.js"},
-              {"/trainee.css", dir / "trainee.css"}};
+  so.host_names = o.host_names;
+  so.files = TraineePageFiles(o.page_dir, o.three_dir);
   web::TraineeHandlers h;
   h.on_open = [this] { return OnOpen(); };
   h.on_message = [this](std::string_view m, int64_t t) { OnMessage(m, t); };
@@ -167,6 +209,7 @@ BrowserDevice::BrowserDevice(const BrowserDeviceOptions& o, DeviceInfo info) : i
   loop_pair_.newer.pose.tip = 0.5 * (info_.workspace_min + info_.workspace_max);
   loop_pair_.newer.pose.tip.z() = info_.workspace_max.z();
   server_ = std::make_unique<web::TraineeServer>(std::move(so), std::move(h));
+  if (o.view) view_ = std::make_unique<TraineeView>(*server_, *o.view);
   url_ = server_->BaseUrl() + "?token=" + o.token;
   if (!o.url_file.empty()) {
     std::ofstream f(o.url_file, std::ios::trunc);
@@ -176,7 +219,10 @@ BrowserDevice::BrowserDevice(const BrowserDeviceOptions& o, DeviceInfo info) : i
   }
 }
 
-BrowserDevice::~BrowserDevice() { server_.reset(); }
+BrowserDevice::~BrowserDevice() {
+  view_.reset();
+  server_.reset();
+}
 
 void BrowserDevice::Start(int64_t /*start_ns*/) {}
 
@@ -211,19 +257,36 @@ BrowserDeviceStats BrowserDevice::stats() const {
   return stats_;
 }
 
-void BrowserDevice::OnMessage(std::string_view text, int64_t receive_ns) noexcept {
+SampleError SampleStream::Push(std::string_view text, int64_t receive_ns, bool* heartbeat, bool* reanchored) noexcept {
+  *heartbeat = text == "h";
+  *reanchored = false;
+  if (*heartbeat) return SampleError::kNone;
   BrowserSample s;
   const double previous = pair_.count > 0 ? pair_.newer.page_ms : -1.0;
-  const SampleError e = ParseBrowserSample(text, info_, previous, &s);
-  {
-    const std::lock_guard lock(stats_mu_);
-    if (e != SampleError::kNone) {
-      ++stats_.refused[static_cast<size_t>(e)];
-      return;
-    }
-    ++stats_.samples;
-  }
+  SampleError e = ParseBrowserSample(text, info_, previous, &s);
   const auto page_ns = static_cast<int64_t>(std::llround(s.page_ms * 1e6));
+  if (e == SampleError::kNone && pair_.count > 0) {
+    // Within the window of the stream's clock at arrival.
+    const double skew_ms = 1e-6 * static_cast<double>(page_ns + pair_.offset_ns - receive_ns);
+    if (std::abs(skew_ms) > kClockWindowMs) e = SampleError::kClock;
+  }
+  if (e != SampleError::kClock && e != SampleError::kTimeBackwards) {
+    time_refused_since_ns_ = -1;
+    if (e != SampleError::kNone) return e;
+  } else if (time_refused_since_ns_ < 0) {
+    time_refused_since_ns_ = receive_ns;
+    return e;
+  } else if (1e-6 * static_cast<double>(receive_ns - time_refused_since_ns_) < kReanchorMs ||
+             ParseBrowserSample(text, info_, -1.0, &s) != SampleError::kNone) {
+    return e;
+  } else {
+    // Every sample refused for its time for a while: the page's clock
+    // restarted (or its first sample was wild). Start the stream's clock
+    // again from this sample.
+    *reanchored = true;
+    time_refused_since_ns_ = -1;
+    pair_.count = 0;
+  }
   const int64_t offset = receive_ns - page_ns;
   if (pair_.count == 0 || offset < pair_.offset_ns) pair_.offset_ns = offset;
   if (pair_.count > 0) {
@@ -235,7 +298,39 @@ void BrowserDevice::OnMessage(std::string_view text, int64_t receive_ns) noexcep
   }
   pair_.newer = s;
   pair_.count = std::min(pair_.count + 1, 2);
-  samples_.Write(pair_);
+  return SampleError::kNone;
+}
+
+void SampleStream::Restart() noexcept {
+  pair_.count = 0;
+  time_refused_since_ns_ = -1;
+}
+
+void SampleStream::Release() noexcept {
+  if (pair_.count == 0) return;
+  pair_.newer.buttons = 0;
+  pair_.older = pair_.newer;
+  pair_.count = 1;
+}
+
+void BrowserDevice::OnMessage(std::string_view text, int64_t receive_ns) noexcept {
+  bool heartbeat = false;
+  bool reanchored = false;
+  const SampleError e = stream_.Push(text, receive_ns, &heartbeat, &reanchored);
+  {
+    const std::lock_guard lock(stats_mu_);
+    if (e != SampleError::kNone) {
+      ++stats_.refused[static_cast<size_t>(e)];
+      return;
+    }
+    if (heartbeat) {
+      ++stats_.heartbeats;
+      return;
+    }
+    ++stats_.samples;
+    if (reanchored) ++stats_.reanchors;
+  }
+  samples_.Write(stream_.pair());
 }
 
 std::string BrowserDevice::OnOpen() {
@@ -243,21 +338,16 @@ std::string BrowserDevice::OnOpen() {
     const std::lock_guard lock(stats_mu_);
     ++stats_.connections;
   }
-  pair_.count = 0;  // a new page has a new clock
-  const Eigen::Vector3d& lo = info_.workspace_min;
-  const Eigen::Vector3d& hi = info_.workspace_max;
-  return fmt::format(R"({{"kind":"hello","workspace_min":[{},{},{}],"workspace_max":[{},{},{}],"max_force":{}}})",
-                     lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), info_.max_force);
+  stream_.Restart();  // a new page has a new clock
+  return hello_;
 }
 
 void BrowserDevice::OnClose() noexcept {
   // The tool holds its pose with the buttons released.
-  if (pair_.count == 0) return;
-  pair_.newer.buttons = 0;
-  pair_.older = pair_.newer;
-  pair_.count = 1;
-  samples_.Write(pair_);
-  pair_.count = 0;
+  if (stream_.pair().count == 0) return;
+  stream_.Release();
+  samples_.Write(stream_.pair());
+  stream_.Restart();
 }
 
 std::string BrowserDevice::MakeFrame() {

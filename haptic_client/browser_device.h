@@ -9,7 +9,15 @@
 ///   going back), U V W the tip in the workspace box normalised to [0, 1]
 ///   (U → x, V → y, W → z), DX DY DZ the blade direction (tip → handle, norm
 ///   within 10 % of 1, renormalised), B the buttons (0..3: bit 0 cutting,
-///   bit 1 clutch). Anything else is refused and counted by reason.
+///   bit 1 clutch). A sample's time must also lie within kClockWindowMs of
+///   the stream's clock (the page time mapped to CLOCK_MONOTONIC, below) at
+///   its arrival: a sample far in the future or the past is refused, so one
+///   wild time cannot hold the tool. When every sample is refused for its
+///   time for kReanchorMs, the page's clock is taken to have restarted and
+///   the stream's clock is set again from the next sample.
+/// * Heartbeat: `h` says the page is there while the trainee does not move
+///   (the server frees a seat that hears nothing; trainee_server.h).
+///   Anything else is refused and counted by reason.
 /// * Smoothing: the loop renders the pose at `now − delay`, interpolating
 ///   linearly between the two newest samples (the blade direction
 ///   renormalised), where `delay` is the mean input period (clamped to
@@ -26,16 +34,22 @@
 ///   its pose until a page connects again.
 
 #include <array>
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <vector>
 #include <cstdint>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <string_view>
+#include <utility>
 
 #include <Eigen/Core>
 
 #include "common/transport/mailbox.h"
 #include "haptic_client/device.h"
+#include "haptic_client/trainee_view.h"
 
 namespace cutsim::transport {
 struct SessionKey;
@@ -54,7 +68,12 @@ struct BrowserSample {
 };
 
 /// Why a message was refused.
-enum class SampleError { kNone, kFormat, kNotFinite, kRange, kDirection, kButtons, kTimeBackwards, kCount };
+enum class SampleError { kNone, kFormat, kNotFinite, kRange, kDirection, kButtons, kTimeBackwards, kClock, kCount };
+
+/// How far a sample's time may lie from the stream's clock, ms.
+inline constexpr double kClockWindowMs = 1000.0;
+/// How long samples refused for their time make the stream's clock restart, ms.
+inline constexpr double kReanchorMs = 1000.0;
 
 /// Parses and validates one page message against the workspace box;
 /// `previous_ms` is the last accepted sample's page time (−1: none).
@@ -74,6 +93,29 @@ struct SamplePair {
 /// is the page time of the newest sample with a non-zero weight in it.
 void InterpolatePose(const SamplePair& pair, int64_t now_ns, DeviceState* state, double* used_ms) noexcept;
 
+/// What the page's messages say, in order: validates each against the
+/// workspace and the stream's clock, and keeps the newest sample pair with
+/// the mapping of page time to CLOCK_MONOTONIC (see the file comment). Not
+/// thread-safe; the server's I/O thread owns it.
+class SampleStream {
+ public:
+  explicit SampleStream(DeviceInfo info) : info_(std::move(info)) {}
+  /// One message (a sample or a heartbeat) read at `receive_ns`. kNone when
+  /// it was taken (`*heartbeat` tells a heartbeat), else why it was refused.
+  SampleError Push(std::string_view text, int64_t receive_ns, bool* heartbeat, bool* reanchored) noexcept;
+  /// A new page: its clock is unknown.
+  void Restart() noexcept;
+  /// The page left: hold the newest pose with the buttons released.
+  void Release() noexcept;
+  [[nodiscard]] const SamplePair& pair() const { return pair_; }
+
+ private:
+  DeviceInfo info_;
+  SamplePair pair_;
+  double interval_ms_ = 16.0;
+  int64_t time_refused_since_ns_ = -1;  // first of a run of samples refused for their time
+};
+
 /// The page's WebSocket token: hex HMAC-SHA256 of a fixed label under the
 /// session key (the key itself never leaves the station).
 std::string TraineeToken(const transport::SessionKey& key);
@@ -81,6 +123,8 @@ std::string TraineeToken(const transport::SessionKey& key);
 /// Counters of the page's messages.
 struct BrowserDeviceStats {
   uint64_t samples = 0;  ///< Accepted samples.
+  uint64_t heartbeats = 0;  ///< Heartbeats (`h`).
+  uint64_t reanchors = 0;   ///< Restarts of the stream's clock.
   std::array<uint64_t, static_cast<size_t>(SampleError::kCount)> refused{};  ///< By SampleError.
   uint64_t connections = 0;
   [[nodiscard]] uint64_t refused_total() const;
@@ -100,9 +144,24 @@ struct BrowserDeviceOptions {
   std::string address = "127.0.0.1";
   uint16_t port = 0;
   std::string token;        ///< TraineeToken of the session key.
-  std::string page_dir;     ///< The page's files (web/trainee).
+  std::string page_dir;     ///< The page's files (web/trainee; web/common beside it).
+  std::string three_dir;    ///< three.js's npm package; empty = web/observer/node_modules/three beside page_dir.
   std::string url_file;     ///< If set, the page's URL (with the token) is written here, mode 0600.
+  std::vector<std::string> host_names;  ///< Further names the page may be opened at (--host-name).
+  /// What the page draws beside the device: world = scale · device + offset
+  /// (the station's workspace mapping), the blade's length, and the scene's
+  /// planned incision (m, world; empty: none).
+  double world_scale = 1.0;
+  Eigen::Vector3d world_offset = Eigen::Vector3d::Zero();
+  double blade_length = 0.02;
+  std::vector<Eigen::Vector3d> planned_incision;
+  /// The session's mesh stream for the page's 3-D view; none: no tissue drawn.
+  std::optional<TraineeViewOptions> view;
 };
+
+/// The trainee page's files by URL path (see BrowserDeviceOptions).
+[[nodiscard]] std::map<std::string, std::filesystem::path> TraineePageFiles(const std::string& page_dir,
+                                                                            const std::string& three_dir);
 
 class BrowserDevice final : public HapticDevice {
  public:
@@ -136,8 +195,7 @@ class BrowserDevice final : public HapticDevice {
   DeviceInfo info_;
   std::string url_;
   // I/O thread.
-  SamplePair pair_;
-  double interval_ms_ = 16.0;
+  SampleStream stream_;
   mutable std::mutex stats_mu_;  // the I/O thread's counters, read by stats()
   BrowserDeviceStats stats_;
   BrowserFrame io_frame_;
@@ -147,7 +205,9 @@ class BrowserDevice final : public HapticDevice {
   // Loop thread.
   SamplePair loop_pair_;
   BrowserFrame loop_frame_;
-  std::unique_ptr<web::TraineeServer> server_;  // last: its thread stops first
+  std::string hello_;
+  std::unique_ptr<web::TraineeServer> server_;
+  std::unique_ptr<TraineeView> view_;  // last: stops before the server it feeds
 };
 
 }  // namespace cutsim::haptic_client

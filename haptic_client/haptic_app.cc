@@ -68,7 +68,10 @@ std::pair<std::string, uint16_t> SplitServe(const std::string& serve) {
   return {address, static_cast<uint16_t>(port)};
 }
 
-/// The browser device: the trainee page on --serve, its token from the session key.
+GuardOptions MakeGuardOptions(const HapticAppOptions& o);
+
+/// The browser device: the trainee page on --serve, its token from the
+/// session key, its 3-D view from the session's mesh stream and the scene.
 std::unique_ptr<HapticDevice> MakeBrowserDevice(const HapticAppOptions& o) {
   const auto key = transport::LoadSessionKey(o.key_file);
   if (!key) {
@@ -82,6 +85,16 @@ std::unique_ptr<HapticDevice> MakeBrowserDevice(const HapticAppOptions& o) {
   bo.token = TraineeToken(*key);
   bo.page_dir = o.page_dir.empty() ? std::string(CUTSIM_TRAINEE_PAGE) : o.page_dir;
   bo.url_file = o.url_file;
+  bo.host_names = o.host_names;
+  const GuardOptions mapping = MakeGuardOptions(o);
+  bo.world_scale = mapping.scale;
+  bo.world_offset = mapping.offset;
+  if (!o.scene.empty()) {
+    const SceneWorkspace w = ReadSceneWorkspace(o.scene);
+    bo.planned_incision = w.planned_incision;
+    if (w.blade_length > 0.0) bo.blade_length = w.blade_length;
+  }
+  if (o.page_view) bo.view = TraineeViewOptions{o.session, o.dds_domain, o.dds_config, key};
   auto device = std::make_unique<BrowserDevice>(bo, BrowserDevice::DefaultInfo());
   const DeviceInfo& d = device->info();
   Log().info("browser device: trainee page on {} (the token is in the URL{}; workspace [{:.3f}, {:.3f}] x [{:.3f}, "
@@ -304,13 +317,15 @@ DeviceOutcome SummariseDevice(const HapticDevice& device, const DeviceGuard& gua
     const web::TraineeServerStats ss = browser->server().stats();
     const auto& r = bs.refused;
     auto n = [&r](SampleError e) { return r[static_cast<size_t>(e)]; };
-    Log().info("browser device: {} pages connected, {} samples; refused: {} malformed, {} not finite, {} out of "
-               "range, {} bad direction, {} bad buttons, {} time going back; {} over the rate cap, {} oversized; "
-               "upgrades refused: {} token, {} origin, {} busy; {} frames sent",
-               bs.connections, bs.samples, n(SampleError::kFormat), n(SampleError::kNotFinite),
-               n(SampleError::kRange), n(SampleError::kDirection), n(SampleError::kButtons),
-               n(SampleError::kTimeBackwards), ss.rate_limited, ss.closed_oversized, ss.refused_token,
-               ss.refused_origin, ss.refused_busy, ss.frames_sent);
+    Log().info("browser device: {} pages connected, {} samples, {} heartbeats, {} clock restarts; refused: {} "
+               "malformed, {} not finite, {} out of range, {} bad direction, {} bad buttons, {} time going back, {} "
+               "off the stream's clock; {} over the rate cap, {} oversized, {} idle; upgrades refused: {} token, {} "
+               "origin, {} host, {} key, {} busy; {} connections refused at accept; {} frames sent",
+               bs.connections, bs.samples, bs.heartbeats, bs.reanchors, n(SampleError::kFormat),
+               n(SampleError::kNotFinite), n(SampleError::kRange), n(SampleError::kDirection),
+               n(SampleError::kButtons), n(SampleError::kTimeBackwards), n(SampleError::kClock), ss.rate_limited,
+               ss.closed_oversized, ss.closed_idle, ss.web.refused_token, ss.web.refused_origin, ss.web.refused_host,
+               ss.web.refused_key, ss.web.refused_cap, ss.web.refused_connections, ss.frames_sent);
     d.read_errors = bs.refused_total();
   }
   if (d.read_errors > 0) Log().warn("device {}: {} failed or invalid reads (the last pose was held)", d.name, d.read_errors);

@@ -74,6 +74,10 @@ struct HapticAppOptions {
   std::string serve = "127.0.0.1:0"; ///< --serve ADDRESS:PORT, the trainee page of `browser`
   std::string page_dir;               ///< --page-dir, the trainee page's files; "" = the source tree's web/trainee
   std::string url_file;               ///< --url-file, where the page's URL (with its token) is written, mode 0600
+  std::vector<std::string> host_names;  ///< --host-name, further names the trainee page may be opened at
+  uint32_t dds_domain = 0;            ///< --dds-domain, the mesh stream the trainee page draws
+  std::string dds_config;             ///< --dds-config, Cyclone configuration file
+  bool page_view = true;              ///< --no-page-view: the trainee page draws no tissue (no DDS reader)
   std::string key_file;               ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else unsigned
 };
 

@@ -15,6 +15,7 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   bool no_rt = false;
   bool no_passivity = false;
+  bool no_page_view = false;
   CLI::App app{"cutsim-haptic: 1 kHz haptic station (scripted, replayed, browser or plugin device) over LCM"};
   app.add_option("--session", o.session, "Session name")->capture_default_str();
   app.add_option("--lcm-url", o.lcm_url, "LCM URL (ttl=1 to reach another machine)")->capture_default_str();
@@ -38,6 +39,13 @@ int main(int argc, char** argv) {
   app.add_option("--url-file", o.url_file,
                  "Write the trainee page's URL (it carries the session's token) to this file, mode 0600, instead "
                  "of stdout");
+  app.add_option("--host-name", o.host_names,
+                 "A further name the trainee page may be opened at (the Host and Origin it accepts; repeat for "
+                 "more)");
+  app.add_option("--dds-domain", o.dds_domain, "DDS domain of the mesh stream the trainee page draws")
+      ->capture_default_str();
+  app.add_option("--dds-config", o.dds_config, "Cyclone DDS configuration file for the trainee page's mesh stream");
+  app.add_flag("--no-page-view", no_page_view, "The trainee page draws no tissue (reads no mesh stream)");
   app.add_option("--path", o.path, "Tool path file for --device scripted (minimum-jerk timing)");
   app.add_option("--log", o.log, "LCM log (lcm-logger or server recorder) for --device replay");
   app.add_option("--log-channel", o.log_channel, "Channel to replay (default CUTSIM_<session>_TOOL)");
@@ -66,6 +74,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   o.realtime = !no_rt;
   o.passivity = !no_passivity;
+  o.page_view = !no_page_view;
   try {
     cutsim::InitLogging("cutsim-haptic", log_level);
     return cutsim::haptic_client::RunHapticApp(o);

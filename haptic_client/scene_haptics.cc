@@ -57,6 +57,25 @@ SceneWorkspace ReadSceneWorkspace(const std::filesystem::path& scene) {
   if (!w.offset.allFinite()) {
     ThrowInputError(SourceRef{.file = file, .field = "haptics.device_offset"}, "must be finite");
   }
+  constexpr int kMaxPlanPoints = 10000;
+  const auto& points = msg.planned_incision().points();
+  if (points.size() > kMaxPlanPoints) {
+    ThrowInputError(SourceRef{.file = file, .field = "planned_incision.points"},
+                    fmt::format("{} points; at most {}", points.size(), kMaxPlanPoints));
+  }
+  for (int i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d p(points[i].x(), points[i].y(), points[i].z());
+    if (!(p.allFinite() && p.cwiseAbs().maxCoeff() <= 1e3)) {
+      ThrowInputError(SourceRef{.file = file, .field = fmt::format("planned_incision.points[{}]", i)},
+                      "must be finite and within 1000 m");
+    }
+    w.planned_incision.push_back(p);
+  }
+  w.blade_length = msg.tool().blade_length();
+  if (!(std::isfinite(w.blade_length) && w.blade_length >= 0.0 && w.blade_length < 1.0)) {
+    ThrowInputError(SourceRef{.file = file, .field = "tool.blade_length"},
+                    fmt::format("{} m is out of range [0, 1) m", w.blade_length));
+  }
   return w;
 }
 

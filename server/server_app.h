@@ -36,7 +36,7 @@ struct ServerOptions {
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
   uint32_t dds_domain = 0;
   std::string dds_config;          ///< file; empty: CYCLONEDDS_URI, else loopback
-  double viewer_fps = 10.0;        ///< mesh frames to viewers per second
+  double viewer_fps = 30.0;        ///< mesh frames to viewers (and trainee pages) per second
   bool realtime_priority = true;   ///< SCHED_FIFO for physics and LCM threads when permitted (--no-rt: off)
   double frame_rate = 0.0;         ///< physics frames per second; 0: the scene's frame_dt
   /// Wall-clock budget of a frame's dynamics as a fraction of the frame

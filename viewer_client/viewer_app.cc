@@ -128,7 +128,8 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
     const web::ObserverServerStats b = bridge->server().stats();
     v.set_browser_frames(ReportCount(bridge->frames_relayed()));
     v.set_browsers_accepted(ReportCount(b.accepted));
-    v.set_browsers_refused(ReportCount(b.refused_cap + b.refused_origin + b.refused_token));
+    v.set_browsers_refused(ReportCount(b.web.refused_cap + b.web.refused_origin + b.web.refused_token +
+                                        b.web.refused_host + b.web.refused_key));
     v.set_browsers_closed(ReportCount(b.closed_incoming + b.closed_slow));
     v.set_browser_bytes_sent(static_cast<double>(b.bytes_sent));
   }
@@ -306,6 +307,8 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--key-file", options_.key_file,
                  "Session key file (hex): only mesh frames signed with it are shown "
                  "(default $CUTSIM_SESSION_KEY; neither: an open session)");
+  app.add_option("--host-name", options_.host_names,
+                 "A further name browsers may open the page at (the Host and Origin it accepts; repeat for more)");
   app.add_option("--token-file", options_.token_file,
                  "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL");
   options_.web_root = CUTSIM_WEB_ROOT;
@@ -353,6 +356,7 @@ int ViewerApp::Run() {
     web::ObserverServerOptions so;
     std::tie(so.address, so.port) = web::ParseHostPort(o.serve, "--serve");
     if (!o.token_file.empty()) so.token = web::LoadObserverToken(o.token_file);
+    so.host_names = o.host_names;
     so.files = web::ObserverPageFiles(o.web_root);
     bridge = std::make_unique<web::BrowserBridge>(std::move(so), o.session);
     // On stdout, for scripts: the address a browser opens.

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -33,6 +34,7 @@ struct ViewerOptions {
   std::string log_level = "info";
   std::string serve;       ///< HOST:PORT of the browser observers' page; empty: none.
   std::string token_file;  ///< Observers' token (required off loopback).
+  std::vector<std::string> host_names;  ///< Further names browsers may open the page at (--host-name).
   std::string web_root;    ///< The page's files (web/observer).
   std::string key_file;    ///< Session key: only frames signed with it are shown; empty: $CUTSIM_SESSION_KEY, else open.
 };

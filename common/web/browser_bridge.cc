@@ -17,6 +17,8 @@ std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesy
       {"/index.html", web_root / "index.html"},
       {"/observer.js", web_root / "observer.js"},
       {"/observer.css", web_root / "observer.css"},
+      {"/common/mesh_frames.js", web_root / ".." / "common" / "mesh_frames.js"},
+      {"/common/scalpel.js", web_root / ".." / "common" / "scalpel.js"},
       {"/vendor/three.module.js", web_root / "node_modules/three/build/three.module.js"},
       {"/vendor/three.core.js", web_root / "node_modules/three/build/three.core.js"},
       {"/vendor/OrbitControls.js", web_root / "node_modules/three/examples/jsm/controls/OrbitControls.js"},

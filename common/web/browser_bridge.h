@@ -18,7 +18,8 @@
 namespace cutsim::web {
 
 /// The page's files under `web_root` (web/observer, with its npm packages
-/// installed), by the URL path each is served at.
+/// installed, and the modules both pages share in web/common beside it), by
+/// the URL path each is served at.
 [[nodiscard]] std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesystem::path& web_root);
 
 /// The observers' token from a text file (surrounding whitespace ignored):

@@ -6,16 +6,15 @@
 /// own; the caller's thread only posts to it, so a slow browser never blocks
 /// the caller.
 ///
-/// Read-only by design: nothing a browser sends is passed on. The server
-/// enforces:
+/// Read-only by design: nothing a browser sends is passed on. The shared
+/// core (web_core.h) enforces the connection caps, the `Host`, `Origin`,
+/// token and key checks and the client cap; this server adds:
 ///  - a listening address on loopback unless a token is set; with a token,
 ///    every WebSocket upgrade must carry `?token=<token>` (the page's files
 ///    hold no session data and are served to anyone who can connect);
-///  - the `Origin` of a WebSocket upgrade, when present, must be this
-///    server's own (`http://<Host>`), so other sites' pages cannot connect;
-///  - a cap on clients, on request header size and on incoming WebSocket
-///    messages (a browser has nothing to send: any data message closes it,
-///    one above the cap with 1009, others with 1008);
+///  - a cap on incoming WebSocket messages (a browser has nothing to send:
+///    any data message closes it, one above the cap with 1009, others with
+///    1008);
 ///  - a cap on the bytes queued for one client: a client that falls that far
 ///    behind is closed instead of buffered for without bound.
 
@@ -26,6 +25,8 @@
 #include <string>
 #include <thread>
 #include <vector>
+
+#include "common/web/web_core.h"
 
 namespace cutsim::web {
 
@@ -39,7 +40,11 @@ struct ObserverServerOptions {
   /// URL path → file served at it (read once, at construction). "/" serves
   /// the entry mapped to "/index.html".
   std::map<std::string, std::filesystem::path> files;
+  /// Further names browsers may use for this server (Host and Origin).
+  std::vector<std::string> host_names;
   int max_clients = 32;                       ///< WebSocket clients at once.
+  int max_connections = 512;                  ///< Connections at once (HTTP and WebSocket).
+  int max_connections_per_peer = 64;          ///< Of them, from one peer address.
   size_t max_incoming_bytes = 1024;           ///< Largest WebSocket message a client may send.
   size_t max_queued_bytes = 16u << 20;        ///< Bytes queued for one client before it is closed.
   size_t max_request_header_bytes = 8192;     ///< HTTP request header limit.
@@ -47,15 +52,11 @@ struct ObserverServerOptions {
 
 /// Counters, read with ObserverServer::stats() (a consistent copy).
 struct ObserverServerStats {
-  int clients = 0;                    ///< WebSocket clients connected now.
+  WebCoreStats web;                   ///< The shared core's counters (refusals, pages).
+  int clients = 0;                    ///< WebSocket clients connected now (handshake done).
   uint64_t accepted = 0;              ///< WebSocket clients accepted in all.
-  uint64_t refused_cap = 0;           ///< Upgrades refused: client cap reached.
-  uint64_t refused_origin = 0;        ///< Upgrades refused: foreign Origin.
-  uint64_t refused_token = 0;         ///< Requests refused: missing or wrong token.
-  uint64_t bad_requests = 0;          ///< Malformed or oversized HTTP requests, unknown paths.
   uint64_t closed_incoming = 0;       ///< Clients closed for sending a message.
   uint64_t closed_slow = 0;           ///< Clients closed for falling behind (queue cap).
-  uint64_t pages_served = 0;          ///< HTTP files served.
   uint64_t messages_sent = 0;         ///< WebSocket messages written.
   uint64_t bytes_sent = 0;            ///< Their payload bytes.
 };

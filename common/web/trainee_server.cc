@@ -2,10 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <future>
 #include <mutex>
 #include <optional>
-#include <thread>
 #include <utility>
 
 #include <boost/asio/ip/tcp.hpp>
@@ -18,7 +16,6 @@
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
-#include "common/web/http_util.h"
 
 namespace cutsim::web {
 
@@ -31,10 +28,9 @@ using tcp = net::ip::tcp;
 class TraineeSession;
 
 struct TraineeServerImpl {
-  TraineeServerImpl(TraineeServerOptions o, TraineeHandlers h)
-      : options(std::move(o)), handlers(std::move(h)), acceptor(ioc), frame_timer(ioc) {}
+  TraineeServerImpl(TraineeServerOptions o, TraineeHandlers h) : options(std::move(o)), handlers(std::move(h)) {}
 
-  void Accept();
+  void OnUpgrade(beast::tcp_stream&& stream, http::request<http::empty_body>&& req, std::shared_ptr<void> hold);
   void ScheduleFrame();
   template <typename F>
   void Count(F&& f) {
@@ -44,26 +40,24 @@ struct TraineeServerImpl {
 
   TraineeServerOptions options;
   TraineeHandlers handlers;
-  std::map<std::string, PageFile> files;
-  std::weak_ptr<TraineeSession> trainee;  // I/O thread
-  bool busy = false;                      // I/O thread: a trainee holds (or is opening) the socket
+  std::weak_ptr<TraineeSession> trainee;          // I/O thread
+  std::shared_ptr<const std::string> snapshot;    // I/O thread: the newest mesh snapshot
   mutable std::mutex stats_mu;
   TraineeServerStats stats;
-  net::io_context ioc;
-  tcp::acceptor acceptor;
-  net::steady_timer frame_timer;
   std::chrono::nanoseconds frame_period{16666667};
-  std::thread thread;
+  std::optional<net::steady_timer> frame_timer;  // on the core's I/O context
+  std::unique_ptr<WebCore> core;                 // last: destroyed first, with the sessions it holds
 };
 
-/// The trainee's WebSocket: reads messages through the size and rate caps;
-/// writes the newest frame, one at a time (a frame that finds a write in
-/// flight replaces the one waiting: only the newest force matters).
+/// The trainee's WebSocket: reads messages through the size, rate and idle
+/// caps; writes one message at a time, the newest force frame first, then
+/// the newest mesh frames (older ones waiting are replaced: only the newest
+/// force and shape matter).
 class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
  public:
-  TraineeSession(TraineeServerImpl& server, beast::tcp_stream&& stream) : server_(server), ws_(std::move(stream)) {}
+  TraineeSession(TraineeServerImpl& server, beast::tcp_stream&& stream, std::shared_ptr<void> hold)
+      : server_(server), ws_(std::move(stream)), hold_(std::move(hold)), idle_(ws_.get_executor()) {}
   ~TraineeSession() {
-    server_.busy = false;
     if (opened_) {
       server_.Count([](TraineeServerStats& s) { s.connected = false; });
       if (server_.handlers.on_close) server_.handlers.on_close();
@@ -84,39 +78,72 @@ class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
       self->tokens_ = self->server_.options.burst_messages;
       self->refill_ns_ = MonotonicNs();
       if (self->server_.handlers.on_open) self->Send(self->server_.handlers.on_open());
+      if (self->server_.snapshot) self->SendMesh(self->server_.snapshot, true);
+      self->ArmIdle();
       self->Read();
     });
   }
 
   void Send(std::string text) {
     if (closing_ || text.empty()) return;
-    if (writing_) {
-      pending_ = std::move(text);
-      return;
+    text_ = std::move(text);
+    if (!writing_) WriteNext();
+  }
+
+  void SendMesh(std::shared_ptr<const std::string> frame, bool snapshot) {
+    if (closing_ || !opened_) return;
+    if (snapshot) {
+      snapshot_ = std::move(frame);
+      update_.reset();
+    } else {
+      update_ = std::move(frame);
     }
-    out_ = std::move(text);
-    Write();
+    if (!writing_) WriteNext();
   }
 
   void Abort() {
     closing_ = true;
+    idle_.cancel();
     beast::error_code ec;
     beast::get_lowest_layer(ws_).socket().close(ec);
   }
 
  private:
-  void Write() {
+  /// Writes the next waiting message: the force frame, then the mesh.
+  void WriteNext() {
+    if (text_) {
+      out_text_ = std::move(*text_);
+      text_.reset();
+      ws_.text(true);
+      return Write(net::buffer(out_text_), true);
+    }
+    std::shared_ptr<const std::string>& next = snapshot_ ? snapshot_ : update_;
+    if (!next) return;
+    out_mesh_ = std::move(next);
+    next.reset();
+    ws_.binary(true);
+    Write(net::buffer(*out_mesh_), false);
+  }
+
+  void Write(net::const_buffer buffer, bool text) {
     writing_ = true;
-    ws_.text(true);
-    ws_.async_write(net::buffer(out_), [self = shared_from_this()](beast::error_code ec, size_t) {
+    ws_.async_write(buffer, [self = shared_from_this(), text](beast::error_code ec, size_t) {
       self->writing_ = false;
+      self->out_mesh_.reset();
       if (ec) return self->Abort();
-      self->server_.Count([](TraineeServerStats& s) { ++s.frames_sent; });
-      if (self->pending_ && !self->closing_) {
-        self->out_ = std::move(*self->pending_);
-        self->pending_.reset();
-        self->Write();
-      }
+      if (text) self->server_.Count([](TraineeServerStats& s) { ++s.frames_sent; });
+      if (!self->closing_) self->WriteNext();
+    });
+  }
+
+  /// Closes the session when nothing arrives for idle_timeout_s.
+  void ArmIdle() {
+    idle_.expires_after(std::chrono::nanoseconds(static_cast<int64_t>(server_.options.idle_timeout_s * 1e9)));
+    idle_.async_wait([weak = weak_from_this()](beast::error_code ec) {
+      auto self = weak.lock();
+      if (ec || !self || self->closing_) return;
+      self->server_.Count([](TraineeServerStats& s) { ++s.closed_idle; });
+      self->Abort();
     });
   }
 
@@ -140,6 +167,7 @@ class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
       if (ec) return self->Abort();  // a close frame, a reset, end of stream
       const int64_t now = MonotonicNs();
       if (self->TakeToken(now)) {
+        self->ArmIdle();  // any message within the caps keeps the seat
         self->server_.Count([](TraineeServerStats& s) { ++s.messages_received; });
         const auto data = self->buffer_.cdata();
         self->server_.handlers.on_message(
@@ -154,9 +182,14 @@ class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
 
   TraineeServerImpl& server_;
   websocket::stream<beast::tcp_stream> ws_;
+  std::shared_ptr<void> hold_;  // the core's connection and seat
+  net::steady_timer idle_;
   beast::flat_buffer buffer_;
-  std::string out_;
-  std::optional<std::string> pending_;
+  std::optional<std::string> text_;                 // the force frame waiting
+  std::shared_ptr<const std::string> snapshot_;     // mesh frames waiting
+  std::shared_ptr<const std::string> update_;
+  std::string out_text_;                            // in flight
+  std::shared_ptr<const std::string> out_mesh_;
   bool writing_ = false;
   bool closing_ = false;
   bool opened_ = false;
@@ -164,96 +197,17 @@ class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
   int64_t refill_ns_ = 0;
 };
 
-/// One HTTP connection: reads a request, serves a file or upgrades.
-class TraineeHttp : public std::enable_shared_from_this<TraineeHttp> {
- public:
-  TraineeHttp(TraineeServerImpl& server, tcp::socket&& socket) : server_(server), stream_(std::move(socket)) {}
-
-  void Read() {
-    parser_.emplace();
-    parser_->header_limit(static_cast<uint32_t>(server_.options.max_request_header_bytes));
-    parser_->body_limit(1024);
-    stream_.expires_after(std::chrono::seconds(10));
-    http::async_read(stream_, buffer_, *parser_, [self = shared_from_this()](beast::error_code ec, size_t) {
-      if (ec) {
-        if (ec != http::error::end_of_stream) self->server_.Count([](TraineeServerStats& s) { ++s.bad_requests; });
-        return;
-      }
-      self->Handle(self->parser_->release());
-    });
-  }
-
- private:
-  void Handle(http::request<http::empty_body> req) {
-    const auto [path, token] = SplitTarget(std::string_view(req.target().data(), req.target().size()));
-    if (websocket::is_upgrade(req)) return Upgrade(std::move(req), path, token);
-    const auto it = server_.files.find(path == "/" ? "/index.html" : path);
-    if (req.method() != http::verb::get || it == server_.files.end()) {
-      server_.Count([](TraineeServerStats& s) { ++s.bad_requests; });
-      return Reply(req, http::status::not_found, "not found\n", "text/plain");
-    }
-    server_.Count([](TraineeServerStats& s) { ++s.pages_served; });
-    Reply(req, http::status::ok, it->second.body, it->second.content_type);
-  }
-
-  void Upgrade(http::request<http::empty_body> req, const std::string& path, const std::string& token) {
-    if (!SameSecret(token, server_.options.token)) {
-      server_.Count([](TraineeServerStats& s) { ++s.refused_token; });
-      return Reply(req, http::status::forbidden, "token required\n", "text/plain");
-    }
-    const auto origin = req[http::field::origin];
-    const auto host = req[http::field::host];
-    const std::string own = fmt::format("http://{}", std::string_view(host.data(), host.size()));
-    if (!origin.empty() && std::string_view(origin.data(), origin.size()) != own) {
-      server_.Count([](TraineeServerStats& s) { ++s.refused_origin; });
-      return Reply(req, http::status::forbidden, "foreign origin\n", "text/plain");
-    }
-    if (path != "/ws") {
-      server_.Count([](TraineeServerStats& s) { ++s.bad_requests; });
-      return Reply(req, http::status::not_found, "no such endpoint\n", "text/plain");
-    }
-    if (server_.busy) {
-      server_.Count([](TraineeServerStats& s) { ++s.refused_busy; });
-      return Reply(req, http::status::service_unavailable, "a trainee is already connected\n", "text/plain");
-    }
-    server_.busy = true;
-    stream_.expires_never();
-    // Small frames at 60 Hz: send each at once rather than wait for an ACK.
-    beast::error_code ignored;
-    stream_.socket().set_option(tcp::no_delay(true), ignored);
-    std::make_shared<TraineeSession>(server_, std::move(stream_))->Run(std::move(req));
-  }
-
-  void Reply(const http::request<http::empty_body>& req, http::status status, const std::string& body,
-             const std::string& type) {
-    auto res = MakeReply(req, status, body, type);
-    http::async_write(stream_, *res, [self = shared_from_this(), res](beast::error_code ec, size_t) {
-      if (ec || !res->keep_alive()) {
-        beast::error_code ignored;
-        self->stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
-        return;
-      }
-      self->Read();
-    });
-  }
-
-  TraineeServerImpl& server_;
-  beast::tcp_stream stream_;
-  beast::flat_buffer buffer_;
-  std::optional<http::request_parser<http::empty_body>> parser_;
-};
-
-void TraineeServerImpl::Accept() {
-  acceptor.async_accept([this](beast::error_code ec, tcp::socket socket) {
-    if (ec == net::error::operation_aborted) return;
-    if (!ec) std::make_shared<TraineeHttp>(*this, std::move(socket))->Read();
-    Accept();
-  });
+void TraineeServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<http::empty_body>&& req,
+                                  std::shared_ptr<void> hold) {
+  // Small frames at 60 Hz: send each at once rather than wait for an ACK.
+  beast::error_code ignored;
+  stream.socket().set_option(tcp::no_delay(true), ignored);
+  std::make_shared<TraineeSession>(*this, std::move(stream), std::move(hold))->Run(std::move(req));
 }
 
 void TraineeServerImpl::ScheduleFrame() {
-  frame_timer.expires_after(frame_period);
-  frame_timer.async_wait([this](beast::error_code ec) {
+  frame_timer->expires_after(frame_period);
+  frame_timer->async_wait([this](beast::error_code ec) {
     if (ec) return;
     if (auto s = trainee.lock(); s && handlers.frame) s->Send(handlers.frame());
     ScheduleFrame();
@@ -271,47 +225,57 @@ TraineeServer::TraineeServer(TraineeServerOptions options, TraineeHandlers handl
   if (!(o.max_messages_per_s > 0.0 && o.burst_messages >= 1.0)) {
     ThrowInputError({.field = "max_messages_per_s"}, "the rate cap needs a positive rate and a burst of at least 1");
   }
+  if (!(o.idle_timeout_s >= 0.05 && o.idle_timeout_s <= 3600.0)) {
+    ThrowInputError({.field = "idle_timeout_s"}, fmt::format("{} s is out of range [0.05, 3600]", o.idle_timeout_s));
+  }
   impl_->frame_period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / o.frame_hz));
-  impl_->files = ReadPageFiles(o.files, "the trainee page's files");
-  boost::system::error_code ec;
-  const net::ip::address address = net::ip::make_address(o.address == "localhost" ? "127.0.0.1" : o.address, ec);
-  if (ec) ThrowInputError({.field = "--serve"}, fmt::format("'{}' is not an IP address", o.address));
-  const tcp::endpoint endpoint(address, o.port);
-  tcp::acceptor& acc = impl_->acceptor;
-  acc.open(endpoint.protocol(), ec);
-  if (!ec) acc.set_option(net::socket_base::reuse_address(true), ec);
-  if (!ec) acc.bind(endpoint, ec);
-  if (!ec) acc.listen(net::socket_base::max_listen_connections, ec);
-  if (ec) ThrowInputError({.field = "--serve"}, fmt::format("cannot listen on {}:{}: {}", o.address, o.port, ec.message()));
-  port_ = acc.local_endpoint().port();
-  impl_->Accept();
+  WebCoreOptions co;
+  co.address = o.address;
+  co.port = o.port;
+  co.token = o.token;
+  co.host_names = o.host_names;
+  co.files = o.files;
+  co.files_what = "the trainee page's files";
+  co.max_connections = o.max_connections;
+  co.max_connections_per_peer = o.max_connections_per_peer;
+  co.max_ws_clients = 1;  // one trainee holds the tool
+  co.max_request_header_bytes = o.max_request_header_bytes;
+  TraineeServerImpl* impl = impl_.get();
+  impl_->core = std::make_unique<WebCore>(
+      std::move(co), [impl](beast::tcp_stream&& stream, http::request<http::empty_body>&& req,
+                            std::shared_ptr<void> hold) { impl->OnUpgrade(std::move(stream), std::move(req), std::move(hold)); });
+  port_ = impl_->core->port();
+  impl_->frame_timer.emplace(impl_->core->ioc());
   impl_->ScheduleFrame();
-  impl_->thread = std::thread([this] { impl_->ioc.run(); });
+  impl_->core->Start();
 }
 
 TraineeServer::~TraineeServer() {
-  std::promise<void> closed;
-  net::post(impl_->ioc, [this, &closed] {
-    beast::error_code ec;
-    impl_->acceptor.close(ec);
-    impl_->frame_timer.cancel();
+  impl_->core->Stop([this] {
+    impl_->frame_timer->cancel();
     if (auto s = impl_->trainee.lock()) s->Abort();
-    closed.set_value();
   });
-  closed.get_future().wait();
-  impl_->ioc.stop();
-  if (impl_->thread.joinable()) impl_->thread.join();
+  impl_->frame_timer.reset();
 }
 
-std::string TraineeServer::BaseUrl() const {
-  const std::string& a = impl_->options.address;
-  const std::string host = a.find(':') != std::string::npos ? "[" + a + "]" : a;
-  return fmt::format("http://{}:{}/", host, port_);
+std::string TraineeServer::BaseUrl() const { return impl_->core->BaseUrl(); }
+
+void TraineeServer::SendMesh(std::shared_ptr<const std::string> frame, bool snapshot) {
+  if (!frame || frame->empty()) return;
+  net::post(impl_->core->ioc(), [this, f = std::move(frame), snapshot]() mutable {
+    if (snapshot) impl_->snapshot = f;
+    if (auto s = impl_->trainee.lock()) s->SendMesh(std::move(f), snapshot);
+  });
 }
 
 TraineeServerStats TraineeServer::stats() const {
-  const std::lock_guard lock(impl_->stats_mu);
-  return impl_->stats;
+  TraineeServerStats s;
+  {
+    const std::lock_guard lock(impl_->stats_mu);
+    s = impl_->stats;
+  }
+  s.web = impl_->core->stats();
+  return s;
 }
 
 }  // namespace cutsim::web

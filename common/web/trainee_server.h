@@ -5,19 +5,21 @@
 /// (pose samples in) and sees the force and the cut (frames out). Boost.Beast
 /// on one I/O thread of its own; the handlers run on that thread.
 ///
-/// The server enforces:
+/// The shared core (web_core.h) enforces the connection caps and the
+/// `Host`, `Origin`, token and key checks; this server adds:
 ///  - a token on every WebSocket upgrade (`?token=<token>`), always: the
 ///    page drives a tool that cuts, so nobody without the session's token
 ///    may connect, on loopback or not (the page's files hold no session data
 ///    and are served to anyone who can connect);
-///  - the `Origin` of a WebSocket upgrade, when present, must be this
-///    server's own (`http://<Host>`), so other sites' pages cannot connect;
-///  - one trainee at a time: an upgrade while a trainee is connected is
-///    refused (503);
-///  - a cap on request header size and on the size of incoming WebSocket
-///    messages (a message above it closes the client with 1009);
+///  - one trainee at a time: the core's client cap is 1, so an upgrade while
+///    a trainee holds the seat is refused (503);
+///  - a cap on the size of incoming WebSocket messages (a message above it
+///    closes the client with 1009);
 ///  - a rate cap on incoming messages (a token bucket): messages above it
-///    are dropped and counted, not handed on.
+///    are dropped and counted, not handed on;
+///  - an idle limit: a trainee that sends nothing for `idle_timeout_s` is
+///    closed and the seat freed (the page sends a heartbeat while the
+///    trainee pauses, so a connected page keeps the seat).
 /// What a message says is the handler's to validate (browser_device.h).
 
 #include <cstdint>
@@ -27,6 +29,9 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <vector>
+
+#include "common/web/web_core.h"
 
 namespace cutsim::web {
 
@@ -38,6 +43,11 @@ struct TraineeServerOptions {
   /// URL path → file served at it (read once, at construction). "/" serves
   /// the entry mapped to "/index.html".
   std::map<std::string, std::filesystem::path> files;
+  /// Further names browsers may use for this server (Host and Origin).
+  std::vector<std::string> host_names;
+  int max_connections = 64;               ///< Connections at once (HTTP and WebSocket).
+  int max_connections_per_peer = 32;      ///< Of them, from one peer address.
+  double idle_timeout_s = 10.0;           ///< A trainee silent this long loses the seat.
   size_t max_incoming_bytes = 256;        ///< Largest WebSocket message the trainee may send.
   double max_messages_per_s = 400.0;      ///< Sustained incoming rate; above it messages are dropped.
   double burst_messages = 40.0;           ///< Token-bucket depth (messages).
@@ -60,17 +70,14 @@ struct TraineeHandlers {
 
 /// Counters, read with TraineeServer::stats() (a consistent copy).
 struct TraineeServerStats {
+  WebCoreStats web;              ///< The shared core's counters (web.refused_cap: seat taken).
   bool connected = false;        ///< A trainee is connected now.
   uint64_t accepted = 0;         ///< Trainees accepted in all.
-  uint64_t refused_busy = 0;     ///< Upgrades refused: a trainee was already connected.
-  uint64_t refused_origin = 0;   ///< Upgrades refused: foreign Origin.
-  uint64_t refused_token = 0;    ///< Upgrades refused: missing or wrong token.
-  uint64_t bad_requests = 0;     ///< Malformed or oversized HTTP requests, unknown paths.
+  uint64_t closed_idle = 0;      ///< Trainees closed for sending nothing for idle_timeout_s.
   uint64_t closed_oversized = 0; ///< Trainees closed for a message above the size cap.
   uint64_t rate_limited = 0;     ///< Messages dropped above the rate cap.
   uint64_t messages_received = 0;///< Messages handed to `on_message`.
   uint64_t frames_sent = 0;      ///< Messages written to the trainee.
-  uint64_t pages_served = 0;     ///< HTTP files served.
 };
 
 struct TraineeServerImpl;  // the I/O thread's state (trainee_server.cc)
@@ -90,6 +97,11 @@ class TraineeServer {
   [[nodiscard]] uint16_t port() const { return port_; }
   /// "http://address:port/" without the token.
   [[nodiscard]] std::string BaseUrl() const;
+  /// Queues a binary mesh frame (browser_frames.h) for the trainee.
+  /// Thread-safe, never blocks. Only the newest frames wait: a snapshot
+  /// replaces every frame waiting, an update replaces the update waiting.
+  /// The newest snapshot is also what a trainee who connects gets first.
+  void SendMesh(std::shared_ptr<const std::string> frame, bool snapshot);
   [[nodiscard]] TraineeServerStats stats() const;
 
  private:

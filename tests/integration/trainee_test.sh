@@ -4,9 +4,11 @@
 # and Debian's chromium (headless, driven by playwright-core through
 # web/trainee/test/trainee_test.mjs) whose mouse and keyboard bring the
 # scalpel down beside the ligament and across it. Passes when the server
-# reports a cut, the page showed a force and the cut, and a wrong key, a
-# foreign Origin, a second trainee, oversized and malformed messages were
-# refused without harm. Runs in a private loopback namespace.
+# reports a cut, the page showed the tissue in 3-D with the scalpel, a force
+# and the cut, and a wrong key, a foreign Origin, a rebound Host, a second
+# trainee, oversized and malformed messages were refused without harm.
+# Screenshots of the page before and after the cut are kept in OUT_DIR.
+# Runs in a private loopback namespace.
 #
 #   tests/integration/trainee_test.sh BIN_DIR [OUT_DIR] [--bench N]
 #
@@ -50,7 +52,7 @@ rm -f "$out/url" "$out/server.json"
 server=$!
 pids+=("$server")
 "$bin/cutsim-haptic" --device browser --serve 127.0.0.1:18095 --key-file "$out/key" --url-file "$out/url" \
-  --no-rt --csv "$out/haptic.csv" >"$out/haptic.json" 2>"$out/haptic.log" &
+  --scene scenes/ligament.pbtxt --no-rt --csv "$out/haptic.csv" >"$out/haptic.json" 2>"$out/haptic.log" &
 haptic=$!
 pids+=("$haptic")
 for _ in $(seq 100); do [ -s "$out/url" ] && break; sleep 0.1; done
@@ -75,7 +77,8 @@ grep -Eq 'browser device: 2 pages connected' "$out/haptic.log" || fail "the hapt
 grep -Eq 'refused: [1-9][0-9]* malformed, [1-9][0-9]* not finite, [1-9][0-9]* out of range, [1-9][0-9]* bad direction, [1-9][0-9]* bad buttons' \
   "$out/haptic.log" || fail "the refused messages were not counted: $(grep 'browser device:' "$out/haptic.log")"
 grep -Eq '[1-9][0-9]* oversized' "$out/haptic.log" || fail "the oversized message was not counted"
-grep -Eq 'upgrades refused: [1-9][0-9]* token, [1-9][0-9]* origin, [1-9][0-9]* busy' "$out/haptic.log" ||
+grep -Eq 'upgrades refused: [1-9][0-9]* token, [1-9][0-9]* origin, [1-9][0-9]* host, [0-9]+ key, [1-9][0-9]* busy' \
+  "$out/haptic.log" ||
   fail "the refused upgrades were not counted"
 echo "ok refusals-counted" >&2
 tail -1 "$out/page_test.log"

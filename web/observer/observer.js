@@ -5,7 +5,7 @@
 //
 // Wire protocol (version 1): the bridge sends text frames with JSON
 // ({"type":"hello"} once, then {"type":"session"} after each mesh frame) and
-// binary mesh frames with a 32-byte little-endian header (see parseMeshFrame).
+// binary mesh frames with a 32-byte little-endian header (web/common/mesh_frames.js).
 // The page never sends anything.
 //
 // Colours and lighting follow the C++ renderer (common/render/palette.h):
@@ -16,15 +16,13 @@
 
 import * as THREE from 'three';
 import { OrbitControls } from '/vendor/OrbitControls.js';
+import { KIND_SNAPSHOT, parseMeshFrame } from '/common/mesh_frames.js';
+import { makeScalpel } from '/common/scalpel.js';
 
 // ---------------------------------------------------------------------------
 // Constants
 
 const PROTOCOL_VERSION = 1;
-const HEADER_BYTES = 32;
-const KIND_SNAPSHOT = 1;
-const KIND_POSITIONS = 2;
-const FRAME_VERSION = 1;
 
 const COLOURS = {
   background: 0x1e222c,
@@ -50,7 +48,6 @@ const VIEW_DIRECTION = new THREE.Vector3(1.0, -1.6, 1.2).normalize();
 const FOV_DEG = 35;
 
 // Tool and force-arrow proportions, relative to the framed scene's radius.
-const TOOL_RADIUS = 0.03;
 const ARROW_RADIUS = 0.015;
 const ARROW_LENGTH = 0.5;      // at full scale
 const FORCE_FULL_SCALE = 1.0;  // N: the force drawn at ARROW_LENGTH
@@ -164,13 +161,10 @@ let meshSimTime = null;   // sim_time of the mesh frame now in surfaceMesh
 let meshSeq = null;       // seq of the mesh frame now in surfaceMesh
 let sceneRadius = null;   // half the diagonal of the first mesh's bounding box, m
 
-// The scalpel: a unit cylinder along +y from y = 0 to y = 1, scaled to the
-// blade's length and radius and turned from +y onto blade_dir.
-const toolMaterial = new THREE.MeshLambertMaterial({ color: COLOURS.tool });
-const toolGeometry = new THREE.CylinderGeometry(1, 1, 1, 16, 1, false).translate(0, 0.5, 0);
-const toolMesh = new THREE.Mesh(toolGeometry, toolMaterial);
-toolMesh.visible = false;
-scene.add(toolMesh);
+// The scalpel (web/common/scalpel.js): handle and flat blade, its edge
+// facing the way the tip last moved.
+const scalpel = makeScalpel(THREE);
+scene.add(scalpel.group);
 
 // The force on the tool: a shaft (70 % of the length) and a cone, both unit
 // shapes along +y, scaled and turned onto the force direction.
@@ -220,7 +214,7 @@ const Y_AXIS = new THREE.Vector3(0, 1, 0);
 /** Places the scalpel and the force arrow from the session's first tool. */
 function placeTool(tool) {
   if (!tool) {
-    toolMesh.visible = false;
+    scalpel.group.visible = false;
     forceArrow.visible = false;
     return;
   }
@@ -229,11 +223,8 @@ function placeTool(tool) {
   const dir = new THREE.Vector3(tool.bladeDir.x, tool.bladeDir.y, tool.bladeDir.z);
   if (!(dir.length() > 0)) dir.set(0, 0, 1);
   dir.normalize();
-  const radius = TOOL_RADIUS * scale;
-  toolMesh.position.copy(tip);
-  toolMesh.quaternion.setFromUnitVectors(Y_AXIS, dir);
-  toolMesh.scale.set(radius, tool.bladeLength, radius);
-  toolMesh.visible = tool.bladeLength > 0;
+  scalpel.place(tip, dir, tool.bladeLength);
+  scalpel.group.visible = tool.bladeLength > 0;
 
   const f = new THREE.Vector3(tool.force.x, tool.force.y, tool.force.z);
   const magnitude = f.length();
@@ -253,59 +244,6 @@ function placeTool(tool) {
 
 // ---------------------------------------------------------------------------
 // Binary mesh frames
-
-const littleEndianHost = new Uint8Array(new Uint16Array([1]).buffer)[0] === 1;
-
-/** `count` little-endian 32-bit values at `offset` as a fresh typed array. */
-function readArray32(buffer, offset, count, ArrayType) {
-  if (littleEndianHost) return new ArrayType(buffer.slice(offset, offset + 4 * count));
-  const view = new DataView(buffer, offset, 4 * count);
-  const out = new ArrayType(count);
-  const get = ArrayType === Float32Array ? (i) => view.getFloat32(4 * i, true)
-                                         : (i) => view.getUint32(4 * i, true);
-  for (let i = 0; i < count; ++i) out[i] = get(i);
-  return out;
-}
-
-/**
- * Decodes one binary frame. Header (little-endian): u8 kind, u8 version,
- * u16 reserved, u32 V, u32 F, u32 O, f64 sim_time, f64 seq. A snapshot
- * (kind 1) carries f32 positions[3V] then u32 triangles[3F], the last O of
- * them opened by a cut; a positions update (kind 2) carries f32 positions[3V].
- * Returns the frame, or a string saying why it is malformed.
- */
-function parseMeshFrame(buffer) {
-  if (buffer.byteLength < HEADER_BYTES) return `binary frame of ${buffer.byteLength} bytes is shorter than its header`;
-  const h = new DataView(buffer, 0, HEADER_BYTES);
-  const kind = h.getUint8(0);
-  const version = h.getUint8(1);
-  const V = h.getUint32(4, true);
-  const F = h.getUint32(8, true);
-  const O = h.getUint32(12, true);
-  const simTime = h.getFloat64(16, true);
-  const seq = h.getFloat64(24, true);
-  if (version !== FRAME_VERSION) return `binary frame version ${version}, expected ${FRAME_VERSION}`;
-  if (!Number.isFinite(seq) || !Number.isFinite(simTime)) return 'binary frame with a non-finite seq or sim_time';
-  if (kind === KIND_SNAPSHOT) {
-    const expected = HEADER_BYTES + 12 * V + 12 * F;
-    if (buffer.byteLength !== expected) return `snapshot of ${buffer.byteLength} bytes, expected ${expected} for V=${V} F=${F}`;
-    if (O > F) return `snapshot with ${O} opened of ${F} triangles`;
-    const triangles = readArray32(buffer, HEADER_BYTES + 12 * V, 3 * F, Uint32Array);
-    for (let i = 0; i < triangles.length; ++i) {
-      if (triangles[i] >= V) return `snapshot triangle index ${triangles[i]} out of range (V=${V})`;
-    }
-    const positions = readArray32(buffer, HEADER_BYTES, 3 * V, Float32Array);
-    return { kind, V, F, O, simTime, seq, positions, triangles };
-  }
-  if (kind === KIND_POSITIONS) {
-    const expected = HEADER_BYTES + 12 * V;
-    if (buffer.byteLength !== expected) return `positions update of ${buffer.byteLength} bytes, expected ${expected} for V=${V}`;
-    if (F !== 0 || O !== 0) return `positions update with F=${F} O=${O}, expected 0`;
-    const positions = readArray32(buffer, HEADER_BYTES, 3 * V, Float32Array);
-    return { kind, V, F, O, simTime, seq, positions, triangles: null };
-  }
-  return `binary frame of unknown kind ${kind}`;
-}
 
 /** Replaces the surface with a snapshot's; frames the camera on the first. */
 function applySnapshot(frame) {
@@ -696,12 +634,12 @@ function precompileShaders() {
   placeholder.addGroup(3, 3, 1);
   const probe = new THREE.Mesh(placeholder, [tissueMaterial, cutMaterial]);
   scene.add(probe);
-  toolMesh.visible = true;
+  scalpel.group.visible = true;
   forceArrow.visible = true;
   renderer.compile(scene, camera);
   scene.remove(probe);
   placeholder.dispose();
-  toolMesh.visible = false;
+  scalpel.group.visible = false;
   forceArrow.visible = false;
 }
 

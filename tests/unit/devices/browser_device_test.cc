@@ -6,9 +6,13 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <filesystem>
+#include <fstream>
 #include <cmath>
 #include <string>
 #include <thread>
+
+#include <fmt/format.h>
 
 #include <boost/asio/connect.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -153,10 +157,20 @@ TEST(TraineeTokenTest, IsAKeyedDigestThatHidesTheKey) {
 class BrowserDeviceServerTest : public ::testing::Test {
  protected:
   BrowserDeviceServerTest() {
+    // three.js stand-ins: the page's own files come from the source tree.
+    for (const char* f : {"build/three.module.js", "build/three.core.js", "examples/jsm/controls/OrbitControls.js"}) {
+      std::filesystem::create_directories((three_ / f).parent_path());
+      std::ofstream(three_ / f) << "// stand-in\n";
+    }
     BrowserDeviceOptions o;
     o.token = "abc123";
     o.page_dir = CUTSIM_SOURCE_DIR "/web/trainee";
+    o.three_dir = three_.string();
     device_ = std::make_unique<BrowserDevice>(o, BrowserDevice::DefaultInfo());
+  }
+  ~BrowserDeviceServerTest() override {
+    device_.reset();
+    std::filesystem::remove_all(three_);
   }
 
   /// Opens a WebSocket; false when the upgrade is refused.
@@ -180,6 +194,8 @@ class BrowserDeviceServerTest : public ::testing::Test {
     return s;
   }
 
+  std::filesystem::path three_ =
+      std::filesystem::temp_directory_path() / ("cutsim_three_stub_" + std::to_string(::getpid()));
   net::io_context ioc_;
   std::unique_ptr<BrowserDevice> device_;
 };
@@ -234,7 +250,7 @@ TEST_F(BrowserDeviceServerTest, ATraineeDrivesTheToolAndReceivesTheForce) {
   // A second trainee is refused while the first holds the tool.
   websocket::stream<tcp::socket> second(ioc_);
   EXPECT_FALSE(Open(&second, "abc123", Own()));
-  EXPECT_EQ(device_->server().stats().refused_busy, 1U);
+  EXPECT_EQ(device_->server().stats().web.refused_cap, 1U);
 
   // The page leaves: cutting stops, the tool holds its place.
   ws.close(websocket::close_code::normal);
@@ -252,8 +268,8 @@ TEST_F(BrowserDeviceServerTest, RefusesAWrongTokenAForeignOriginAndOversizedMess
   websocket::stream<tcp::socket> foreign(ioc_);
   EXPECT_FALSE(Open(&foreign, "abc123", "http://evil.example"));
   const web::TraineeServerStats st = device_->server().stats();
-  EXPECT_EQ(st.refused_token, 2U);
-  EXPECT_EQ(st.refused_origin, 1U);
+  EXPECT_EQ(st.web.refused_token, 2U);
+  EXPECT_EQ(st.web.refused_origin, 1U);
   EXPECT_EQ(st.accepted, 0U);
 
   websocket::stream<tcp::socket> ws(ioc_);
@@ -285,6 +301,45 @@ TEST_F(BrowserDeviceServerTest, DropsMessagesAboveTheRateCap) {
   EXPECT_GT(st.rate_limited, 0U);
   EXPECT_LT(st.messages_received, 2000U);
   EXPECT_EQ(device_->stats().samples, st.messages_received);
+}
+
+// A sample's time must lie near the stream's clock: one wild time is
+// refused and the tool keeps following the page.
+TEST_F(BrowserDeviceServerTest, AWildSampleTimeIsRefusedAndTheToolFollowsOn) {
+  const int64_t r0 = MonotonicNs();
+  device_->OnMessage("p 1000 0.5 0.5 0.5 0 0 1 1", r0);
+  device_->OnMessage("p 1010 0.5 0.5 0.5 0 0 1 1", r0 + 10'000'000);
+  device_->OnMessage("p 1e12 0.9 0.5 0.5 0 0 1 1", r0 + 20'000'000);
+  device_->OnMessage("p 1030 0.1 0.5 0.5 0 0 1 1", r0 + 30'000'000);
+  EXPECT_EQ(device_->stats().refused[static_cast<size_t>(SampleError::kClock)], 1U);
+  EXPECT_EQ(device_->stats().samples, 3U);
+  const DeviceInfo& info = device_->info();
+  const double x = info.workspace_min.x() + 0.1 * (info.workspace_max.x() - info.workspace_min.x());
+  EXPECT_NEAR(ReadAt(r0 + 1'000'000'000).pose.tip.x(), x, 1e-9);
+  // A time far in the past of the stream's clock is refused too.
+  device_->OnMessage("p 1040 0.9 0.5 0.5 0 0 1 1", r0 + 5'000'000'000);
+  EXPECT_EQ(device_->stats().refused[static_cast<size_t>(SampleError::kClock)], 2U);
+  EXPECT_NEAR(ReadAt(r0 + 6'000'000'000).pose.tip.x(), x, 1e-9);
+}
+
+// A wild first sample cannot hold the tool either: once every sample has
+// been refused for its time for kReanchorMs, the stream's clock restarts.
+TEST_F(BrowserDeviceServerTest, AWildFirstSampleTimeIsOutlivedByTheClockRestart) {
+  const int64_t r0 = MonotonicNs();
+  device_->OnMessage("p 1e12 0.9 0.5 0.5 0 0 1 1", r0);
+  for (int ms = 0; ms <= 1500; ms += 10) {
+    device_->OnMessage(fmt::format("p {} 0.2 0.5 0.5 0 0 1 0", 50 + ms), r0 + int64_t{ms} * 1'000'000 + 1'000'000);
+  }
+  EXPECT_EQ(device_->stats().reanchors, 1U);
+  const DeviceInfo& info = device_->info();
+  const double x = info.workspace_min.x() + 0.2 * (info.workspace_max.x() - info.workspace_min.x());
+  EXPECT_NEAR(ReadAt(r0 + 3'000'000'000).pose.tip.x(), x, 1e-9);
+}
+
+TEST_F(BrowserDeviceServerTest, AHeartbeatIsCountedNotRefused) {
+  device_->OnMessage("h", MonotonicNs());
+  EXPECT_EQ(device_->stats().heartbeats, 1U);
+  EXPECT_EQ(device_->stats().refused_total(), 0U);
 }
 
 }  // namespace

@@ -4,11 +4,14 @@
 // parsing and ticks (counted by
 // tests/support/malloc_counter.h, which sees the C plugin's malloc too).
 #include <fcntl.h>
+#include <unistd.h>
 #include <linux/input.h>
 #include <sys/ioctl.h>
 
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -45,10 +48,19 @@ TEST(DeviceAllocation, PluginTicksThroughTheGuardNeverAllocate) {
 
 TEST(DeviceAllocation, BrowserSamplesAndTicksNeverAllocate) {
   if (!kMallocCounting) GTEST_SKIP() << "malloc counting unavailable under a sanitizer";
+  // three.js stand-ins (the page's own files come from the source tree).
+  const std::filesystem::path three =
+      std::filesystem::temp_directory_path() / ("cutsim_alloc_three_" + std::to_string(::getpid()));
+  for (const char* f : {"build/three.module.js", "build/three.core.js", "examples/jsm/controls/OrbitControls.js"}) {
+    std::filesystem::create_directories((three / f).parent_path());
+    std::ofstream(three / f) << "// stand-in\n";
+  }
   BrowserDeviceOptions o;
   o.token = "t";
   o.page_dir = CUTSIM_SOURCE_DIR "/web/trainee";
+  o.three_dir = three.string();
   BrowserDevice device(o, BrowserDevice::DefaultInfo());  // no page connects: its I/O thread idles
+  std::filesystem::remove_all(three);
   DeviceGuard guard(device, GuardOptions{});
   guard.Start(0);
   std::vector<std::string> samples;

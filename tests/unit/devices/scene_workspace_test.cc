@@ -1,5 +1,6 @@
 // The device workspace a scene sets (haptics.device_scale/device_offset),
-// as cutsim-haptic --scene reads it.
+// and what the trainee page draws of the scene (the planned incision, the
+// blade), as cutsim-haptic --scene reads them.
 #include <fstream>
 #include <string>
 
@@ -51,6 +52,21 @@ TEST(SceneWorkspace, BadValuesAndSyntaxNameTheFileAndField) {
     FAIL() << "syntax error accepted";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find(broken + ":2:"), std::string::npos) << e.what();
+  }
+}
+
+TEST(SceneWorkspace, ReadsThePlanAndTheBladeForThePage) {
+  const SceneWorkspace w = ReadSceneWorkspace(CUTSIM_SOURCE_DIR "/scenes/ligament.pbtxt");
+  ASSERT_EQ(w.planned_incision.size(), 2u);
+  EXPECT_EQ(w.planned_incision[0], Eigen::Vector3d(0.015, -0.004, -0.004));
+  EXPECT_EQ(w.blade_length, 0.02);
+  const std::string far = WriteScene("ws_far.pbtxt",
+                                     "planned_incision { points { x: 0 } points { x: 1e300 } depth: 0.001 }\n");
+  try {
+    (void)ReadSceneWorkspace(far);
+    FAIL() << "a plan point at 1e300 m was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("planned_incision.points[1]"), std::string::npos) << e.what();
   }
 }
 

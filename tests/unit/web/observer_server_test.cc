@@ -113,7 +113,7 @@ TEST(ObserverServerTest, ServesThePageAndNothingElse) {
   EXPECT_EQ(Get(server.port(), "/index.html").first, 200);
   EXPECT_EQ(Get(server.port(), "/../index.html").first, 404);
   EXPECT_EQ(Get(server.port(), "/etc/passwd").first, 404);
-  EXPECT_EQ(server.stats().pages_served, 2u);
+  EXPECT_EQ(server.stats().web.pages_served, 2u);
   EXPECT_EQ(server.Url(), "http://127.0.0.1:" + std::to_string(server.port()) + "/");
 }
 
@@ -136,7 +136,7 @@ TEST(ObserverServerTest, OffLoopbackNeedsATokenAndTheStreamChecksIt) {
   EXPECT_FALSE(without.Open(server.port()));
   EXPECT_FALSE(wrong.Open(server.port(), "/ws?token=0123456789abcdef0124"));
   EXPECT_TRUE(with.Open(server.port(), "/ws?token=" + o.token));
-  EXPECT_EQ(server.stats().refused_token, 2u);
+  EXPECT_EQ(server.stats().web.refused_token, 2u);
 }
 
 TEST(ObserverServerTest, ForeignOriginIsRefusedOwnOriginAccepted) {
@@ -145,7 +145,7 @@ TEST(ObserverServerTest, ForeignOriginIsRefusedOwnOriginAccepted) {
   Client evil, own;
   EXPECT_FALSE(evil.Open(server.port(), "/ws", "http://evil.example"));
   EXPECT_TRUE(own.Open(server.port(), "/ws", "http://127.0.0.1:" + std::to_string(server.port())));
-  EXPECT_EQ(server.stats().refused_origin, 1u);
+  EXPECT_EQ(server.stats().web.refused_origin, 1u);
 }
 
 TEST(ObserverServerTest, ClientCapRefusesTheNextClient) {
@@ -158,7 +158,7 @@ TEST(ObserverServerTest, ClientCapRefusesTheNextClient) {
   ASSERT_TRUE(b.Open(server.port()));
   ASSERT_TRUE(Eventually([&] { return server.stats().clients == 2; }));
   EXPECT_FALSE(c.Open(server.port()));
-  EXPECT_EQ(server.stats().refused_cap, 1u);
+  EXPECT_EQ(server.stats().web.refused_cap, 1u);
 }
 
 TEST(ObserverServerTest, JoinMessagesComeFirstThenEveryBroadcastInOrder) {

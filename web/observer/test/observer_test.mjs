@@ -341,7 +341,7 @@ const whenSettled = (c, timeoutMs) => Promise.race([c.done, sleep(timeoutMs)]);
 // Checks
 
 const CHROMIUM_ARGS = ['--headless=new', '--use-gl=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'];
-const VIEWPORT = { width: 960, height: 600 };
+const VIEWPORT = { width: 1280, height: 720 };
 const pageErrors = [];
 
 async function main() {
@@ -364,7 +364,8 @@ async function main() {
       report('page-loads', true, '', { ms: Date.now() - t0, vertices: s.vertexCount, triangles: s.triangleCount });
     });
     if (!loaded) {
-      for (const name of ['canvas-shows-tissue-and-scalpel', 'view-updates-as-tool-moves', 'view-updates-after-cut',
+      for (const name of ['canvas-shows-tissue-and-scalpel', 'hud-beside-the-view', 'view-updates-as-tool-moves',
+        'view-updates-after-cut',
         'late-joiner-catches-up', 'twenty-clients', 'hostile-input-refused', 'page-reports-no-errors']) {
         report(name, false, 'skipped: the page did not load');
       }
@@ -382,6 +383,17 @@ async function main() {
         const ok = counts.tissue >= 500 && counts.tool >= 30;
         report('canvas-shows-tissue-and-scalpel', ok,
           `tissue pixels ${counts.tissue} (need ≥ 500), scalpel pixels ${counts.tool} (need ≥ 30)`, { counts });
+      });
+      // The HUD is beside the view, never over the tissue.
+      await check('hud-beside-the-view', async () => {
+        const r = await first.evaluate(() => {
+          const h = document.getElementById('hud').getBoundingClientRect();
+          const v = document.getElementById('view').getBoundingClientRect();
+          return { hudRight: h.right, hudBottom: h.bottom, viewLeft: v.left, viewWidth: v.width,
+            height: window.innerHeight };
+        });
+        report('hud-beside-the-view', r.hudRight <= r.viewLeft + 0.5 && r.hudBottom <= r.height && r.viewWidth >= 900,
+          JSON.stringify(r), r);
       });
 
       // 3. The picture and the tool tip change as the scalpel moves.

@@ -6,10 +6,13 @@
 //        [--bench N] [--chromium PATH]
 //
 // Drives Debian's chromium headless through playwright-core (from
-// web/observer's npm packages): the mouse and keyboard bring the scalpel
-// down beside the ligament, switch cutting on and draw it across, as
-// scenes/ligament-cut.path does. Plain WebSocket clients (ws) try a wrong
-// token, a foreign Origin, a second trainee, oversized and malformed
+// web/observer's npm packages) at 1280×720: the page shows the tissue in
+// 3-D with the scalpel beside (never under) its HUD; the mouse and keyboard
+// bring the scalpel down beside the ligament, switch cutting on and draw it
+// across, as scenes/ligament-cut.path does; turning the view moves no tool.
+// Screenshots before and after the cut go to DIR (trainee-before.png,
+// trainee-after.png). Plain WebSocket clients (ws) try a wrong token, a
+// foreign Origin, a rebound Host, a second trainee, oversized and malformed
 // messages. With --bench N, N mouse moves are timed from the input event to
 // the first force frame computed from a pose that includes it.
 // Prints `ok NAME` or `FAIL NAME: why` per check and a JSON summary line
@@ -66,11 +69,39 @@ function tryWs(target, options = {}, onOpen = null) {
   });
 }
 
+/// Pixel classes of the page's WebGL canvas (the observer test's rules).
+function classifyCanvas() {
+  const src = document.getElementById('view');
+  const c = document.createElement('canvas');
+  c.width = src.width;
+  c.height = src.height;
+  const g = c.getContext('2d');
+  g.drawImage(src, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  const counts = { pixels: c.width * c.height, tissue: 0, tool: 0, cut: 0 };
+  for (let i = 0; i < d.length; i += 4) {
+    const r = d[i], gr = d[i + 1], b = d[i + 2];
+    const hi = Math.max(r, gr, b), lo = Math.min(r, gr, b);
+    if (hi < 40 || hi === lo) continue;
+    const delta = hi - lo;
+    let hue = hi === r ? (60 * (gr - b)) / delta : hi === gr ? 60 * (2 + (b - r) / delta) : 60 * (4 + (r - gr) / delta);
+    if (hue < 0) hue += 360;
+    const sat = delta / hi;
+    if ((hue >= 345 || hue <= 20) && sat >= 0.2 && sat <= 0.6) counts.tissue += 1;
+    if (hue >= 195 && hue <= 250 && sat >= 0.04 && sat <= 0.22) counts.tool += 1;
+    if (hue >= 30 && hue <= 65 && sat >= 0.6) counts.cut += 1;
+  }
+  return counts;
+}
+
 async function hostileChecks(page) {
   const wrongToken = await tryWs(wsUrl('0'.repeat(64)), { origin: url.origin });
   check('wrong-key-refused', !wrongToken.opened && wrongToken.status === 403, JSON.stringify(wrongToken));
   const foreign = await tryWs(wsUrl(token), { origin: 'http://evil.example' });
   check('foreign-origin-refused', !foreign.opened && foreign.status === 403, JSON.stringify(foreign));
+  const rebound = await tryWs(wsUrl(token), { origin: `http://evil.example:${url.port}`,
+    headers: { Host: `evil.example:${url.port}` } });
+  check('rebound-host-refused', !rebound.opened && rebound.status === 403, JSON.stringify(rebound));
   const second = await tryWs(wsUrl(token), { origin: url.origin });
   check('second-trainee-refused', !second.opened && second.status === 503, JSON.stringify(second));
   // Through the page's own socket: malformed samples are refused and counted
@@ -91,12 +122,28 @@ async function main() {
     executablePath: args.chromium,
     args: ['--headless=new', '--use-gl=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'],
   });
-  const page = await browser.newPage({ viewport: { width: 1000, height: 760 } });
+  const page = await browser.newPage({ viewport: { width: 1280, height: 720 } });
   const errors = [];
   page.on('pageerror', (e) => errors.push(String(e)));
   await page.goto(args.url);
   await page.waitForFunction(() => window.trainee && window.trainee.stats.framesReceived > 5, null, { timeout: 15000 });
   check('page-connects', true);
+  // The tissue from the session's mesh stream, the scalpel over it.
+  await page.waitForFunction(() => window.trainee.stats.meshFrames >= 1, null, { timeout: 20000 }).catch(() => {});
+  await sleep(500);
+  const before = await page.evaluate(classifyCanvas);
+  check('page-shows-tissue-and-blade', before.tissue >= 2000 && before.tool >= 30,
+    `tissue pixels ${before.tissue} (need ≥ 2000), blade pixels ${before.tool} (need ≥ 30)`);
+  if (args.out) await page.screenshot({ path: path.join(args.out, 'trainee-before.png') });
+  const layout = await page.evaluate(() => {
+    const h = document.getElementById('hud').getBoundingClientRect();
+    const v = document.getElementById('view').getBoundingClientRect();
+    const cues = ['force-bar', 'depth-bar'].map((id) => document.getElementById(id).parentElement.getBoundingClientRect());
+    return { hudRight: h.right, viewLeft: v.left, viewWidth: v.width,
+      cuesInView: cues.every((c) => c.bottom <= window.innerHeight && c.right <= window.innerWidth && c.width > 0) };
+  });
+  check('hud-beside-the-view', layout.hudRight <= layout.viewLeft + 0.5 && layout.viewWidth >= 900 && layout.cuesInView,
+    JSON.stringify(layout));
 
   const to = (x, y) => page.evaluate(([a, b]) => window.trainee.toClient(a, b), [x, y]);
   // Above the start of the cut, then down to z = −6 mm beside the ligament
@@ -105,9 +152,12 @@ async function main() {
   await page.mouse.move(p.x, p.y, { steps: 10 });
   await page.focus('#view');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowDown'); await sleep(15); }
-  await sleep(300);
+  // The station follows the page one input period behind: wait for it.
+  await page.waitForFunction(() => Math.abs(window.trainee.state.frame.tip[2] + 0.006) < 3e-4, null,
+    { timeout: 5000 }).catch(() => {});
   const depth = await page.evaluate(() => window.trainee.state.frame.tip[2]);
-  check('keys-set-the-depth', Math.abs(depth + 0.006) < 3e-4, `tip z ${depth} m`);
+  const commanded = await page.evaluate(() => ({ w: window.trainee.state.w, sent: window.trainee.stats.samplesSent }));
+  check('keys-set-the-depth', Math.abs(depth + 0.006) < 3e-4, `tip z ${depth} m (commanded ${JSON.stringify(commanded)})`);
   // Cut: hold Space and draw across the ligament along +y over 2 s.
   await page.keyboard.down('Space');
   for (let i = 0; i <= 100; ++i) {
@@ -115,23 +165,39 @@ async function main() {
     await page.mouse.move(p.x, p.y);
     await sleep(20);
   }
-  await sleep(300);
+  const fps = await page.evaluate(() => window.trainee.stats.fps);  // drawn per second while the tool moves
+  await page.waitForFunction(() => window.trainee.stats.maxCuts >= 1, null, { timeout: 5000 }).catch(() => {});
   await page.keyboard.up('Space');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowUp'); await sleep(10); }
+  await sleep(500);
+  const after = await page.evaluate(classifyCanvas);
+  if (args.out) await page.screenshot({ path: path.join(args.out, 'trainee-after.png') });
   const s = await page.evaluate(() => window.trainee.stats);
+  check('opened-faces-shown', s.openedCount >= 1 && after.cut >= 1,
+    `opened faces in the mesh ${s.openedCount}, cut-colour pixels ${after.cut}`);
   check('force-bar-shown', s.maxForceSeen > 0.05, `max force seen ${s.maxForceSeen} N`);
   check('page-shows-the-cut', s.maxCuts >= 1, `cuts shown ${s.maxCuts}`);
   const bar = await page.evaluate(() => document.getElementById('cuts').textContent);
   check('cut-count-on-page', Number(bar) >= 1, `#cuts shows ${bar}`);
-  if (args.out) await page.screenshot({ path: path.join(args.out, 'trainee.png') });
+  // Turning the view (keys, as the right button does) moves no tool.
+  const sent = await page.evaluate(() => window.trainee.stats.samplesSent);
+  const viewBefore = await page.evaluate(() => document.getElementById('view-state').textContent);
+  for (const key of ['l', 'l', 'i']) await page.keyboard.press(key);
+  await sleep(200);
+  const turned = await page.evaluate(() => ({ sent: window.trainee.stats.samplesSent,
+    view: document.getElementById('view-state').textContent }));
+  check('view-turns-without-moving-the-tool', turned.sent === sent && turned.view !== viewBefore,
+    JSON.stringify({ ...turned, before: viewBefore, sentBefore: sent }));
+  for (const key of ['k', 'j', 'j']) await page.keyboard.press(key);
 
   await hostileChecks(page);
 
   let bench = null;
   if (args.bench > 0) {
     await page.evaluate(() => { window.trainee.stats.latencyMs = []; window.trainee.stats.pending = []; });
-    const a = await to(0.025, 0.02);
-    const b = await to(0.035, 0.02);
+    // Above the ligament (the tip is back at +20 mm), inside the view.
+    const a = await to(0.01, 0.0);
+    const b = await to(0.02, 0.0);
     for (let i = 0; i < args.bench; ++i) {
       const f = 0.5 + 0.5 * Math.sin(i / 10);
       await page.mouse.move(a.x + f * (b.x - a.x), a.y);
@@ -154,7 +220,8 @@ async function main() {
   check('slot-free-after-close', next.opened, JSON.stringify(next));
   check('page-reports-no-errors', errors.length === 0, errors.join('; '));
   await browser.close();
-  const summary = { kind: 'trainee_test', passed: results.every((r) => r.ok), results, latency: bench };
+  const summary = { kind: 'trainee_test', passed: results.every((r) => r.ok), results, latency: bench,
+    view_fps: Math.round(fps * 10) / 10, pixels_before: before, pixels_after: after };
   if (args.out) fs.writeFileSync(path.join(args.out, 'summary.json'), JSON.stringify(summary, null, 1));
   console.log(JSON.stringify(bench ?? summary));
   process.exit(summary.passed ? 0 : 1);
