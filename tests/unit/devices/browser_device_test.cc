@@ -291,8 +291,12 @@ TEST_F(BrowserDeviceServerTest, DropsMessagesAboveTheRateCap) {
   websocket::stream<tcp::socket> ws(ioc_);
   ASSERT_TRUE(Open(&ws, "abc123", Own()));
   ws.text(true);
-  // Far more than the burst, as fast as a socket takes them.
-  for (int i = 0; i < 2000; ++i) ws.write(net::buffer("p " + std::to_string(1000 + i) + " 0.5 0.5 0.5 0 0 1 0"));
+  // Far more than the burst, as fast as a socket takes them, their times
+  // 10 µs apart (all within the stream clock's window however slowly they
+  // arrive).
+  for (int i = 0; i < 2000; ++i) {
+    ws.write(net::buffer("p " + std::to_string(1000.0 + 0.01 * i) + " 0.5 0.5 0.5 0 0 1 0"));
+  }
   ASSERT_TRUE(WaitFor([&] {
     const auto st = device_->server().stats();
     return st.messages_received + st.rate_limited == 2000;

@@ -227,7 +227,9 @@ TEST(SessionMeter, CutOffVolumeIsThePiecesAwayFromTheAnchor) {
   state.x[3 * static_cast<size_t>(m.num_nodes() - 1)] += 0.003;
   Meter away({});
   away.Sample(model, state.x.data(), {.cut = &cut}, 0.0);
-  EXPECT_EQ(away.metrics().stress_outside, 0.0);
+  // The pulled piece is under kPa; the body keeps round-off only (FMA
+  // builds round its rest state to ~1e-13 Pa).
+  EXPECT_LT(away.metrics().stress_outside, 1e-6);
 }
 
 TEST(SessionMeter, RestoreCarriesTheMeasuresOn) {
