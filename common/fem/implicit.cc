@@ -390,9 +390,9 @@ bool ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t dead
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
-  // A solve that needed many iterations, or ran out of time before it
-  // converged, asks for a fresher factor.
-  if (pr.iterations > options_.refactor_pcg_iterations || pr.out_of_time) RequestFactor(*model_, result);
+  // A step whose solves needed many iterations asks for a fresher factor
+  // (counted over the step: a solve cut short by the deadline stays short).
+  if (result.pcg_iterations > options_.refactor_pcg_iterations) RequestFactor(*model_, result);
   if (pr.negative_curvature) {
     result.negative_curvature = true;
     if (options_.tangent == TangentMode::kAuto) *clamped = true;
@@ -519,13 +519,17 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
 Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
                                                        std::span<const double> weights) {
   if (!(last_h_ > 0) || system_.Stale(model)) return Eigen::Matrix3d::Zero();
+  const int32_t nn = system_.num_nodes();
+  const bool any_free = std::any_of(nodes.begin(), nodes.end(), [&](int32_t n) {
+    return n >= 0 && n < nn && active_[static_cast<size_t>(n)] != 0;
+  });
+  if (!any_free) return Eigen::Matrix3d::Zero();  // no tangent to assemble for a point off the tissue
   if (!k_fresh_) {
     // x_ holds the last step's solution (its last evaluation).
     AssembleJacobian(model, last_h_, last_penalties_, last_clamped_, true);
     k_fresh_ = true;
     reassemble_k_ = false;
   }
-  const int32_t nn = system_.num_nodes();
   Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
   bool any = false;
   for (int c = 0; c < 3; ++c) {

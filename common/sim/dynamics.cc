@@ -8,12 +8,14 @@
 
 namespace cutsim::sim {
 
-fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads) {
+fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads, bool timed) {
   const v1::ImplicitSolver& s = scene.time_step().implicit();
   fem::ImplicitOptions options;
-  options.num_threads = threads;
   options.mass_damping = scene.mass_damping();
-  options.asynchronous_factorization = threads >= 2;
+  options.asynchronous_factorization = threads >= 2 || timed;
+  // The factor worker gets a core of its own: the step's team leaves it
+  // one, so a factorisation never competes with the frame for a core.
+  options.num_threads = options.asynchronous_factorization && threads >= 2 ? threads - 1 : threads;
   options.force_tolerance = s.force_tolerance();
   if (s.linear_tolerance() > 0) options.linear_tolerance = s.linear_tolerance();
   if (s.max_newton_iterations() > 0) options.max_newton_iterations = s.max_newton_iterations();
@@ -200,7 +202,8 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
 template <typename T>
 Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const {
   if constexpr (std::is_same_v<T, double>) {
-    if (kind_ == IntegratorKind::kImplicit) {
+    // Without load the stiffness is zero (ToolState): no tangent to assemble.
+    if (kind_ == IntegratorKind::kImplicit && tool.Loaded()) {
       const std::array<int32_t, 3>& nodes = tool.force_nodes();
       const Eigen::Vector3d& w = tool.force_weights();
       const std::array<double, 3> weights{w[0], w[1], w[2]};

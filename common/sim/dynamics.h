@@ -30,10 +30,11 @@
 namespace cutsim::sim {
 
 /// The implicit step's options for a scene: its time_step.implicit
-/// stopping rules and mass damping, `threads` OpenMP threads; two or more
-/// factor on a worker thread beside the steps, one factors inline
-/// (bit-reproducible runs).
-[[nodiscard]] fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads);
+/// stopping rules and mass damping, `threads` OpenMP threads; two or more,
+/// or a run with a frame budget (`timed`: its steps depend on timing
+/// anyway), factor on a worker thread beside the steps; one thread without
+/// a budget factors inline (bit-reproducible runs and replays).
+[[nodiscard]] fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads, bool timed = false);
 
 template <typename T>
 class Dynamics {

@@ -44,7 +44,8 @@ class Engine final : public Simulation {
         mesh_(std::move(scene_mesh)),
         fem_(scene_, mesh_, options),
         world_access_(fem_.state().x),
-        dynamics_(ChooseKind(scene_, mesh_, fem_, options), ImplicitOptionsFor(scene_.scene, fem_.threads())),
+        dynamics_(ChooseKind(scene_, mesh_, fem_, options),
+                  ImplicitOptionsFor(scene_.scene, fem_.threads(), options.frame_budget > 0)),
         frame_budget_ns_(static_cast<int64_t>(1e9 * std::max(0.0, options.frame_budget))) {
     // The prescribed nodes start where the scene puts them at t = 0, so the
     // settle stage finds the equilibrium with them in place.
