@@ -148,7 +148,7 @@ async function main() {
   const to = (x, y) => page.evaluate(([a, b]) => window.trainee.toClient(a, b), [x, y]);
   // Above the start of the cut, then down to z = −6 mm beside the ligament
   // (the arrow keys step 1 mm from the top of the workspace at +20 mm).
-  let p = await to(0.0151, -0.008);
+  let p = await to(0.0163, -0.008);
   await page.mouse.move(p.x, p.y, { steps: 10 });
   await page.focus('#view');
   for (let i = 0; i < 26; ++i) { await page.keyboard.press('ArrowDown'); await sleep(15); }
@@ -161,7 +161,7 @@ async function main() {
   // Cut: hold Space and draw across the ligament along +y over 2 s.
   await page.keyboard.down('Space');
   for (let i = 0; i <= 100; ++i) {
-    p = await to(0.0151, -0.008 + 0.016 * i / 100);
+    p = await to(0.0163, -0.008 + 0.016 * i / 100);
     await page.mouse.move(p.x, p.y);
     await sleep(20);
   }
