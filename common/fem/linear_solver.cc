@@ -313,7 +313,9 @@ void LinearSolver::Factorize(Snapshot& s) {
     f->values.assign(s.values.begin(), s.values.end());
   }
   const double seconds = Seconds(t0);
-  if (worker_delay_s_ > 0) std::this_thread::sleep_for(std::chrono::duration<double>(worker_delay_s_));
+  if (const double delay = worker_delay_s_.load(); delay > 0) {
+    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+  }
   std::vector<Factor*> to_free;
   {
     std::lock_guard<std::mutex> lock(mutex_);

@@ -152,7 +152,7 @@ class LinearSolver {
 
   /// Test hook: the worker waits this long after each factorisation before
   /// publishing it, standing in for a slow machine.
-  void set_worker_delay_for_testing(double seconds) { worker_delay_s_ = seconds; }
+  void set_worker_delay_for_testing(double seconds) { worker_delay_s_.store(seconds); }
   /// Makes the newest finished factor current (never waits).
   void Acquire();
   [[nodiscard]] FactorStats stats() const;
@@ -197,7 +197,7 @@ class LinearSolver {
   std::atomic<bool> busy_{false};
   bool request_pending_ = false;
   uint64_t requests_ = 0;
-  double worker_delay_s_ = 0;
+  std::atomic<double> worker_delay_s_{0};
   // The low-rank correction of front_ toward the pattern `correction_pattern_`.
   FactorCorrection correction_;
   uint64_t correction_request_ = 0;  // factor_request() of the factor it corrects
