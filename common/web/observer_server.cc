@@ -166,17 +166,7 @@ ObserverServer::ObserverServer(ObserverServerOptions options) : impl_(std::make_
                                 "(--token-file)",
                                 o.address));
   }
-  WebCoreOptions co;
-  co.address = o.address;
-  co.port = o.port;
-  co.token = o.token;
-  co.host_names = o.host_names;
-  co.files = o.files;
-  co.files_what = "the observer page's files";
-  co.max_connections = o.max_connections;
-  co.max_connections_per_peer = o.max_connections_per_peer;
-  co.max_ws_clients = o.max_clients;
-  co.max_request_header_bytes = o.max_request_header_bytes;
+  WebCoreOptions co = CoreOptionsOf(o, "the observer page's files", o.max_clients);
   ObserverServerImpl* impl = impl_.get();
   impl_->core = std::make_unique<WebCore>(
       std::move(co), [impl](beast::tcp_stream&& stream, http::request<http::empty_body>&& req,

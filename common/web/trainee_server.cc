@@ -229,17 +229,8 @@ TraineeServer::TraineeServer(TraineeServerOptions options, TraineeHandlers handl
     ThrowInputError({.field = "idle_timeout_s"}, fmt::format("{} s is out of range [0.05, 3600]", o.idle_timeout_s));
   }
   impl_->frame_period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / o.frame_hz));
-  WebCoreOptions co;
-  co.address = o.address;
-  co.port = o.port;
-  co.token = o.token;
-  co.host_names = o.host_names;
-  co.files = o.files;
-  co.files_what = "the trainee page's files";
-  co.max_connections = o.max_connections;
-  co.max_connections_per_peer = o.max_connections_per_peer;
-  co.max_ws_clients = 1;  // one trainee holds the tool
-  co.max_request_header_bytes = o.max_request_header_bytes;
+  // One trainee holds the tool: one WebSocket client.
+  WebCoreOptions co = CoreOptionsOf(o, "the trainee page's files", 1);
   TraineeServerImpl* impl = impl_.get();
   impl_->core = std::make_unique<WebCore>(
       std::move(co), [impl](beast::tcp_stream&& stream, http::request<http::empty_body>&& req,

@@ -32,6 +32,7 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <boost/asio/io_context.hpp>
@@ -61,6 +62,25 @@ struct WebCoreOptions {
   double accept_backoff_s = 0.1;       ///< Wait after `accept` runs out of descriptors.
   size_t max_request_header_bytes = 8192;  ///< HTTP request header limit.
 };
+
+/// The core's options from a server's own options, which name the shared
+/// fields (address, port, token, host names, files, connection caps,
+/// header limit) as WebCoreOptions does: one place copies them.
+template <typename ServerOptions>
+[[nodiscard]] WebCoreOptions CoreOptionsOf(const ServerOptions& o, std::string files_what, int max_ws_clients) {
+  WebCoreOptions co;
+  co.address = o.address;
+  co.port = o.port;
+  co.token = o.token;
+  co.host_names = o.host_names;
+  co.files = o.files;
+  co.files_what = std::move(files_what);
+  co.max_connections = o.max_connections;
+  co.max_connections_per_peer = o.max_connections_per_peer;
+  co.max_ws_clients = max_ws_clients;
+  co.max_request_header_bytes = o.max_request_header_bytes;
+  return co;
+}
 
 /// The core's counters (a consistent copy from WebCore::stats()).
 struct WebCoreStats {
