@@ -301,6 +301,12 @@ TEST(WebCoreTest, RefusesABadHostNameNamingTheFlag) {
 }
 
 TEST(WebCoreTest, AcceptBacksOffWhenTheProcessRunsOutOfDescriptors) {
+#if defined(CUTSIM_SANITIZED)
+  // UBSan's vptr check reads a vtable through a pipe the first time it meets
+  // an object; in a process with no descriptor left that read fails and the
+  // check reports a false "invalid vptr".
+  GTEST_SKIP() << "a process without descriptors cannot run under the sanitizers; the release suite runs this";
+#endif
   TempPage page;
   WebCoreOptions o;
   o.files = page.files();
