@@ -76,7 +76,14 @@ int Main(int argc, char** argv) {
   app.add_option("--suite-strokes", suite_strokes, "Strokes per scene of the randomized stroke suite")
       ->check(CLI::Range(0, 100000));
   bool fixed_only = false;
-  app.add_flag("--fixed-dt-only", fixed_only, "Only the fixed-dt cases at 0.5 / 0.75 / 1.0 of the start's limit");
+  std::vector<double> fixed_fractions = {0.5, kFixedStepResonanceOnset, 0.75, 1.0};
+  app.add_flag("--fixed-dt-only", fixed_only, "Only the fixed-dt cases (--fixed-fractions of the start's limit)");
+  app.add_option("--fixed-fractions", fixed_fractions, "Steps of --fixed-dt-only, as fractions of the start's limit")
+      ->delimiter(',')
+      ->check(CLI::Range(0.01, 0.999));
+  int64_t fixed_steps = 0;
+  app.add_option("--fixed-steps", fixed_steps, "Steps of each --fixed-dt-only case (0: the suite's)")
+      ->check(CLI::Range(int64_t{0}, int64_t{10'000'000}));
   CLI11_PARSE(app, argc, argv);
   InitLogging("stability_bench", "error");
 
@@ -105,9 +112,9 @@ int Main(int argc, char** argv) {
   };
   std::vector<Result> results;
   if (fixed_only) {
-    for (const double frac : {0.5, 0.75, 1.0}) {
+    for (const double frac : fixed_fractions) {
       results.push_back(FixedStep("fixed dt = " + std::to_string(frac).substr(0, 4) + " x initial Lanczos limit",
-                                  size.cells, size.dt_steps, frac, false));
+                                  size.cells, fixed_steps > 0 ? fixed_steps : size.dt_steps, frac, false));
       print_row(results.back());
     }
   } else {

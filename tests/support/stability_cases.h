@@ -330,6 +330,18 @@ inline void JitterFreeNodes(const fem::Model<double>& model, fem::State<double>&
   }
 }
 
+/// Symplectic Euler is linearly stable for h·ω < 2, but on a nonlinear
+/// system it trades energy between modes at the resonances h·ω = 2 sin(π/n);
+/// the fourth-order one, h·ω = √2, lies at 0.707 of the linear limit (Skeel
+/// & Srinivas, SIAM J. Numer. Anal. 38, 2000). FixedStep's undamped cube,
+/// whose energy starts in its top modes, gains energy below that fraction of
+/// the start's Lanczos estimate (the estimate is under ω_max and the motion
+/// stiffens the cube); where the growth starts depends on the mesh, and this
+/// is where it starts on the bench's 750-tet cube. A user-fixed step above
+/// it is in the resonance band, where growth the speed guard stops is an
+/// expected end.
+inline constexpr double kFixedStepResonanceOnset = 0.65;
+
 /// Undamped, no gravity, bottom face fixed, randomly perturbed start (5% of
 /// the cell size). Two ways of choosing the step:
 ///  * `adaptive` = false: a fixed dt = fraction × the Lanczos estimate of the
@@ -428,6 +440,18 @@ inline Result FixedStep(const std::string& name, int cells, int64_t steps, doubl
                (r.holds ? "held anyway, " + energy_note
                         : stopped ? "the speed guard stopped it at step " + std::to_string(last.step) + ", state finite"
                                   : r.reason);
+  } else if (!adaptive && fraction > kFixedStepResonanceOnset) {
+    // In the resonance band the energy may grow; what must hold is that the
+    // run either stays finite or the speed guard stops it, nothing written.
+    r.expectation = "holds, or (in the 4:1 resonance band) the energy grows and the guard stops it";
+    const bool guard_ok = r.holds;
+    r.holds = guard_ok && drift < 0.05;
+    const bool stopped = !last.ok() && r.finite && last.status == fem::StepStatus::kRunaway;
+    r.expected_ok = r.finite && (guard_ok || stopped);
+    r.reason = std::string("in the leapfrog's 4:1 resonance band; ") +
+               (stopped ? "the speed guard stopped it at step " + std::to_string(last.step) + ", state finite"
+                        : guard_ok ? energy_note
+                                   : r.reason);
   } else {
     const bool guard_ok = r.holds;
     r.holds = guard_ok && drift < 0.05;
@@ -718,7 +742,7 @@ inline std::vector<Result> RunAll(const Size& size, const std::string& scene_pat
   add("near-incompressible nu 0.45", [&] { return NearIncompressible(size, 0.45); });
   add("near-incompressible nu 0.49", [&] { return NearIncompressible(size, 0.49); });
   add("stiffness contrast 1000x", [&] { return StiffnessContrast(size); });
-  for (const double frac : {0.5, 0.75, 1.0}) {
+  for (const double frac : {0.5, kFixedStepResonanceOnset, 0.75, 1.0}) {
     const std::string name = "fixed dt = " + std::to_string(frac).substr(0, 4) + " x initial Lanczos limit";
     add(name, [&] { return FixedStep(name, size.cells, size.dt_steps, frac, false); });
   }

@@ -58,12 +58,12 @@ TEST(Stability, AdvanceKeepsEnergyBoundedAtEverySafetyFactor) {
 }
 
 // A fixed step at a fraction of the Lanczos limit of the start state: 0.5
-// holds; at 0.75 and 1.0 the nonlinear oscillation visits stiffer states
-// than the start (1.0 diverges within a few steps). A user-fixed step
-// beyond the limit of a state the motion reaches must be stopped by the
-// speed guard with the last state finite, and the case reports that as
-// expected, not as a failure. fem::Advance at the same fractions holds (the
-// test above): its estimate is refreshed as the state stiffens.
+// holds; at 0.75 and 1.0 (the leapfrog's 4:1
+// resonance band, and states stiffer than the start) the energy may grow
+// (1.0 diverges within a few steps). A user-fixed step there must be stopped
+// by the speed guard with the last state finite, and the case reports that
+// as expected, not as a failure. fem::Advance at the same fractions holds
+// (the test above): its estimate is refreshed as the state stiffens.
 TEST(Stability, FixedStepsUpToTheLimitHoldOrAreStoppedCleanly) {
   const Size size = Size::Test();
   ExpectHolds(FixedStep("fixed dt 0.5", size.cells, size.dt_steps, 0.5, false));
