@@ -16,8 +16,12 @@
 // of the first step after the slit. Then the preconditioner's solves on
 // the case's system matrix (M + h²K, h = 10 ms) in the same run: CHOLMOD's
 // double solve, the own supernodal solve in double and in float (median
-// time of a solve, relative difference to CHOLMOD's). Exits 1 when a step
-// does not converge.
+// time of a solve, relative difference to CHOLMOD's). Then the tangent's
+// product on a deformed state of the case: assembling the tangent (with the
+// forces, as a Newton iteration does) and one sparse product with it,
+// against recording the elements' F and S and one matrix-free product
+// (tangent_product.h), with the force pass alone for scale, on the bench's
+// threads. Exits 1 when a step does not converge.
 //
 //   implicit_bench [--cases organ,organ_soft,large] [--steps 20]
 //                  [--relative-tolerance 1e-6] [--linear-tolerance 1e-4]
@@ -34,6 +38,7 @@
 #include <omp.h>
 
 #include "common/fem/implicit.h"
+#include "common/fem/tangent_product.h"
 #include "common/mesh/generators.h"
 
 namespace cutsim::fem {
@@ -199,7 +204,56 @@ void PrintSolves(const Model<double>& model) {
                 names[k], Median(t), std::sqrt(d / s));
     ++k;
   }
-  std::printf("]}");
+  std::printf("]");
+}
+
+template <typename Body>
+double MedianSeconds(int reps, Body&& body) {
+  std::vector<double> t;
+  for (int rep = 0; rep < reps; ++rep) {
+    const auto t0 = std::chrono::steady_clock::now();
+    body();
+    t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  return Median(t);
+}
+
+/// K·p assembled against matrix-free at a smoothly deformed state (2 % of
+/// the box's height), and the force pass alone.
+void PrintProducts(const Model<double>& model, const Case& c) {
+  ImplicitIntegrator integ(g_options);
+  std::vector<double> x(static_cast<size_t>(3 * model.node_capacity()), 0.0);
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    const Vec3<double> r = model.rest_position(n);
+    const double w = model.fixed(n) ? 0.0 : 0.02 * c.lz * std::sin(3.0 * r(0) / c.lx) * r(2) / c.lz;
+    for (int d = 0; d < 3; ++d) x[static_cast<size_t>(3 * n + d)] = r(d) + (d == 2 ? w : 0.3 * w);
+  }
+  std::vector<double> k, f(x.size());
+  const double assemble_s = MedianSeconds(9, [&] { integ.AssembleStiffness(model, x.data(), false, k); });
+  const double force_s = MedianSeconds(9, [&] { integ.InternalForce(model, x.data(), f.data()); });
+  const SparseSystem& sys = integ.system();
+  const int threads = integ.options().num_threads > 0 ? integ.options().num_threads : omp_get_max_threads();
+  std::vector<double> p(static_cast<size_t>(sys.num_dofs())), q_sparse(p.size()), q_free(p.size());
+  for (size_t i = 0; i < p.size(); ++i) p[i] = std::cos(0.91 * static_cast<double>(i));
+  const double spmv_s = MedianSeconds(31, [&] {
+#pragma omp parallel num_threads(threads)
+    sys.MultiplyTeam(k.data(), p.data(), q_sparse.data());
+  });
+  TangentProduct op;
+  const double linearize_s = MedianSeconds(9, [&] { op.Linearize(model, sys, x.data(), false, threads); });
+  const double product_s = MedianSeconds(31, [&] {
+    std::fill(q_free.begin(), q_free.end(), 0.0);
+    op.AddProduct(p.data(), 1.0, nullptr, q_free.data());
+  });
+  double d = 0, s = 0;
+  for (size_t i = 0; i < p.size(); ++i) {
+    d += (q_free[i] - q_sparse[i]) * (q_free[i] - q_sparse[i]);
+    s += q_sparse[i] * q_sparse[i];
+  }
+  std::printf(",\n   \"tangent_product\": {\"threads\": %d, \"assemble_with_forces_s\": %.6f, \"forces_only_s\": %.6f,"
+              " \"sparse_product_s\": %.6f, \"linearize_s\": %.6f, \"matrix_free_product_s\": %.6f,"
+              " \"relative_difference\": %.3g}",
+              threads, assemble_s, force_s, spmv_s, linearize_s, product_s, std::sqrt(d / s));
 }
 
 void RunCase(const Case& c, int steps, bool first) {
@@ -256,6 +310,8 @@ void RunCase(const Case& c, int steps, bool first) {
   }
   std::printf("],\n");
   PrintSolves(model);
+  PrintProducts(model, c);
+  std::printf("}");
   std::fflush(stdout);
 }
 
