@@ -1,8 +1,6 @@
 #include "common/fem/tangent_product.h"
 
-
 #include <algorithm>
-
 
 #include "common/fem/implicit_internal.h"
 #include "common/fem/nodal_pressure.h"
