@@ -6,6 +6,8 @@
 # model latency, the cuts made, and the targets; exits 1 when a target is
 # missed, 77 when no namespace can be made.
 #   bench/scene_session.sh BIN_DIR OUT_DIR SCENE PATH SECONDS
+# SCENE and PATH are relative to scenes/ (../bench/scenes/organ_large.pbtxt
+# for the ~109k-tet organ, which has no timing target: reported, must cut).
 # Targets: block — no overruns after the session's first second and
 # pose-to-model p99 ≤ 6 ms; organ — ≤ 1 % overruns, frame p99 ≤ 25 ms,
 # pose-to-model p99 ≤ one frame + 2 ms and ≥ 8 cut steps; both cut.
@@ -24,7 +26,7 @@ log="$out/session_$name"
 server=$!
 # The client starts once the server's session is up (its start-up log line;
 # the organ's mesh is generated and settled first).
-wait_for_server "$log-server.log" "$server" 120
+wait_for_server "$log-server.log" "$server" 300
 "$bin/cutsim-haptic" --session "bench-$name" --device scripted --no-rt --path "$root/scenes/$path" \
   >"$log-haptic.json" 2>"$log-haptic.log"
 wait "$server" || true
@@ -41,10 +43,14 @@ if name == "organ":
     targets = {"overrun_percent_max": 1.0, "frame_p99_ms_max": 25.0,
                "pose_to_model_p99_ms_max": frame_ms + 2.0, "cuts_min": 8}
     met = overrun <= targets["overrun_percent_max"] and srv["frame_time_p99_ms"] <= targets["frame_p99_ms_max"]
+elif name == "organ_large":
+    # Reported, no timing target: the session must run and cut.
+    targets = {"cuts_min": 1}
+    met = True
 else:
     targets = {"overruns_after_first_second_max": 0, "pose_to_model_p99_ms_max": 6.0, "cuts_min": 1}
     met = late <= targets["overruns_after_first_second_max"]
-met = met and p99 <= targets["pose_to_model_p99_ms_max"] and srv.get("cuts", 0) >= targets["cuts_min"] \
+met = met and p99 <= targets.get("pose_to_model_p99_ms_max", p99) and srv.get("cuts", 0) >= targets["cuts_min"] \
     and srv.get("status") == "ok"
 print(json.dumps({
     "kind": "scene_session", "scene": name, "frame_ms": round(frame_ms, 3), "frames": srv["frames"],

@@ -86,24 +86,30 @@ for scene in ligament beam block organ; do
   run "scene_$scene" "$out/scene_$scene.log" "$bin/cutsim-server" --headless --scene "scenes/$scene.pbtxt" \
     --duration "$seconds" --no-progress > "$out/scene_$scene.json"
 done
+# The organ at ~109k tets (bench/scenes/organ_large.pbtxt), its whole stroke.
+run scene_organ_large "$out/scene_organ_large.log" "$bin/cutsim-server" --headless \
+  --scene bench/scenes/organ_large.pbtxt --duration "${ORGAN_SECONDS:-8.4}" --no-progress \
+  > "$out/scene_organ_large.json"
 run scene_targets "$out/scene_targets.log" /usr/bin/python3 bench/scene_targets.py "$out" \
   > "$out/scene_targets.json"
 cat "$out/scene_targets.json" 2>/dev/null || true
 
 echo "== real-time sessions on the block and the organ (scripted haptic client cutting each)"
 # Exit 77: no network namespace here (deploy/netns-run.sh), a skip.
-for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 10"; do
+for session in "block.pbtxt block-cut.path 6" "organ.pbtxt organ-cut.path 10" \
+               "../bench/scenes/organ_large.pbtxt organ-cut.path 10"; do
   read -r scene path seconds <<<"$session"
+  name="$(basename "$scene" .pbtxt)"
   rc=0
   bench/scene_session.sh "$PWD/$bin" "$PWD/$out" "$scene" "$path" "$seconds" \
-    >"$out/session_${scene%.pbtxt}.json" 2>"$out/session_${scene%.pbtxt}.log" || rc=$?
+    >"$out/session_$name.json" 2>"$out/session_$name.log" || rc=$?
   if [[ $rc -eq 77 ]]; then
-    echo "session ${scene%.pbtxt} skipped (see $out/session_${scene%.pbtxt}.log)"
+    echo "session $name skipped (see $out/session_$name.log)"
   elif [[ $rc -ne 0 ]]; then
-    echo "!! session_${scene%.pbtxt} failed (exit $rc, see $out/session_${scene%.pbtxt}.log)"
-    failed+=("session_${scene%.pbtxt}")
+    echo "!! session_$name failed (exit $rc, see $out/session_$name.log)"
+    failed+=("session_$name")
   fi
-  cat "$out/session_${scene%.pbtxt}.json" 2>/dev/null || true
+  cat "$out/session_$name.json" 2>/dev/null || true
 done
 
 echo "== browser observers (glass-to-glass latency, bytes/s per observer, server CPU with 0 and 20 clients)"
