@@ -45,7 +45,8 @@ enum class ElementKind : uint8_t {
   /// Average nodal pressure (nodal_pressure.h): μ|dev E|² per element (the
   /// StVK kernel with λ = −2μ/3) and the volumetric energy on the nodes, from
   /// each node patch's volume ratio. Nearly incompressible tissue without
-  /// locking. Implicit integrator only.
+  /// locking. Both integrators: the explicit force kernel (forces.h) and the
+  /// implicit step (implicit.h).
   kNodalPressure,
 };
 

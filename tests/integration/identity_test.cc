@@ -98,7 +98,10 @@ TEST(IdentityTest, ForgedObserverFramesAreRefused) {
   const std::string summary = s.dir.path() + "/viewer.json";
   Subprocess viewer({BinPath("cutsim-viewer"), "--session", s.session, "--dds-domain", s.domain,
                      "--key-file", s.key, "--duration", "8", "--fps", "5", "--summary", summary});
-  std::this_thread::sleep_for(1s);
+  // The forgers start once the viewer follows the real server.
+  ASSERT_TRUE(WaitUntil([&] { return viewer.Stderr().find("first verified frame") != std::string::npos; }, 30s,
+                        50ms))
+      << viewer.Stderr();
   // Two forgers of the same session, each a newer "server" (started later)
   // whose sequence numbers start at its start time in ms: one signs with a
   // wrong key, one does not sign.

@@ -77,7 +77,6 @@ TEST(MakeOrgan, DeterministicLargeValidMesh) {
   Log().info("organ: {} nodes, {} tets in {:.2f} s, volume {:.3g} m³, min mean ratio {:.3f}", organ.num_nodes(),
              organ.num_tets(), seconds, TotalVolume(organ), min_q);
   EXPECT_GE(organ.num_tets(), 20000);
-  EXPECT_LT(seconds, 20.0);
   EXPECT_GT(min_q, 0.0);
   ExpectClosedSphere(organ);
   // Volume below the undeformed ellipsoid's and well above half of it.

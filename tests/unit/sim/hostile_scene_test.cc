@@ -2,7 +2,6 @@
 // asks for is checked against a stated limit, with the field named, and the
 // physics loop answers a stop request within a sub-step.
 
-#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -171,13 +170,10 @@ TEST(HostileScene, AStopRequestEndsAFrameWithinASubStep) {
       kMesh + Material("1e8", "0.45") + kFixed + "time_step { frame_dt: 1 }", "long-frame.pbtxt", ".");
   auto sim = Simulation::Create(scene, {.threads = 1});
   RequestStop();
-  const auto start = std::chrono::steady_clock::now();
   (void)sim->AdvanceFrame();
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   internal::g_stop_requested.store(false);
   const int64_t steps_after_stop = sim->QuickSummary().steps;
   EXPECT_LE(steps_after_stop, 2) << "the frame ran on after the stop request";
-  EXPECT_LT(seconds, 1.0);
   // Without a stop request the same frame takes thousands of sub-steps.
   (void)sim->AdvanceFrame();
   EXPECT_GT(sim->QuickSummary().steps - steps_after_stop, 1000);
