@@ -49,6 +49,9 @@ packages=(
   iproute2 nftables
   # deploy files: `systemd-analyze verify` of the shipped units (tests)
   systemd
+  # the Debian package (deploy/package.sh): dpkg-shlibdeps finds its
+  # dependencies, `file` tells CPack which files are programs
+  dpkg-dev file
 )
 
 # Optional: the reference solver of bench/reference/run_calculix.py; its
