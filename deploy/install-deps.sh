@@ -30,6 +30,8 @@ packages=(
   liblcm-dev liblcm-bin libglib2.0-dev
   # access control: HMAC-SHA256 of tool messages (libcrypto)
   libssl-dev
+  # the lab's score history per trainee (SQLite, common/record)
+  libsqlite3-dev
   # haptic devices: 3D mice through spacenavd (the spacenav device plugin)
   libspnav-dev
   cyclonedds-dev cyclonedds-tools
