@@ -12,7 +12,8 @@
 #     token, a state directory; run for real in a private network namespace:
 #     the haptic station gets models from the server, its signed poses are
 #     accepted, the bridge serves the observer page only with the token, and
-#     SIGTERM leaves a checkpoint in the state directory.
+#     SIGTERM leaves a checkpoint in the session's state directory and the
+#     session's score in the lab's history (--history in NAME.env).
 #
 #   tests/integration/systemd_test.sh BIN_DIR UNIT_DIR
 set -uo pipefail
@@ -81,7 +82,8 @@ confdir="$(sed -n 's#^EnvironmentFile=\(/.*\)/cutsim.env$#\1#p' "$units/cutsim-s
 mkdir -p "$work/units" "$work/conf"
 for u in server haptic bridge; do
   [ -f "$units/cutsim-$u@.service" ] || { echo "systemd_test: $units/cutsim-$u@.service missing" >&2; exit 1; }
-  sed -e "s#$bindir/#$bin/#g" -e "s#$confdir/#$work/conf/#g" "$units/cutsim-$u@.service" > "$work/units/cutsim-$u@$session.service"
+  sed -e "s#$bindir/#$bin/#g" -e "s#$confdir/#$work/conf/#g" -e "s#/var/lib/cutsim/#$work/state/#g" \
+    "$units/cutsim-$u@.service" > "$work/units/cutsim-$u@$session.service"
 done
 
 # 1. systemd's own check of the unit files, one instance of each template.
@@ -99,7 +101,7 @@ fi
 # 2. The configuration a unit would see: the configured cutsim.env, and this
 # session's NAME.env with the test's overrides; the session's credentials.
 cp "$units/cutsim.env" "$work/conf/cutsim.env"
-mkdir -p "$work/credentials" "$work/state"
+mkdir -p "$work/credentials" "$work/state/$session"
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$work/credentials/session.key"
 head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$work/credentials/observer.token"
 chmod 600 "$work/credentials/session.key" "$work/credentials/observer.token"
@@ -112,7 +114,7 @@ PATH
 cat > "$work/conf/$session.env" <<EOF
 CUTSIM_SCENE=$src/scenes/ligament.pbtxt
 CUTSIM_CHECKPOINT_EVERY=1
-CUTSIM_SERVER_ARGS=--no-rt
+CUTSIM_SERVER_ARGS=--no-rt --history $work/state/history.sqlite --trainee alice
 CUTSIM_HAPTIC_ARGS=--device scripted --path $work/cut.path --csv $work/haptic.csv --no-rt
 CUTSIM_BRIDGE_LISTEN=127.0.0.1:0
 CYCLONEDDS_URI=file://$src/deploy/cyclonedds-unicast.xml
@@ -124,8 +126,8 @@ EOF
 python3 - "$work" "$session" <<'PY' || exit 1
 import re, sys
 work, session = sys.argv[1], sys.argv[2]
-runtime = {"CREDENTIALS_DIRECTORY": f"{work}/credentials", "STATE_DIRECTORY": f"{work}/state",
-           "LOGS_DIRECTORY": f"{work}/state"}
+runtime = {"CREDENTIALS_DIRECTORY": f"{work}/credentials", "STATE_DIRECTORY": f"{work}/state:{work}/state/{session}",
+           "LOGS_DIRECTORY": f"{work}/state/{session}"}
 def read_env(path, env):
     for line in open(path):
         line = line.rstrip("\n")
@@ -174,25 +176,28 @@ rc=$?
 [ "$rc" -eq 77 ] && exit 77
 [ "$rc" -eq 0 ] || { echo "systemd_test: the units' command lines failed" >&2; exit 1; }
 
-python3 - "$work" <<'PY'
-import json, re, sys, os
-work = sys.argv[1]
+python3 - "$work" "$session" <<'PY'
+import json, re, sys, os, sqlite3
+work, session = sys.argv[1], sys.argv[2]
 server = json.loads(open(f"{work}/server.out").read().strip().splitlines()[-1])
 haptic = None
 for line in open(f"{work}/haptic.out").read().splitlines() + open(f"{work}/haptic.log").read().splitlines():
     m = re.search(r'(\{"kind":"haptic_stats".*\})', line)
     if m: haptic = json.loads(m.group(1))
 codes = open(f"{work}/http.codes").read().split()
+history = sqlite3.connect(f"{work}/state/history.sqlite").execute(
+    "SELECT session, cuts FROM sessions WHERE trainee = 'alice'").fetchall() if os.path.exists(f"{work}/state/history.sqlite") else []
 fail = []
 if haptic is None or haptic["models_accepted"] <= 10: fail.append(f"haptic models: {haptic and haptic['models_accepted']}")
 if server["tool_messages"] <= 5: fail.append(f"server tool messages: {server['tool_messages']}")
 if server["tool_rejected"] != 0: fail.append(f"signed poses rejected: {server['tool_rejected']}")
-if not os.path.exists(f"{work}/state/checkpoint.pb"): fail.append("no checkpoint in the state directory after SIGTERM")
+if not os.path.exists(f"{work}/state/{session}/checkpoint.pb"): fail.append("no checkpoint in the session's state directory after SIGTERM")
 if codes != ["403", "200", "200"]: fail.append(f"bridge HTTP codes (no token, page, three.js): {codes}, want 403 200 200")
 elif "cutsim observer" not in open(f"{work}/page.html").read(): fail.append("the bridge's page is not the observer page")
+if len(history) != 1 or history[0][0] != session: fail.append(f"the score history holds {history}, want one session {session} of alice")
 print(json.dumps({"systemd_test": "fail" if fail else "pass", "models_accepted": haptic and haptic["models_accepted"],
                   "tool_messages": server["tool_messages"], "tool_rejected": server["tool_rejected"],
-                  "bridge_http": codes}))
+                  "bridge_http": codes, "history": history}))
 for f in fail: print("systemd_test: FAILED:", f, file=sys.stderr)
 sys.exit(1 if fail else 0)
 PY
