@@ -43,20 +43,18 @@ install(DIRECTORY ${PROJECT_SOURCE_DIR}/web/ DESTINATION ${CUTSIM_INSTALL_DATADI
 # deploy/install-deps.sh), with its licence: no npm on a lab machine.
 set(_three ${PROJECT_SOURCE_DIR}/web/observer/node_modules/three)
 set(_three_files build/three.module.js build/three.core.js examples/jsm/controls/OrbitControls.js LICENSE package.json)
-set(_three_missing "")
+# Checked when installing, before they are copied (the build does not need
+# them): an install without them would serve pages that cannot load.
+install(CODE "
+  foreach(f ${_three_files})
+    if(NOT EXISTS \"${_three}/\${f}\")
+      message(FATAL_ERROR \"cutsim install: ${_three}/\${f} is missing: run deploy/install-deps.sh (npm ci in web/observer)\")
+    endif()
+  endforeach()")
 foreach(f ${_three_files})
-  if(EXISTS ${_three}/${f})
-    get_filename_component(_dir ${f} DIRECTORY)
-    install(FILES ${_three}/${f} DESTINATION ${CUTSIM_INSTALL_DATADIR}/web/observer/node_modules/three/${_dir})
-  else()
-    list(APPEND _three_missing ${_three}/${f})
-  endif()
+  get_filename_component(_dir ${f} DIRECTORY)
+  install(FILES ${_three}/${f} DESTINATION ${CUTSIM_INSTALL_DATADIR}/web/observer/node_modules/three/${_dir})
 endforeach()
-if(_three_missing)
-  # The build does not need three.js; an install without it would serve pages
-  # that cannot load, so installing stops and says what to run.
-  install(CODE "message(FATAL_ERROR \"cutsim install: three.js is missing (${_three_missing}); run deploy/install-deps.sh (npm ci in web/observer), then configure again\")")
-endif()
 install(FILES ${PROJECT_SOURCE_DIR}/deploy/cyclonedds-loopback.xml ${PROJECT_SOURCE_DIR}/deploy/cyclonedds-lan.xml
   ${PROJECT_SOURCE_DIR}/deploy/cyclonedds-unicast.xml DESTINATION ${CUTSIM_INSTALL_DATADIR}/dds)
 install(FILES ${PROJECT_SOURCE_DIR}/README.md ${PROJECT_SOURCE_DIR}/docs/devices.md DESTINATION ${CMAKE_INSTALL_DOCDIR})
