@@ -187,8 +187,8 @@ ScoreHistory ScoreHistory::Open(const std::string& path) {
   sqlite3_busy_timeout(db.get(), kBusyTimeoutMs);
   // Rollback journal, synced at every commit: an append is whole or absent
   // after a crash or a kill, and the next opener rolls a torn one back.
-  Exec(db.get(), path, "PRAGMA journal_mode = DELETE", "setting the journal mode");
-  Exec(db.get(), path, "PRAGMA synchronous = FULL", "setting the sync mode");
+  Exec(db.get(), path, "PRAGMA journal_mode = DELETE", "opening");
+  Exec(db.get(), path, "PRAGMA synchronous = FULL", "opening");
   const std::string check = QuickCheck(db.get(), path);
   if (check != "ok") ThrowFileError(path, fmt::format("score history: corrupt (quick_check: {})", check));
   PrepareSchema(db.get(), path);

@@ -4,7 +4,10 @@
 // writer are logged naming the file, the session ends normally with its
 // score in the summary, and the file is left as it was.
 
+#include <signal.h>
 #include <sqlite3.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -30,8 +33,8 @@ using testing::RunProcess;
 using testing::TempDir;
 
 /// The shipped ligament, headless, for `duration` simulated seconds (its
-/// scripted blade enters the tissue at 0.5 s), one thread.
-testing::RunResult RunLigament(const std::vector<std::string>& flags, const std::string& duration = "1.2") {
+/// scripted blade severs it at about 2 s), one thread.
+testing::RunResult RunLigament(const std::vector<std::string>& flags, const std::string& duration = "2.0") {
   std::vector<std::string> argv = {BinPath("cutsim-server"), "--headless", "--scene",
                                    std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt",
                                    "--duration", duration, "--no-progress", "--threads", "1"};
@@ -56,7 +59,7 @@ TEST(HistoryTest, EachFinishedSessionIsAppendedForItsTrainee) {
   const std::string db = dir.path() + "/lab.sqlite";
   const auto first = RunLigament({"--history", db, "--trainee", "alice", "--session", "bench1"});
   ASSERT_EQ(first.exit_code, 0) << first.err;
-  const auto second = RunLigament({"--history", db, "--trainee", "alice", "--session", "bench1"}, "1.0");
+  const auto second = RunLigament({"--history", db, "--trainee", "alice", "--session", "bench1"}, "1.6");
   ASSERT_EQ(second.exit_code, 0) << second.err;
   const auto other = RunLigament({"--history", db, "--trainee", "bob"}, "0.6");
   ASSERT_EQ(other.exit_code, 0) << other.err;
@@ -68,15 +71,15 @@ TEST(HistoryTest, EachFinishedSessionIsAppendedForItsTrainee) {
   // The same score as the session's summary, to the digits JSON prints.
   EXPECT_EQ(alice[0].session, "bench1");
   EXPECT_EQ(alice[0].scene, "ligament");
-  EXPECT_NEAR(alice[0].duration, 1.2, 1e-9);
-  EXPECT_NEAR(alice[1].duration, 1.0, 1e-9);
+  EXPECT_NEAR(alice[0].duration, 2.0, 1e-9);
+  EXPECT_NEAR(alice[1].duration, 1.6, 1e-9);
   for (const auto& [entry, run] : {std::pair{alice[0], first}, std::pair{alice[1], second}}) {
     const double scale = std::max(1e-12, std::abs(JsonNumber(run.out, "mean_deviation")));
     EXPECT_NEAR(entry.mean_deviation, JsonNumber(run.out, "mean_deviation"), 1e-9 * scale) << run.out;
     EXPECT_NEAR(entry.peak_force, JsonNumber(run.out, "peak_force"), 1e-9 * JsonNumber(run.out, "peak_force"));
     EXPECT_EQ(entry.cuts, static_cast<int64_t>(JsonNumber(run.out, "cuts")));
   }
-  EXPECT_GT(alice[0].cuts, 0) << "the blade did not cut within 1.2 s";
+  EXPECT_GT(alice[0].cuts, 0) << "the blade did not cut within 2 s";
   EXPECT_GT(alice[0].peak_force, 0.0);
   EXPECT_EQ(history.ForTrainee("bob").size(), 1u);
 }
@@ -109,16 +112,52 @@ TEST(HistoryTest, AHistoryOfAnotherSchemaVersionIsRefusedByName) {
   ExpectSessionUnharmed(db, "schema version 9");
 }
 
+/// Another process holding the history's write lock (BEGIN EXCLUSIVE) from
+/// construction until destruction. A process of its own: POSIX locks are
+/// per process, and this one reads the file while the lock is held.
+class LockHolder {
+ public:
+  explicit LockHolder(const std::string& path) {
+    int ready[2];
+    if (::pipe(ready) != 0) return;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      sqlite3* db = nullptr;
+      if (sqlite3_open(path.c_str(), &db) != SQLITE_OK) ::_exit(10);
+      if (sqlite3_exec(db, "BEGIN EXCLUSIVE", nullptr, nullptr, nullptr) != SQLITE_OK) ::_exit(11);
+      const char byte = 1;
+      if (::write(ready[1], &byte, 1) != 1) ::_exit(12);
+      ::pause();
+      ::_exit(0);
+    }
+    ::close(ready[1]);
+    char byte = 0;
+    locked_ = pid_ > 0 && ::read(ready[0], &byte, 1) == 1;
+    ::close(ready[0]);
+  }
+  ~LockHolder() {
+    if (pid_ <= 0) return;
+    ::kill(pid_, SIGKILL);
+    ::waitpid(pid_, nullptr, 0);
+  }
+  LockHolder(const LockHolder&) = delete;
+  LockHolder& operator=(const LockHolder&) = delete;
+  [[nodiscard]] bool locked() const { return locked_; }
+
+ private:
+  pid_t pid_ = -1;
+  bool locked_ = false;
+};
+
 TEST(HistoryTest, ALockedHistoryNeverStopsTheSession) {
   TempDir dir;
   const std::string db = dir.path() + "/lab.sqlite";
   (void)record::ScoreHistory::Open(db);
-  sqlite3* holder = nullptr;
-  ASSERT_EQ(sqlite3_open(db.c_str(), &holder), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(holder, "BEGIN EXCLUSIVE", nullptr, nullptr, nullptr), SQLITE_OK);
-  ExpectSessionUnharmed(db, "locked by another writer");
-  ASSERT_EQ(sqlite3_exec(holder, "ROLLBACK", nullptr, nullptr, nullptr), SQLITE_OK);
-  sqlite3_close(holder);
+  {
+    LockHolder holder(db);
+    ASSERT_TRUE(holder.locked());
+    ExpectSessionUnharmed(db, "locked by another writer");
+  }
   EXPECT_EQ(record::ScoreHistory::Open(db).size(), 0);
 }
 

@@ -11,9 +11,10 @@
 #     whitespace, a credentials directory holding a fresh key and observer
 #     token, a state directory; run for real in a private network namespace:
 #     the haptic station gets models from the server, its signed poses are
-#     accepted, the bridge serves the observer page only with the token, and
-#     SIGTERM leaves a checkpoint in the session's state directory and the
-#     session's score in the lab's history (--history in NAME.env).
+#     accepted, the bridge serves the observer page and opens its stream
+#     only with the token, and SIGTERM leaves a checkpoint in the session's
+#     state directory and the session's score in the lab's history
+#     (--history in NAME.env).
 #
 #   tests/integration/systemd_test.sh BIN_DIR UNIT_DIR
 set -uo pipefail
@@ -51,9 +52,10 @@ if [ "${1:-}" = "--inside" ]; then
   url="$(sed -n 's/^observers: //p' "$work/bridge.out" | head -n 1)"
   base="${url%%\?*}"
   {
-    "$src/tests/integration/http_get.py" "$base"
+    "$src/tests/integration/http_get.py" --websocket "${base}ws"
+    "$src/tests/integration/http_get.py" --websocket "${base}ws?${url#*\?}"
     "$src/tests/integration/http_get.py" "$url" "$work/page.html"
-    "$src/tests/integration/http_get.py" "${base}vendor/three.module.js?${url#*\?}"
+    "$src/tests/integration/http_get.py" "${base}vendor/three.module.js"
   } > "$work/http.codes"
   timeout 60 "${haptic[@]}" > "$work/haptic.out" 2> "$work/haptic.log"
   hrc=$?
@@ -192,7 +194,8 @@ if haptic is None or haptic["models_accepted"] <= 10: fail.append(f"haptic model
 if server["tool_messages"] <= 5: fail.append(f"server tool messages: {server['tool_messages']}")
 if server["tool_rejected"] != 0: fail.append(f"signed poses rejected: {server['tool_rejected']}")
 if not os.path.exists(f"{work}/state/{session}/checkpoint.pb"): fail.append("no checkpoint in the session's state directory after SIGTERM")
-if codes != ["403", "200", "200"]: fail.append(f"bridge HTTP codes (no token, page, three.js): {codes}, want 403 200 200")
+if codes != ["403", "101", "200", "200"]:
+    fail.append(f"bridge HTTP codes (stream without token, with it, page, three.js): {codes}, want 403 101 200 200")
 elif "cutsim observer" not in open(f"{work}/page.html").read(): fail.append("the bridge's page is not the observer page")
 if len(history) != 1 or history[0][0] != session: fail.append(f"the score history holds {history}, want one session {session} of alice")
 print(json.dumps({"systemd_test": "fail" if fail else "pass", "models_accepted": haptic and haptic["models_accepted"],
