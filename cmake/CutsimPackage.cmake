@@ -87,8 +87,9 @@ set(CPACK_PACKAGE_NAME cutsim)
 set(CPACK_PACKAGE_VERSION ${PROJECT_VERSION})
 set(CPACK_PACKAGE_CONTACT ${CUTSIM_PACKAGE_MAINTAINER})
 set(CPACK_PACKAGE_DESCRIPTION_SUMMARY "networked surgical-cutting simulator (FEM server, haptic station, viewers)")
-set(CPACK_DEBIAN_PACKAGE_DESCRIPTION
-  "${CPACK_PACKAGE_DESCRIPTION_SUMMARY}\n cutsim simulates cutting soft tissue with a force-feedback device: a\n finite-element server, a 1 kHz haptic station and viewers that render the\n session or serve it to browsers. systemd units run one session per instance.")
+# The summary is the Description's first line; this is the text under it.
+set(CPACK_PACKAGE_DESCRIPTION
+  "cutsim simulates cutting soft tissue with a force-feedback device: a\nfinite-element server, a 1 kHz haptic station and viewers that render the\nsession or serve it to browsers. systemd units run one session per instance.")
 set(CPACK_DEBIAN_PACKAGE_SECTION science)
 set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
 # The package installs where this tree was configured to (/usr).

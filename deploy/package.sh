@@ -7,8 +7,9 @@
 #
 #   deploy/package.sh                 build/package (portable, /usr), the .deb in out/
 #   BUILD_DIR=build/ci deploy/package.sh   reuse a configured tree (its install
-#                                     prefix becomes /usr; nothing recompiles
-#                                     but common/core/install_paths.cc)
+#                                     prefix becomes /usr; only what the package
+#                                     holds is built, and of that only
+#                                     common/core/install_paths.cc recompiles)
 #   JOBS=2 deploy/package.sh          parallel build (default 1)
 #
 # The package is portable (no -march=native: the ci preset's flags), built
@@ -23,15 +24,17 @@ out="${OUT_DIR:-out}"
 ./deploy/install-deps.sh
 
 echo "== configure $build (install prefix /usr)"
+# Installing needs only the packaged programs built, not the tests.
 if [ -f "$build/CMakeCache.txt" ]; then
-  cmake -S . -B "$build" -DCMAKE_INSTALL_PREFIX=/usr >/dev/null
+  cmake -S . -B "$build" -DCMAKE_INSTALL_PREFIX=/usr -DCMAKE_SKIP_INSTALL_ALL_DEPENDENCY=ON >/dev/null
 else
-  cmake --preset ci -B "$build" -DCMAKE_INSTALL_PREFIX=/usr -DCUTSIM_BUILD_TESTS=OFF -DCUTSIM_BUILD_BENCH=OFF >/dev/null
+  cmake --preset ci -B "$build" -DCMAKE_INSTALL_PREFIX=/usr -DCMAKE_SKIP_INSTALL_ALL_DEPENDENCY=ON \
+    -DCUTSIM_BUILD_TESTS=OFF -DCUTSIM_BUILD_BENCH=OFF >/dev/null
 fi
 echo "== build $build (-j $jobs)"
-cmake --build "$build" -j "$jobs"
+# The programs; cutsim-haptic brings its device plugins.
+cmake --build "$build" -j "$jobs" --target cutsim-server cutsim-haptic cutsim-viewer
 echo "== cpack -G DEB"
-# CPack's own build step finds everything up to date (built above at -j $jobs).
 (cd "$build" && cpack -G DEB) > "$build/cpack.log" 2>&1 || { tail -n 30 "$build/cpack.log" >&2; exit 1; }
 deb="$(ls -t "$build"/cutsim_*.deb | head -n 1)"
 mkdir -p "$out"
