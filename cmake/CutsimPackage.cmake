@@ -98,7 +98,7 @@ set(CPACK_STRIP_FILES ON)
 # Dependencies: dpkg-shlibdeps reads every binary's and plugin's libraries.
 set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
 set(CPACK_DEBIAN_PACKAGE_RECOMMENDS "systemd")
-set(CPACK_DEBIAN_PACKAGE_SUGGESTS "liblcm-bin, chromium")
+set(CPACK_DEBIAN_PACKAGE_SUGGESTS "liblcm-bin, chromium, sqlite3")
 configure_file(${PROJECT_SOURCE_DIR}/deploy/debian/conffiles.in ${PROJECT_BINARY_DIR}/deploy/debian/conffiles @ONLY)
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA
   ${PROJECT_BINARY_DIR}/deploy/debian/conffiles
