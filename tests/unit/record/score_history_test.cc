@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -248,6 +249,36 @@ TEST_F(ScoreHistoryTest, AWriterKilledMidTransactionLeavesTheHistoryWhole) {
   h.Append(Entry("alice", 99, 0.002));
   EXPECT_EQ(h.ForTrainee("alice").size(), 6u);
   EXPECT_FALSE(fs::exists(path_ + "-journal"));
+}
+
+TEST_F(ScoreHistoryTest, SessionsOfALabAppendAtOnce) {
+  // Servers of several sessions start together on a new file and append
+  // at once: the schema is created once, every append waits its turn.
+  constexpr int kWriters = 3;
+  constexpr int kEach = 20;
+  pid_t pids[kWriters];
+  for (int w = 0; w < kWriters; ++w) {
+    pids[w] = ::fork();
+    ASSERT_GE(pids[w], 0);
+    if (pids[w] == 0) {
+      try {
+        ScoreHistory h = ScoreHistory::Open(path_);
+        for (int i = 0; i < kEach; ++i) h.Append(Entry("trainee" + std::to_string(w), i, 0.001 * (i + 1)));
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "writer %d: %s\n", w, e.what());
+        ::_exit(1);
+      }
+      ::_exit(0);
+    }
+  }
+  for (const pid_t pid : pids) {
+    int status = 0;
+    ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << "a writer failed (its error is above)";
+  }
+  const ScoreHistory h = ScoreHistory::Open(path_);
+  EXPECT_EQ(h.size(), kWriters * kEach);
+  for (int w = 0; w < kWriters; ++w) EXPECT_EQ(h.ForTrainee("trainee" + std::to_string(w)).size(), size_t{kEach});
 }
 
 TEST_F(ScoreHistoryTest, InvalidEntriesAreRefusedNamingTheField) {
