@@ -81,11 +81,12 @@ case "$mode" in
     dpkg-deb -c "$input" > "$work/contents" || fail "dpkg-deb -c $input"
     depends="$(dpkg-deb -f "$input" Depends)"
     echo "install_test: Depends: $depends"
-    # dpkg-shlibdeps names the libraries' packages with versions; a hand
-    # list or a failed run would not hold these.
-    for pkg in libc6 libstdc++6 libprotobuf liblcm libddsc libosmesa6 libssl3 libcholmod; do
+    # The CMake code lists no dependency: dpkg-shlibdeps reads them from the
+    # programs' and plugins' libraries, with the versions their symbols need.
+    for pkg in libc6 libstdc++6 libprotobuf liblcm libddsc libosmesa6 libssl3 libcholmod libsqlite3 libspnav; do
       grep -q "$pkg" <<< "$depends" || fail "Depends lacks $pkg (dpkg-shlibdeps): $depends"
     done
+    grep -q "libc6 (>= " <<< "$depends" || fail "Depends has no version for libc6: $depends"
     dpkg-deb -e "$input" "$work/control" || fail "dpkg-deb -e $input"
     grep -qx "/etc/cutsim/cutsim.env" "$work/control/conffiles" || fail "/etc/cutsim/cutsim.env is not a conffile"
     for s in postinst prerm postrm; do [ -x "$work/control/$s" ] || fail "no executable $s in the package"; done
