@@ -25,6 +25,9 @@ target_link_libraries(cutsim_lcm INTERFACE ${LCM_LIBRARY})
 # OpenSSL's libcrypto (libssl-dev): HMAC-SHA256 of tool messages (tool_auth.h).
 find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
 
+# SQLite 3 (libsqlite3-dev): the lab's score history per trainee (common/record).
+find_package(SQLite3 REQUIRED)
+
 # Browser observers' HTTP/WebSocket server: Boost.Beast over Boost.Asio
 # (header-only in Boost 1.74).
 find_package(Boost 1.74 REQUIRED)

@@ -30,6 +30,8 @@ packages=(
   liblcm-dev liblcm-bin libglib2.0-dev
   # access control: HMAC-SHA256 of tool messages (libcrypto)
   libssl-dev
+  # the lab's score history per trainee (SQLite, common/record)
+  libsqlite3-dev
   # haptic devices: 3D mice through spacenavd (the spacenav device plugin)
   libspnav-dev
   cyclonedds-dev cyclonedds-tools
@@ -49,6 +51,9 @@ packages=(
   iproute2 nftables
   # deploy files: `systemd-analyze verify` of the shipped units (tests)
   systemd
+  # the Debian package (deploy/package.sh): dpkg-shlibdeps finds its
+  # dependencies, `file` tells CPack which files are programs
+  dpkg-dev file
 )
 
 # Optional: the reference solver of bench/reference/run_calculix.py; its

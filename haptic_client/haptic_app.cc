@@ -14,6 +14,7 @@
 #include <fmt/format.h>
 
 #include "common/core/error.h"
+#include "common/core/install_paths.h"
 #include "common/core/log.h"
 #include "common/haptics/haptic_renderer.h"
 #include "common/haptics/tool_path.h"
@@ -83,7 +84,7 @@ std::unique_ptr<HapticDevice> MakeBrowserDevice(const HapticAppOptions& o) {
   BrowserDeviceOptions bo;
   std::tie(bo.address, bo.port) = SplitServe(o.serve);
   bo.token = TraineeToken(*key);
-  bo.page_dir = o.page_dir.empty() ? std::string(CUTSIM_TRAINEE_PAGE) : o.page_dir;
+  bo.page_dir = o.page_dir.empty() ? (DataDir() / "web" / "trainee").string() : o.page_dir;
   bo.url_file = o.url_file;
   bo.host_names = o.host_names;
   const GuardOptions mapping = MakeGuardOptions(o);
@@ -122,7 +123,7 @@ std::unique_ptr<HapticDevice> MakeDevice(const HapticAppOptions& o) {
         o.log_channel.empty() ? transport::LcmChannelName(o.session, transport::LcmChannel::kTool) : o.log_channel;
     return std::make_unique<ReplayDevice>(o.log, channel, info);
   }
-  const std::filesystem::path dir = o.device_dir.empty() ? ExecutableDir() : std::filesystem::path(o.device_dir);
+  const std::filesystem::path dir = o.device_dir.empty() ? PluginDir() : std::filesystem::path(o.device_dir);
   const std::filesystem::path path = ResolvePluginPath(o.device, dir);
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) {

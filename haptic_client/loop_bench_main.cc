@@ -17,6 +17,7 @@
 #include <CLI/CLI.hpp>
 
 #include "common/core/clock.h"
+#include "common/core/install_paths.h"
 #include "common/core/log.h"
 #include "common/transport/realtime_thread.h"
 #include "common/transport/report_json.h"
@@ -32,7 +33,7 @@ int main(int argc, char** argv) {
   bool no_rt = false;
   bool devices = false;
   cutsim::haptic_client::DeviceBenchOptions device_options;
-  device_options.plugin_dir = cutsim::haptic_client::ExecutableDir();
+  device_options.plugin_dir = cutsim::PluginDir();
   device_options.work_dir = std::filesystem::temp_directory_path();
   CLI::App app{"Bare clock_nanosleep loop timing (reference for cutsim-haptic), or the loop per device"};
   app.add_option("--seconds", seconds, "Run time, s")->capture_default_str();

@@ -22,7 +22,9 @@ int main(int argc, char** argv) {
   app.add_option("--device", o.device,
                  "scripted | replay | browser | NAME (plugin libcutsim_device_NAME.so in --device-dir) | PATH to a plugin")
       ->capture_default_str();
-  app.add_option("--device-dir", o.device_dir, "Folder of device plugins (default: next to cutsim-haptic)");
+  app.add_option("--device-dir", o.device_dir,
+                 "Folder of device plugins (default: the installed lib/<multiarch>/cutsim/devices, else next to "
+                 "cutsim-haptic)");
   app.add_option("--device-arg", o.device_arg, "Configuration string passed to the device plugin's open");
   app.add_option("--scene", o.scene, "Scene whose haptics.device_scale/device_offset map the device to the tissue")
       ->check(CLI::ExistingFile);
@@ -35,7 +37,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--serve", o.serve, "Trainee page of --device browser: ADDRESS:PORT (loopback by default)")
       ->capture_default_str();
-  app.add_option("--page-dir", o.page_dir, "The trainee page's files (default: the source tree's web/trainee)");
+  app.add_option("--page-dir", o.page_dir, "The trainee page's files (default: web/trainee in the installed data folder, share/cutsim beside bin/, else "
+                 "in the source tree)");
   app.add_option("--url-file", o.url_file,
                  "Write the trainee page's URL (it carries the session's token) to this file, mode 0600, instead "
                  "of stdout");

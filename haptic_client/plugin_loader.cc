@@ -13,12 +13,6 @@
 namespace cutsim::haptic_client {
 namespace fs = std::filesystem;
 
-fs::path ExecutableDir() {
-  std::error_code ec;
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  return ec ? fs::current_path() : exe.parent_path();
-}
-
 fs::path ResolvePluginPath(const std::string& name, const fs::path& dir) {
   if (name.find('/') != std::string::npos || name.ends_with(".so")) return fs::path(name);
   return dir / fmt::format("libcutsim_device_{}.so", name);

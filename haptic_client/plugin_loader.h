@@ -14,9 +14,6 @@
 
 namespace cutsim::haptic_client {
 
-/// The folder of the running executable (the default `--device-dir`).
-[[nodiscard]] std::filesystem::path ExecutableDir();
-
 /// The library `--device NAME` names: NAME itself when it contains a '/' or
 /// ends in ".so", else `<dir>/libcutsim_device_<NAME>.so`.
 [[nodiscard]] std::filesystem::path ResolvePluginPath(const std::string& name, const std::filesystem::path& dir);

@@ -22,6 +22,7 @@
 #include "common/haptics/local_model.h"
 #include "common/sim/checkpointer.h"
 #include "common/sim/metrics_proto.h"
+#include "server/history.h"
 #include "server/session_report.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
@@ -501,6 +502,10 @@ int ServerApp::RunRealtime() {
     });
   }
   if (!options_.out.empty()) outputs_ok &= WriteOutput([&] { simulation->WriteVtu(options_.out); });
+  // Last: a locked history may hold the exit for its busy timeout.
+  if (!options_.history.empty() && exit_code == 0) {
+    (void)AppendToHistory(options_.history, options_.trainee, options_.session, scene.scene.name(), *simulation);
+  }
   return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
 }
 

@@ -23,6 +23,7 @@
 #include "common/sim/simulation.h"
 #include "common/transport/report_json.h"
 #include "cutsim/v1/report.pb.h"
+#include "server/history.h"
 #include "server/recorder.h"
 #include "server/session_report.h"
 
@@ -169,6 +170,10 @@ void AddReportOptions(CLI::App& app, ServerOptions& o) {
   app.add_option("--session-report", o.session_report,
                  "At the end, write the session's measures and score to this JSON file and their plot beside it "
                  "(.svg)");
+  app.add_option("--history", o.history,
+                 "At the end, append the session's score for --trainee to this SQLite file, the lab's score "
+                 "history (created when absent; a bad or locked file is logged, never stops the session)");
+  app.add_option("--trainee", o.trainee, "Whose session this is, in --history (A-Z a-z 0-9 . _ -, up to 64)");
 }
 
 /// Recording, replay and access control of the tool stream.
@@ -210,6 +215,10 @@ const char* OptionConflict(const ServerOptions& o) {
   if (!o.record.empty() && o.resume) {
     return "--record cannot be combined with --resume (a replay starts from the scene)";
   }
+  if (o.history.empty() != o.trainee.empty()) return "--history FILE and --trainee NAME go together";
+  if (!o.history.empty() && !o.replay.empty()) {
+    return "--history appends finished sessions: a --replay re-runs one already recorded";
+  }
   return nullptr;
 }
 
@@ -229,6 +238,10 @@ int ServerApp::ParseArgs(int argc, char** argv) {
   }
   if (const char* conflict = OptionConflict(options_)) {
     std::fprintf(stderr, "%s\n", conflict);
+    return 2;
+  }
+  if (const std::string why = record::CheckTraineeName(options_.trainee); !options_.trainee.empty() && !why.empty()) {
+    std::fprintf(stderr, "--trainee '%s': the name %s\n", options_.trainee.c_str(), why.c_str());
     return 2;
   }
   return -1;
@@ -262,6 +275,7 @@ int ServerApp::Run() {
       options_.resume && !options_.checkpoint.empty() && std::filesystem::exists(journal)) {
     (void)CheckInputFile(journal.string(), "event journal (beside --checkpoint)", sim::kMaxCheckpointBytes);
   }
+  if (!options_.history.empty()) (void)CheckHistory(options_.history);
   return options_.headless ? RunHeadless() : RunRealtime();
 }
 
@@ -400,6 +414,9 @@ int ServerApp::RunHeadless() {
     outputs_ok &= WriteOutput([&] {
       WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
     });
+  }
+  if (!options_.history.empty() && exit_code == 0) {
+    (void)AppendToHistory(options_.history, options_.trainee, options_.session, scene.scene.name(), *simulation);
   }
   v1::HeadlessSummary summary = HeadlessReport(*simulation);
   FillJournalStats(checkpointer, summary.mutable_journal());

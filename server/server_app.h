@@ -46,6 +46,8 @@ struct ServerOptions {
   double client_timeout = 1.0;     ///< s without tool poses: the haptic client is gone
   std::string stats_json;          ///< write the exit statistics here too
   std::string session_report;      ///< --session-report: JSON + SVG plot of the measures and score at the end
+  std::string history;             ///< --history: the lab's score history (SQLite), appended at the end
+  std::string trainee;             ///< --trainee: whose session this is, in --history
   // Record, replay and access control.
   std::string record;              ///< --record: LCM log of the session's inputs (real-time mode)
   std::string replay;              ///< --replay: with --headless, re-run a recording and check it

@@ -15,6 +15,7 @@
 
 #include "common/core/clock.h"
 #include "common/core/error.h"
+#include "common/core/install_paths.h"
 #include "common/core/log.h"
 #include "common/render/camera.h"
 #include "common/render/image.h"
@@ -311,8 +312,9 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
                  "A further name browsers may open the page at (the Host and Origin it accepts; repeat for more)");
   app.add_option("--token-file", options_.token_file,
                  "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL");
-  options_.web_root = CUTSIM_WEB_ROOT;
-  app.add_option("--web-root", options_.web_root, "The observer page's files (web/observer, npm packages installed)")
+  options_.web_root = (DataDir() / "web" / "observer").string();
+  app.add_option("--web-root", options_.web_root, "The observer page's files (web/observer with three.js under node_modules/three; default: the "
+                 "installed data folder, share/cutsim beside bin/, else the source tree)")
       ->capture_default_str();
   try {
     app.parse(argc, argv);
