@@ -381,6 +381,9 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_topology_version(ReportCount(s.topology_version));
   r.set_components(ReportCount(s.components));
   r.set_status(s.status);
+  r.set_diagnosis(s.diagnosis);
+  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
+  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   FillJournalStats(p_.checkpointer, r.mutable_journal());

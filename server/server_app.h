@@ -66,6 +66,11 @@ struct ServerOptions {
 /// Exit status when the run itself succeeded but an output (recording,
 /// checkpoint, statistics, final state) could not be written completely.
 inline constexpr int kExitOutputFailed = 5;
+/// Exit status of a headless run that finished with every output written,
+/// but whose implicit steps did not all reach their force tolerance (the
+/// summary's status "unconverged"): its numbers are not the answer to the
+/// stated tolerance. (3: stepping stopped; 2: bad input.)
+inline constexpr int kExitUnconverged = 6;
 /// The real-time default of --frame-budget: the implicit step gets 60 % of
 /// the frame, the rest is for the cut step, the local model's stiffness,
 /// the viewers' frame and the pacing's margin.
