@@ -44,6 +44,12 @@ struct DeviceState {
   bool done = false;     ///< A virtual device's script has ended (a real one: never).
   /// The device stopped answering (unplugged): `pose` is the last good one.
   bool lost = false;
+  /// The reading is older than the device's deadline (a device on its own
+  /// thread, threaded_device.h, that did not keep up): `pose` is the last
+  /// reading's; the guard holds the tool and fades the force.
+  bool late = false;
+  /// No reading for so long that the device counts as stuck: the loop ends.
+  bool stuck = false;
 };
 
 class HapticDevice {

@@ -107,6 +107,7 @@ void ServoLoop::Record(const Wake& wake, const Eigen::Vector3d& force) {
 
 const char* ServoLoop::EndReason(int64_t now_ns, const std::atomic<bool>& stop) const {
   if (state_.done) return "device done";
+  if (state_.stuck) return "device stuck";
   if (now_ns >= end_ns_) return "duration";
   if (stop.load(std::memory_order_relaxed)) return "signal";
   return nullptr;
