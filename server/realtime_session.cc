@@ -424,7 +424,8 @@ int ServerApp::RunRealtime() {
                                                     .precision = options_.precision,
                                                     .integrator = options_.integrator,
                                                     .frame_budget = budget * frame_dt});
-  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
+  const auto signer = MakeJournalSigner(options_);
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every, signer.get());
   (void)checkpointer.Begin(*simulation, options_.resume);
 
   // The haptic link. LCM's udpm receive thread starts on the first

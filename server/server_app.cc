@@ -209,10 +209,11 @@ void AddRecordAndAccessOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& 
                 ->check(CLI::ExistingFile),
             kReplay);
   m.Declare(app.add_option("--key-file", o.key_file,
-                           "Session key (hex, 16-64 bytes): accept only tool messages signed with it; "
-                           "default $CUTSIM_SESSION_KEY, else an open session")
+                           "Session key (hex, 16-64 bytes): accept only tool messages signed with it, and sign the "
+                           "event journal beside --checkpoint with it; default $CUTSIM_SESSION_KEY, else an open "
+                           "session")
                 ->check(CLI::ExistingFile),
-            kRealtime);
+            kRun);
   m.Declare(app.add_option("--auth-window", o.auth_window,
                            "Seconds a signed tool message's timestamp may differ from this host's clock")
                 ->check(CLI::Range(0.001, 3600.0)),
@@ -339,6 +340,12 @@ bool FinishJournal(sim::PeriodicCheckpointer& checkpointer) {
   return false;
 }
 
+std::unique_ptr<transport::HmacJournalSigner> MakeJournalSigner(const ServerOptions& o) {
+  if (o.checkpoint.empty()) return nullptr;
+  const auto key = transport::LoadSessionKey(o.key_file);
+  return key ? std::make_unique<transport::HmacJournalSigner>(*key) : nullptr;
+}
+
 std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const ServerOptions& o) {
   const auto key = transport::LoadSessionKey(o.key_file);
   if (!key) {
@@ -378,7 +385,8 @@ int ServerApp::RunHeadless() {
               .precision = options_.precision,
               .integrator = options_.integrator,
               .frame_budget = std::max(0.0, options_.frame_budget) * scene.scene.time_step().frame_dt()});
-  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
+  const auto signer = MakeJournalSigner(options_);
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every, signer.get());
   (void)checkpointer.Begin(*simulation, options_.resume);
   // The run ends at --duration, else when the tool path ends, else (with
   // --until-rest) at rest or --max-time.

@@ -8,6 +8,7 @@
 #include <optional>
 #include <string>
 
+#include "common/transport/journal_auth.h"
 #include "common/transport/tool_auth.h"
 
 namespace cutsim::sim {
@@ -62,6 +63,11 @@ struct ServerOptions {
 /// Throws `InputError` for an unreadable or malformed key.
 [[nodiscard]] std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(
     const ServerOptions& options);
+
+/// The event journal's signer: the session key's (`--key-file`, else
+/// `$CUTSIM_SESSION_KEY`) when there is a key and a `--checkpoint`, else
+/// null (an unsigned journal). Throws `InputError` for a bad key.
+[[nodiscard]] std::unique_ptr<transport::HmacJournalSigner> MakeJournalSigner(const ServerOptions& options);
 
 /// Exit status when the run itself succeeded but an output (recording,
 /// checkpoint, statistics, final state) could not be written completely.

@@ -199,12 +199,12 @@ TEST(ServerHeadlessTest, FlagsThatDoNothingInTheModeAreRefused) {
     std::vector<std::string> args;
     std::string flag, mode;
   };
-  // --replay and --key-file need an existing file; the refusal comes before
-  // either is read, so the scene stands in.
+  // --replay needs an existing file; the refusal comes before it is read,
+  // so the scene stands in.
   const std::vector<Case> cases = {
       {{headless, "--scene", scene, "--duration", "0.01", "--no-rt"}, "--no-rt", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--session", "s"}, "--session", "--headless"},
-      {{headless, "--scene", scene, "--duration", "0.01", "--key-file", scene}, "--key-file", "--headless"},
+      {{headless, "--scene", scene, "--duration", "0.01", "--auth-window", "1"}, "--auth-window", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--viewer-fps", "5"}, "--viewer-fps", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--frame-rate", "50"}, "--frame-rate", "--headless"},
       {{"--scene", scene, "--duration", "0.01", "--until-rest"}, "--until-rest", "a real-time session"},
