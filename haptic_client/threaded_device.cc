@@ -178,6 +178,9 @@ void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s) {
   for (;;) {
     s->wake.wait(seen, std::memory_order_acquire);
     seen = s->wake.load(std::memory_order_acquire);
+    // Read before the command: Stop posts its zero force before it sets
+    // quit, so the last command is always served.
+    const bool quit = s->quit.load(std::memory_order_acquire);
     if (s->commands.TakeFresh()) {
       const Command& c = s->commands.front();
       s->device->SetForce(c.force);
@@ -188,7 +191,7 @@ void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s) {
       s->readings.Publish();
       s->cycles.fetch_add(1, std::memory_order_release);
     }
-    if (s->quit.load(std::memory_order_acquire)) break;
+    if (quit) break;
   }
   s->done.store(true, std::memory_order_release);
 }
