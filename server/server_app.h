@@ -75,8 +75,8 @@ inline constexpr int kExitOutputFailed = 5;
 /// Exit status of a headless run that finished with every output written,
 /// but whose implicit steps did not all reach their force tolerance (the
 /// summary's status "unconverged"): its numbers are not the answer to the
-/// stated tolerance. (3: stepping stopped; 2: bad input.)
-inline constexpr int kExitUnconverged = 6;
+/// stated tolerance. (3: stepping stopped; 2: bad input; 6 is a duplicate server.)
+inline constexpr int kExitUnconverged = 7;
 /// The real-time default of --frame-budget: the implicit step gets 60 % of
 /// the frame, the rest is for the cut step, the local model's stiffness,
 /// the viewers' frame and the pacing's margin.

@@ -141,7 +141,7 @@ TEST(ServerHeadlessTest, StatsJsonIsWrittenInHeadlessMode) {
 // An implicit step that stops at its Newton cap above its force tolerance
 // is not an answer: the summary's status is "unconverged" with the count
 // and the largest residual in newtons, the session report says the same,
-// every output is still written, and the run exits 6 (not 0).
+// every output is still written, and the run exits 7 (not 0).
 TEST(ServerHeadlessTest, UnconvergedImplicitStepsAreNeverReportedOk) {
   TempDir dir;
   // One Newton iteration per step against a 1e-12 N tolerance: the beam
@@ -154,7 +154,7 @@ time_step { integrator: INTEGRATOR_IMPLICIT implicit { force_tolerance: 1e-12 ma
   const auto r = RunProcess({BinPath("cutsim-server"), "--headless", "--scene", scene, "--duration", "0.05",
                              "--threads", "1", "--session-report", report, "--out", out, "--no-progress"},
                             120s);
-  EXPECT_EQ(r.exit_code, 6) << r.err;
+  EXPECT_EQ(r.exit_code, 7) << r.err;
   EXPECT_EQ(testing::JsonString(r.out, "status").value_or(""), "unconverged") << r.out;
   const double steps = JsonNumber(r.out, "unconverged_steps");
   EXPECT_GT(steps, 0) << r.out;
