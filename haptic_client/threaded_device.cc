@@ -157,7 +157,7 @@ void ThreadedDevice::Stop() noexcept {
   stats_.abandoned = true;
   thread_.detach();
   try {
-    Log().error("device {}: its read or write_force has not returned within {:.1f} s of the stop; the device is left "
+    Log().error("device {}: its read or write_force has not returned within {:.3g} s of the stop; the device is left "
                 "to its thread (not closed)",
                 info_.name, options_.stop_grace_s);
   } catch (...) {  // the log is best effort here
@@ -174,11 +174,11 @@ uint64_t ThreadedDevice::io_cycles() const { return shared_->cycles.load(std::me
 
 void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s) {
   RunBelowTheLoop();
-  uint32_t seen = s->wake.load(std::memory_order_acquire);
   for (;;) {
-    s->wake.wait(seen, std::memory_order_acquire);
-    seen = s->wake.load(std::memory_order_acquire);
-    // Read before the command: Stop posts its zero force before it sets
+    // The wake-up count before looking for a command: a command posted
+    // after the look changes it, so the wait below returns at once.
+    const uint32_t seen = s->wake.load(std::memory_order_acquire);
+    // Quit before the command: Stop posts its zero force before it sets
     // quit, so the last command is always served.
     const bool quit = s->quit.load(std::memory_order_acquire);
     if (s->commands.TakeFresh()) {
@@ -192,6 +192,7 @@ void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s) {
       s->cycles.fetch_add(1, std::memory_order_release);
     }
     if (quit) break;
+    s->wake.wait(seen, std::memory_order_acquire);
   }
   s->done.store(true, std::memory_order_release);
 }

@@ -105,9 +105,13 @@ TEST(ThreadedDevice, ABlockedReadNeverStallsTheLoopAndTheForceFadesAndReturns) {
       EXPECT_EQ(s.buttons, 0U) << "no cutting on a late reading, tick " << i;
       EXPECT_LE(guard.device_force().z(), force.z()) << i;
     }
-    if (late_from >= 0 && i >= late_from + 11) EXPECT_EQ(guard.device_force().z(), 0.0) << "faded, tick " << i;
+    if (late_from >= 0 && i >= late_from + 11) {
+      EXPECT_EQ(guard.device_force().z(), 0.0) << "faded, tick " << i;
+    }
   }
-  if (support::kMallocCounting) EXPECT_EQ(support::StopCountingAllocations(), 0);
+  if (support::kMallocCounting) {
+    EXPECT_EQ(support::StopCountingAllocations(), 0);
+  }
   EXPECT_GE(late_from, 0) << "a blocked device's readings turned late";
   EXPECT_LE(late_from, 4);
   EXPECT_FALSE(s.stuck);
