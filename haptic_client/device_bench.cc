@@ -211,14 +211,14 @@ std::string PacedLoop(HapticDevice& raw, const DeviceBenchOptions& o, const Thre
   }
   const double final_force = device.device_force().norm();
   device.Stop();
-  std::string deadline;
+  std::string lateness;
   if (threaded != nullptr) {
     const ThreadedDeviceStats ts = threaded->stats();
-    deadline = fmt::format(R"(,"threaded":true,"late_ticks":{},"max_lag_ticks":{},"final_force_n":{:.6f})",
+    lateness = fmt::format(R"(,"threaded":true,"late_ticks":{},"max_lag_ticks":{},"final_force_n":{:.6f})",
                            ts.late_ticks, ts.max_lag_ticks, final_force);
   }
   return fmt::format(R"({{"device":"{}","ticks":{},"missed_deadlines":{},"jitter_us":{},"device_calls_ns":{}{}}})",
-                     raw.info().name, ticks, missed, QuantilesJson(jitter_us), QuantilesJson(call_ns), deadline);
+                     raw.info().name, ticks, missed, QuantilesJson(jitter_us), QuantilesJson(call_ns), lateness);
 }
 
 /// Mean ns of one tick's device calls (Read + SetForce), over `calls` ticks.
