@@ -21,9 +21,12 @@ ServoLoop::ServoLoop(const HapticAppOptions& options, HapticDevice& device,
 }
 
 const char* ServoLoop::Run(const std::atomic<bool>& stop) {
-  t0_ = MonotonicNs() + period_ns_;
+  const int64_t start_ns = MonotonicNs() + period_ns_;
+  device_.Start(start_ns);
+  // A device whose start took longer than a period: the first deadline
+  // follows it (its start is no missed tick).
+  t0_ = std::max(start_ns, MonotonicNs() + period_ns_);
   end_ns_ = duration_s_ > 0.0 ? t0_ + static_cast<int64_t>(std::llround(duration_s_ * 1e9)) : INT64_MAX;
-  device_.Start(t0_);
   int64_t deadline = t0_;
   for (;;) {
     SleepUntilNs(deadline);

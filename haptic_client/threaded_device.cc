@@ -67,9 +67,11 @@ ThreadedDevice::ThreadedDevice(std::unique_ptr<HapticDevice> device, const Threa
                     fmt::format("late after {} ticks, stuck after {}: need 1 ≤ late < stuck", options.late_ticks,
                                 options.stuck_ticks));
   }
-  if (!(std::isfinite(options.stop_grace_s) && options.stop_grace_s > 0.0 && options.stop_grace_s <= 10.0)) {
-    ThrowInputError(SourceRef{.field = "device stop grace"},
-                    fmt::format("{} s is out of range (0, 10] s", options.stop_grace_s));
+  for (const auto& [field, seconds] : {std::pair{"device stop grace", options.stop_grace_s},
+                                       std::pair{"device start timeout", options.start_timeout_s}}) {
+    if (!(std::isfinite(seconds) && seconds > 0.0 && seconds <= 10.0)) {
+      ThrowInputError(SourceRef{.field = field}, fmt::format("{} s is out of range (0, 10] s", seconds));
+    }
   }
   info_ = device->info();
   shared_->device = std::move(device);
@@ -85,22 +87,28 @@ const HapticDevice& ThreadedDevice::device() const { return *shared_->device; }
 void ThreadedDevice::Start(int64_t start_ns) {
   now_ns_ = start_ns;
   shared_->device->Start(start_ns);
-  Reading& first = shared_->readings.back();
-  first.tick = -1;
-  shared_->device->Read(start_ns, &first.state);
-  shared_->readings.Publish();
-  thread_ = std::thread([s = shared_] { DeviceThread(s); });
+  thread_ = std::thread([s = shared_, start_ns] { DeviceThread(s, start_ns); });
   started_ = true;
+  // The first reading is the device thread's too: wait for it, but only
+  // so long, so a device blocked from the start cannot hold the station.
+  const int64_t until = MonotonicNs() + static_cast<int64_t>(std::llround(options_.start_timeout_s * 1e9));
+  while (shared_->cycles.load(std::memory_order_acquire) == 0 && MonotonicNs() < until) {
+    std::this_thread::sleep_for(std::chrono::microseconds(100));
+  }
 }
 
 void ThreadedDevice::Read(int64_t now_ns, DeviceState* state) noexcept {
   now_ns_ = now_ns;
   transport::Mailbox<Reading>& readings = shared_->readings;
-  if (readings.TakeFresh()) last_ = readings.front().state;
+  if (readings.TakeFresh()) {
+    last_ = readings.front().state;
+    have_reading_ = true;
+  }
   // Ticks between the newest command sent and the one this reading
-  // followed: 0 when the device kept up.
-  const int64_t lag = (ticks_ - 1) - readings.front().tick;
-  const bool late = lag > options_.late_ticks;
+  // followed: 0 when the device kept up. Before any reading, every tick
+  // since the start, and the state (no pose yet) is late.
+  const int64_t lag = (ticks_ - 1) - (have_reading_ ? readings.front().tick : -1);
+  const bool late = !have_reading_ || lag > options_.late_ticks;
   *state = last_;
   state->late = late;
   state->stuck = lag >= options_.stuck_ticks;
@@ -172,8 +180,13 @@ ThreadedDeviceStats ThreadedDevice::stats() const {
 
 uint64_t ThreadedDevice::io_cycles() const { return shared_->cycles.load(std::memory_order_acquire); }
 
-void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s) {
+void ThreadedDevice::DeviceThread(const std::shared_ptr<Shared>& s, int64_t start_ns) {
   RunBelowTheLoop();
+  Reading& first = s->readings.back();
+  first.tick = -1;
+  s->device->Read(start_ns, &first.state);
+  s->readings.Publish();
+  s->cycles.fetch_add(1, std::memory_order_release);
   for (;;) {
     // The wake-up count before looking for a command: a command posted
     // after the look changes it, so the wait below returns at once.

@@ -39,11 +39,12 @@ struct ThreadedDeviceOptions {
   int64_t late_ticks = 3;      ///< A reading more ticks behind than this is late.
   int64_t stuck_ticks = 1000;  ///< One this many ticks behind: the device is stuck.
   double stop_grace_s = 0.5;   ///< s, how long Stop waits for the device thread.
+  double start_timeout_s = 1.0;  ///< s, how long Start waits for the first reading.
 };
 
 /// Counters for the summary and the tests.
 struct ThreadedDeviceStats {
-  uint64_t io_cycles = 0;      ///< Force-then-read cycles the device thread completed.
+  uint64_t io_cycles = 0;      ///< Readings the device thread completed (the first, then force-then-read cycles).
   uint64_t late_ticks = 0;     ///< Ticks whose reading was late.
   uint64_t late_episodes = 0;  ///< Runs of late ticks.
   int64_t max_lag_ticks = 0;   ///< The most ticks a reading was behind.
@@ -61,8 +62,9 @@ class ThreadedDevice final : public HapticDevice {
   ThreadedDevice& operator=(const ThreadedDevice&) = delete;
 
   [[nodiscard]] const DeviceInfo& info() const override { return info_; }
-  /// Starts the device, reads it once here (so the first tick has a
-  /// reading) and starts the device thread.
+  /// Starts the device and the device thread, which reads it first at
+  /// `start_ns`; waits for that reading at most `start_timeout_s` (so the
+  /// first tick has a pose unless the device is stuck from the start).
   void Start(int64_t start_ns) override;
   void Read(int64_t now_ns, DeviceState* state) noexcept override;
   void SetForce(const Eigen::Vector3d& force) noexcept override;
@@ -82,7 +84,7 @@ class ThreadedDevice final : public HapticDevice {
   struct Shared;
   /// The device thread: on every wake-up, the newest force to the device,
   /// then a reading at that command's time, until Stop.
-  static void DeviceThread(const std::shared_ptr<Shared>& shared);
+  static void DeviceThread(const std::shared_ptr<Shared>& shared, int64_t start_ns);
 
   std::shared_ptr<Shared> shared_;
   ThreadedDeviceOptions options_;
@@ -95,6 +97,7 @@ class ThreadedDevice final : public HapticDevice {
   uint64_t cuts_ = 0;
   bool contact_ = false;
   bool was_late_ = false;
+  bool have_reading_ = false;
   bool started_ = false;
   bool stopped_ = false;
   ThreadedDeviceStats stats_;
