@@ -111,6 +111,10 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   r.set_build(BuildClass());
   sim::SessionMetricsToProto(result.metrics, r.mutable_metrics());
   if (result.report.has_score()) *r.mutable_score() = result.report.score();
+  r.set_status(result.report.status());
+  r.set_diagnosis(result.report.diagnosis());
+  r.set_unconverged_steps(result.report.unconverged_steps());
+  r.set_max_residual_unconverged(result.report.max_residual_unconverged());
   return r;
 }
 
@@ -375,6 +379,10 @@ int ServerApp::RunReplay() {
   }
   Log().info("replay of {} matches: {} frames, {} cut frames, final mesh hash {:016x}", options_.replay,
              r.frames, r.cut_frames, r.mesh_hash);
+  if (r.report.status() == sim::kStatusUnconverged) {
+    Log().error("the re-run did not converge: {}", r.report.diagnosis());
+    return kExitUnconverged;
+  }
   return 0;
 }
 
