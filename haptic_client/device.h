@@ -11,8 +11,10 @@
 /// the 1 kHz loop and must not allocate, block or throw; `Stop` zeroes the
 /// force and releases the device. Built in are two virtual devices,
 /// `ScriptedDevice` (a tool path) and `ReplayDevice` (a recorded tool
-/// stream), and `BrowserDevice` (browser_device.h: a trainee's page); hardware comes through device plugins (plugin/cutsim_device.h,
-/// wrapped by `PluginDevice`). `DeviceGuard` (device_guard.h) sits between
+/// stream), and `BrowserDevice` (browser_device.h: a trainee's page);
+/// hardware comes through device plugins (plugin/cutsim_device.h, wrapped
+/// by `PluginDevice`), whose calls may block and so run on a thread of
+/// their own behind `ThreadedDevice` (threaded_device.h). `DeviceGuard` (device_guard.h) sits between
 /// any device and the loop: workspace mapping, clutch, force clamp and the
 /// fade when a device is lost.
 
