@@ -11,8 +11,10 @@
 /// the 1 kHz loop and must not allocate, block or throw; `Stop` zeroes the
 /// force and releases the device. Built in are two virtual devices,
 /// `ScriptedDevice` (a tool path) and `ReplayDevice` (a recorded tool
-/// stream), and `BrowserDevice` (browser_device.h: a trainee's page); hardware comes through device plugins (plugin/cutsim_device.h,
-/// wrapped by `PluginDevice`). `DeviceGuard` (device_guard.h) sits between
+/// stream), and `BrowserDevice` (browser_device.h: a trainee's page);
+/// hardware comes through device plugins (plugin/cutsim_device.h, wrapped
+/// by `PluginDevice`), whose calls may block and so run on a thread of
+/// their own behind `ThreadedDevice` (threaded_device.h). `DeviceGuard` (device_guard.h) sits between
 /// any device and the loop: workspace mapping, clutch, force clamp and the
 /// fade when a device is lost.
 
@@ -44,6 +46,12 @@ struct DeviceState {
   bool done = false;     ///< A virtual device's script has ended (a real one: never).
   /// The device stopped answering (unplugged): `pose` is the last good one.
   bool lost = false;
+  /// The reading is older than the device's deadline (a device on its own
+  /// thread, threaded_device.h, that did not keep up): `pose` is the last
+  /// reading's; the guard holds the tool and fades the force.
+  bool late = false;
+  /// No reading for so long that the device counts as stuck: the loop ends.
+  bool stuck = false;
 };
 
 class HapticDevice {

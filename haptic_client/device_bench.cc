@@ -11,6 +11,7 @@
 #include <cstring>
 #include <functional>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include <fmt/format.h>
@@ -24,6 +25,7 @@
 #include "haptic_client/plugin_device.h"
 #include "haptic_client/plugin_loader.h"
 #include "haptic_client/plugins/evdev/evdev_device.h"
+#include "haptic_client/threaded_device.h"
 #include "haptic_client/virtual_devices.h"
 
 namespace cutsim::haptic_client {
@@ -167,8 +169,8 @@ std::unique_ptr<HapticDevice> MakeScripted() {
       haptics::ToolPath::Parse("0     0 0 0.01  0 0 1\n1000  0.01 0 0  0 0 1\n", "device_bench"), info);
 }
 
-std::unique_ptr<HapticDevice> MakePlugin(const std::filesystem::path& dir) {
-  return std::make_unique<PluginDevice>(PluginLibrary::Load(ResolvePluginPath("example_spring", dir)), "vx=0.001");
+std::unique_ptr<HapticDevice> MakePlugin(const std::filesystem::path& dir, const std::string& arg = "vx=0.001") {
+  return std::make_unique<PluginDevice>(PluginLibrary::Load(ResolvePluginPath("example_spring", dir)), arg);
 }
 
 std::string QuantilesJson(const Histogram& h) {
@@ -176,8 +178,10 @@ std::string QuantilesJson(const Histogram& h) {
                      h.Quantile(0.99), h.max(), h.mean(), h.count());
 }
 
-/// The servo loop's pacing with only the device's work in each tick.
-std::string PacedLoop(HapticDevice& raw, const DeviceBenchOptions& o) {
+/// The servo loop's pacing with only the device's work in each tick; with
+/// `threaded` (the device behind its own thread) also its late ticks and
+/// the force the guard passed on at the end.
+std::string PacedLoop(HapticDevice& raw, const DeviceBenchOptions& o, const ThreadedDevice* threaded = nullptr) {
   DeviceGuard device(raw, GuardOptions{});
   Histogram jitter_us(1.0, 20000), call_ns(10.0, 100000);
   const auto period = static_cast<int64_t>(std::llround(1e9 / o.rate));
@@ -205,9 +209,16 @@ std::string PacedLoop(HapticDevice& raw, const DeviceBenchOptions& o) {
       deadline += behind * period;
     }
   }
+  const double final_force = device.device_force().norm();
   device.Stop();
-  return fmt::format(R"({{"device":"{}","ticks":{},"missed_deadlines":{},"jitter_us":{},"device_calls_ns":{}}})",
-                     raw.info().name, ticks, missed, QuantilesJson(jitter_us), QuantilesJson(call_ns));
+  std::string lateness;
+  if (threaded != nullptr) {
+    const ThreadedDeviceStats ts = threaded->stats();
+    lateness = fmt::format(R"(,"threaded":true,"late_ticks":{},"max_lag_ticks":{},"final_force_n":{:.6f})",
+                           ts.late_ticks, ts.max_lag_ticks, final_force);
+  }
+  return fmt::format(R"({{"device":"{}","ticks":{},"missed_deadlines":{},"jitter_us":{},"device_calls_ns":{}{}}})",
+                     raw.info().name, ticks, missed, QuantilesJson(jitter_us), QuantilesJson(call_ns), lateness);
 }
 
 /// Mean ns of one tick's device calls (Read + SetForce), over `calls` ticks.
@@ -260,6 +271,14 @@ std::string RunDeviceBench(const DeviceBenchOptions& o) {
   {
     EvdevFakeDevice d;
     loops.push_back(PacedLoop(d, o));
+  }
+  // The plugin on its own thread as the station runs it, on time and with
+  // a read that takes 5 ms: the loop keeps its rate and the force fades.
+  for (const char* arg : {"vx=0.001", "vx=0.001,read_delay_ms=5"}) {
+    ThreadedDevice d(MakePlugin(o.plugin_dir, arg),
+                     ThreadedDeviceOptions{.late_ticks = std::max<int64_t>(2, std::llround(0.003 * o.rate)),
+                                           .stuck_ticks = std::max<int64_t>(4, std::llround(10.0 * o.rate))});
+    loops.push_back(PacedLoop(d, o, &d));
   }
   SpringDevice builtin;
   auto plugin = MakePlugin(o.plugin_dir);

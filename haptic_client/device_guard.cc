@@ -1,5 +1,6 @@
 #include "haptic_client/device_guard.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -27,16 +28,25 @@ void DeviceGuard::Start(int64_t start_ns) {
 }
 
 void DeviceGuard::Read(int64_t now_ns, DeviceState* state) noexcept {
+  const double dt = std::max(0.0, 1e-9 * static_cast<double>(now_ns - now_ns_));
   now_ns_ = now_ns;
   device_.Read(now_ns, &raw_);
   *state = raw_;
-  if (raw_.lost) {
-    if (!stats_.lost) {
+  const double step = dt / options_.fade_s;
+  late_gain_ = raw_.late ? std::max(0.0, late_gain_ - step) : std::min(1.0, late_gain_ + step);
+  if (raw_.lost || raw_.late) {
+    if (raw_.lost && !stats_.lost) {
       stats_.lost = true;
       stats_.lost_ns = now_ns;
     }
-    // The tool holds its last pose; nothing moves and nothing cuts.
-    if (have_tool_) state->pose = tool_;
+    // The tool holds its last pose (before any, the reading's, mapped);
+    // nothing moves and nothing cuts.
+    if (!have_tool_) {
+      tool_.tip = options_.scale * raw_.pose.tip + options_.offset;
+      tool_.blade_dir = raw_.pose.blade_dir;
+      have_tool_ = true;
+    }
+    state->pose = tool_;
     state->velocity.setZero();
     state->buttons = 0;
     return;
@@ -84,6 +94,7 @@ void DeviceGuard::SetForce(const Eigen::Vector3d& force) noexcept {
       const double t = 1e-9 * static_cast<double>(now_ns_ - stats_.lost_ns);
       device_force_ *= std::max(0.0, 1.0 - t / options_.fade_s);
     }
+    device_force_ *= late_gain_;
   }
   device_.SetForce(device_force_);
 }

@@ -13,6 +13,11 @@
 /// * Lost device: when a read reports the device gone, the tool holds its
 ///   last pose with cutting off and the commanded force fades linearly to
 ///   zero over `fade_s`; the session goes on.
+/// * Late device: while a reading is late (`DeviceState::late`: a device on
+///   its own thread that did not keep up) the tool holds its last pose with
+///   cutting off and the force fades toward zero at the same rate (full to
+///   zero over `fade_s`); once readings are on time again it comes back at
+///   that rate, so neither the hold nor its end is a jolt.
 ///
 /// Everything is preallocated; `Read` and `SetForce` are O(1), never
 /// allocate, block or throw.
@@ -57,6 +62,8 @@ class DeviceGuard final : public HapticDevice {
   /// The force last passed to the device, N (after clamp and fade).
   [[nodiscard]] const Eigen::Vector3d& device_force() const { return device_force_; }
   [[nodiscard]] bool clutched() const { return clutched_; }
+  /// The factor on the force from late readings, in [0, 1].
+  [[nodiscard]] double late_gain() const { return late_gain_; }
 
  private:
   HapticDevice& device_;
@@ -68,6 +75,7 @@ class DeviceGuard final : public HapticDevice {
   bool clutched_ = false;
   int64_t now_ns_ = 0;
   Eigen::Vector3d device_force_ = Eigen::Vector3d::Zero();
+  double late_gain_ = 1.0;  // scales the force: falls while readings are late, recovers after
   GuardStats stats_;
 };
 

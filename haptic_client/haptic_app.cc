@@ -34,12 +34,19 @@
 #include "haptic_client/plugin_loader.h"
 #include "haptic_client/scene_haptics.h"
 #include "haptic_client/servo_loop.h"
+#include "haptic_client/threaded_device.h"
 #include "haptic_client/virtual_devices.h"
 
 namespace cutsim::haptic_client {
 
 /// Exit status of a run that never received a model from a server.
 constexpr int kExitNoModel = 3;
+/// Exit status of a run that ended because the device stopped answering.
+constexpr int kExitDeviceStuck = 4;
+/// A plugin's reading older than this is late (the guard holds the tool
+/// and fades the force), s; one this old says the device is stuck.
+constexpr double kDeviceLateSeconds = 0.003;
+constexpr double kDeviceStuckSeconds = 1.0;
 
 namespace {
 
@@ -132,11 +139,17 @@ std::unique_ptr<HapticDevice> MakeDevice(const HapticAppOptions& o) {
                                 "(--device-dir picks the folder; --device PATH loads a plugin file)",
                                 o.device));
   }
-  auto device = std::make_unique<PluginDevice>(PluginLibrary::Load(path), o.device_arg);
+  auto plugin = std::make_unique<PluginDevice>(PluginLibrary::Load(path), o.device_arg);
+  // The plugin's calls may block: they run on a thread of their own, and
+  // the loop only takes their newest reading (threaded_device.h).
+  ThreadedDeviceOptions deadline;
+  deadline.late_ticks = std::max<int64_t>(2, std::llround(kDeviceLateSeconds * o.rate));
+  deadline.stuck_ticks = std::max<int64_t>(deadline.late_ticks + 1, std::llround(kDeviceStuckSeconds * o.rate));
+  auto device = std::make_unique<ThreadedDevice>(std::move(plugin), deadline);
   const DeviceInfo& d = device->info();
   Log().info("device plugin {} ({}): workspace [{:.3f}, {:.3f}] x [{:.3f}, {:.3f}] x [{:.3f}, {:.3f}] m, max force "
              "{} N{}, max stiffness {} N/m, rate {} Hz",
-             d.name, device->path(), d.workspace_min.x(), d.workspace_max.x(), d.workspace_min.y(),
+             d.name, path.string(), d.workspace_min.x(), d.workspace_max.x(), d.workspace_min.y(),
              d.workspace_max.y(), d.workspace_min.z(), d.workspace_max.z(), d.max_force,
              d.max_force > 0.0 ? "" : " (input only: the force is rendered and recorded, not sent)", d.max_stiffness,
              d.rate_hz);
@@ -284,6 +297,11 @@ struct DeviceOutcome {
   uint64_t clutch_engagements = 0;
   uint64_t forces_clamped = 0;
   uint64_t read_errors = 0;
+  // A plugin on its own thread (threaded_device.h).
+  uint64_t late_ticks = 0;
+  uint64_t late_episodes = 0;
+  double max_lag_ms = 0.0;
+  bool stuck = false;
 };
 
 struct RunOutcome {
@@ -295,7 +313,7 @@ struct RunOutcome {
 
 /// Collects the guard's and the plugin's counters and logs a lost device.
 DeviceOutcome SummariseDevice(const HapticDevice& device, const DeviceGuard& guard, int64_t loop_start_ns,
-                              const GuardOptions& options) {
+                              const GuardOptions& options, double rate_hz) {
   DeviceOutcome d;
   d.name = device.info().name;
   const GuardStats& gs = guard.stats();
@@ -304,9 +322,24 @@ DeviceOutcome SummariseDevice(const HapticDevice& device, const DeviceGuard& gua
   d.clutch_engagements = gs.clutch_engagements;
   d.forces_clamped = gs.force_clamped;
   std::string why;
-  if (const auto* plugin = dynamic_cast<const PluginDevice*>(&device)) {
-    d.read_errors = plugin->stats().read_errors + plugin->stats().bad_poses;
-    why = plugin->last_error();
+  if (const auto* threaded = dynamic_cast<const ThreadedDevice*>(&device)) {
+    const ThreadedDeviceStats ts = threaded->stats();
+    d.late_ticks = ts.late_ticks;
+    d.late_episodes = ts.late_episodes;
+    d.max_lag_ms = 1e3 * static_cast<double>(ts.max_lag_ticks) / rate_hz;
+    d.stuck = ts.stuck;
+    // A device left to its thread may still be inside the plugin: its
+    // counters are not ours to read.
+    const auto* plugin = dynamic_cast<const PluginDevice*>(&threaded->device());
+    if (plugin != nullptr && !ts.abandoned) {
+      d.read_errors = plugin->stats().read_errors + plugin->stats().bad_poses;
+      why = plugin->last_error();
+    }
+    if (d.late_ticks > 0) {
+      Log().warn("device {}: its readings were late on {} ticks in {} runs (at most {:.1f} ms behind): the tool held "
+                 "and the force faded to zero each time",
+                 d.name, d.late_ticks, d.late_episodes, d.max_lag_ms);
+    }
   }
   if (d.lost) {
     Log().warn("device {} was lost {:.3f} s into the loop ({}); the force faded to zero over {:.0f} ms and the tool "
@@ -372,6 +405,10 @@ v1::HapticStats StatsReport(const HapticAppOptions& o, const RunOutcome& run, co
   r.set_clutch_engagements(ReportCount(run.device.clutch_engagements));
   r.set_forces_clamped(ReportCount(run.device.forces_clamped));
   r.set_device_read_errors(ReportCount(run.device.read_errors));
+  r.set_device_late_ticks(ReportCount(run.device.late_ticks));
+  r.set_device_late_episodes(ReportCount(run.device.late_episodes));
+  r.set_device_max_lag_ms(run.device.max_lag_ms);
+  r.set_device_stuck(run.device.stuck);
   return r;
 }
 
@@ -451,7 +488,7 @@ int RunHapticApp(const HapticAppOptions& o) {
 
   guard.SetForce(Eigen::Vector3d::Zero());
   guard.Stop();
-  run.device = SummariseDevice(*device, guard, loop.start_ns(), guard_options);
+  run.device = SummariseDevice(*device, guard, loop.start_ns(), guard_options, o.rate);
   if (run.realtime.fifo) (void)transport::SetCurrentThreadNormal();
   link.Stop();
   run.csv_rows = loop.FinishCsv();
@@ -460,6 +497,12 @@ int RunHapticApp(const HapticAppOptions& o) {
   std::fputs(json.c_str(), stdout);
   std::fputc('\n', stdout);
   std::fflush(stdout);
+  if (run.device.stuck) {
+    Log().error("device {} stopped answering: no reading for {:.1f} s (its read or write_force blocks); the force "
+                "faded to zero and the station stopped",
+                device->info().name, kDeviceStuckSeconds);
+    return kExitDeviceStuck;
+  }
   // A run that never heard a server rendered nothing: say so, and fail.
   if (renderer.stats().models_accepted == 0) {
     Log().error("no model was received from a server on session '{}' ({}): is the server running, with the "

@@ -21,9 +21,12 @@ ServoLoop::ServoLoop(const HapticAppOptions& options, HapticDevice& device,
 }
 
 const char* ServoLoop::Run(const std::atomic<bool>& stop) {
-  t0_ = MonotonicNs() + period_ns_;
+  const int64_t start_ns = MonotonicNs() + period_ns_;
+  device_.Start(start_ns);
+  // A device whose start took longer than a period: the first deadline
+  // follows it (its start is no missed tick).
+  t0_ = std::max(start_ns, MonotonicNs() + period_ns_);
   end_ns_ = duration_s_ > 0.0 ? t0_ + static_cast<int64_t>(std::llround(duration_s_ * 1e9)) : INT64_MAX;
-  device_.Start(t0_);
   int64_t deadline = t0_;
   for (;;) {
     SleepUntilNs(deadline);
@@ -107,6 +110,7 @@ void ServoLoop::Record(const Wake& wake, const Eigen::Vector3d& force) {
 
 const char* ServoLoop::EndReason(int64_t now_ns, const std::atomic<bool>& stop) const {
   if (state_.done) return "device done";
+  if (state_.stuck) return "device stuck";
   if (now_ns >= end_ns_) return "duration";
   if (stop.load(std::memory_order_relaxed)) return "signal";
   return nullptr;

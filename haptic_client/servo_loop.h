@@ -42,7 +42,7 @@ class ServoLoop {
             transport::HapticClientLink& link);
 
   /// Runs until the device is done, the duration passes or `stop` is set;
-  /// returns why ("device done", "duration" or "signal").
+  /// returns why ("device done", "device stuck", "duration" or "signal").
   const char* Run(const std::atomic<bool>& stop);
 
   /// Stops the CSV writer and completes the file; returns rows written.

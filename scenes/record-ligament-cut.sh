@@ -29,7 +29,7 @@ url="udpm://239.255.76.67:7913?ttl=0"
 openssl rand -hex 32 > "$work/session.key"
 chmod 600 "$work/session.key"
 "$build/bin/cutsim-server" --scene scenes/ligament.pbtxt --duration 3.2 --session ligament \
-  --lcm-url "\$url" --key-file "$work/session.key" --record "$work/rec.lcm" --no-progress \
+  --lcm-url "\$url" --key-file "$work/session.key" --record "$work/rec.lcm" \
   > "$work/server.out" 2> "$work/server.err" &
 server=\$!
 sleep 1

@@ -382,6 +382,9 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_topology_version(ReportCount(s.topology_version));
   r.set_components(ReportCount(s.components));
   r.set_status(s.status);
+  r.set_diagnosis(s.diagnosis);
+  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
+  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   FillJournalStats(p_.checkpointer, r.mutable_journal());
@@ -422,7 +425,8 @@ int ServerApp::RunRealtime() {
                                                     .precision = options_.precision,
                                                     .integrator = options_.integrator,
                                                     .frame_budget = budget * frame_dt});
-  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
+  const auto signer = MakeJournalSigner(options_);
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every, signer.get());
   (void)checkpointer.Begin(*simulation, options_.resume);
 
   // The haptic link. LCM's udpm receive thread starts on the first

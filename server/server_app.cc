@@ -11,6 +11,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "common/cli/flag_modes.h"
 #include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/input_file.h"
@@ -111,99 +112,140 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   r.set_build(BuildClass());
   sim::SessionMetricsToProto(result.metrics, r.mutable_metrics());
   if (result.report.has_score()) *r.mutable_score() = result.report.score();
+  r.set_status(result.report.status());
+  r.set_diagnosis(result.report.diagnosis());
+  r.set_unconverged_steps(result.report.unconverged_steps());
+  r.set_max_residual_unconverged(result.report.max_residual_unconverged());
   return r;
 }
 
+/// The server's modes, in the order of FlagModes' names.
+enum ServerMode : int { kRealtimeMode = 0, kHeadlessMode = 1, kReplayMode = 2 };
+constexpr cli::ModeSet kRealtime = 1U << kRealtimeMode;
+constexpr cli::ModeSet kHeadless = 1U << kHeadlessMode;
+constexpr cli::ModeSet kReplay = 1U << kReplayMode;
+constexpr cli::ModeSet kRun = kRealtime | kHeadless;  // a simulation this process runs from the scene
+constexpr cli::ModeSet kAny = kRun | kReplay;
+
 /// The batch-run flags: scene, duration, output, threads, logging.
-void AddRunOptions(CLI::App& app, ServerOptions& o) {
-  app.add_option("--scene", o.scene,
-                 "Scene file (protobuf text format); with --replay, overrides the recorded one")
-      ->check(CLI::ExistingFile);
-  app.add_flag("--headless", o.headless,
-               "Run as fast as possible with no transport, then print a JSON summary");
-  app.add_option("--duration", o.duration, "Simulated seconds to run")
-      ->check(CLI::Range(1e-9, sim::kMaxSimSeconds));
-  app.add_flag("--until-rest", o.until_rest,
-               "Run until kinetic energy and residual force fall below the scene's rest tolerances");
-  app.add_option("--max-time", o.max_time, "Cap on simulated seconds for --until-rest")
-      ->check(CLI::Range(1e-9, sim::kMaxSimSeconds));
-  app.add_option("--out", o.out, "Write the final state to this .vtu file");
-  app.add_option("--threads", o.threads, "Worker threads (0 = scene/all cores)")
-      ->check(CLI::Range(int64_t{0}, sim::kMaxThreads));
-  app.add_option("--precision", o.precision, "Override the scene's precision")
-      ->check(CLI::IsMember({"float", "double"}));
-  app.add_option("--integrator", o.integrator, "Override the scene's integrator")
-      ->check(CLI::IsMember({"explicit", "implicit", "auto"}));
-  app.add_option("--frame-budget", o.frame_budget,
-                 "Wall-clock budget of a frame's implicit step, as a fraction of the frame: Newton and PCG stop "
-                 "there and the residual carries into the next frame (0: none, every step to its tolerance; "
-                 "default 0.6 in real time, 0 headless)")
-      ->check(CLI::Range(0.0, 1.0));
-  app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off");
-  app.add_flag("!--no-progress", o.progress, "No progress bar");
+void AddRunOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
+  m.Declare(app.add_option("--scene", o.scene,
+                           "Scene file (protobuf text format); with --replay, overrides the recorded one")
+                ->check(CLI::ExistingFile),
+            kAny);
+  m.Declare(app.add_flag("--headless", o.headless,
+                         "Run as fast as possible with no transport, then print a JSON summary"),
+            kHeadless | kReplay);
+  m.Declare(app.add_option("--duration", o.duration, "Simulated seconds to run")
+                ->check(CLI::Range(1e-9, sim::kMaxSimSeconds)),
+            kRun);
+  m.Declare(app.add_flag("--until-rest", o.until_rest,
+                         "Run until kinetic energy and residual force fall below the scene's rest tolerances"),
+            kHeadless);
+  m.Declare(app.add_option("--max-time", o.max_time, "Cap on simulated seconds for --until-rest")
+                ->check(CLI::Range(1e-9, sim::kMaxSimSeconds)),
+            kHeadless);
+  m.Declare(app.add_option("--out", o.out, "Write the final state to this .vtu file"), kRun);
+  m.Declare(app.add_option("--threads", o.threads, "Worker threads (0 = scene/all cores)")
+                ->check(CLI::Range(int64_t{0}, sim::kMaxThreads)),
+            kRun);
+  m.Declare(app.add_option("--precision", o.precision, "Override the scene's precision")
+                ->check(CLI::IsMember({"float", "double"})),
+            kRun);
+  m.Declare(app.add_option("--integrator", o.integrator, "Override the scene's integrator")
+                ->check(CLI::IsMember({"explicit", "implicit", "auto"})),
+            kRun);
+  m.Declare(app.add_option("--frame-budget", o.frame_budget,
+                           "Wall-clock budget of a frame's implicit step, as a fraction of the frame: Newton and PCG "
+                           "stop there and the residual carries into the next frame (0: none, every step to its "
+                           "tolerance; default 0.6 in real time, 0 headless)")
+                ->check(CLI::Range(0.0, 1.0)),
+            kRun);
+  m.Declare(app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off"), kAny);
+  m.Declare(app.add_flag("!--no-progress", o.progress, "No progress bar (--headless)"), kHeadless);
 }
 
 /// The real-time session's flags: session name, LCM and DDS, rates, priority.
-void AddRealtimeOptions(CLI::App& app, ServerOptions& o) {
-  app.add_option("--session", o.session, "Session name (LCM channels, DDS key)");
-  app.add_option("--lcm-url", o.lcm_url,
-                 "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)");
-  app.add_option("--dds-domain", o.dds_domain, "DDS domain id for the viewers")
-      ->check(CLI::Range(0, 230));
-  app.add_option("--dds-config", o.dds_config,
-                 "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
-      ->check(CLI::ExistingFile);
-  app.add_flag("!--no-rt", o.realtime_priority,
-               "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
-               "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
-               "e.g. a haptic client started with --no-rt");
-  app.add_option("--viewer-fps", o.viewer_fps, "Mesh frames per second to viewers")
-      ->check(CLI::Range(0.1, 240.0));
-  app.add_option("--frame-rate", o.frame_rate,
-                 "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
-      ->check(CLI::Range(1.0, 10000.0));
-  app.add_option("--stats-json", o.stats_json, "Also write the exit statistics (the JSON summary) to this file");
+void AddRealtimeOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
+  m.Declare(app.add_option("--session", o.session, "Session name (LCM channels, DDS key)"), kRealtime);
+  m.Declare(app.add_option("--lcm-url", o.lcm_url,
+                           "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)"),
+            kRealtime);
+  m.Declare(app.add_option("--dds-domain", o.dds_domain, "DDS domain id for the viewers")->check(CLI::Range(0, 230)),
+            kRealtime);
+  m.Declare(app.add_option("--dds-config", o.dds_config,
+                           "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
+                ->check(CLI::ExistingFile),
+            kRealtime);
+  m.Declare(app.add_flag("!--no-rt", o.realtime_priority,
+                         "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
+                         "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
+                         "e.g. a haptic client started with --no-rt"),
+            kRealtime);
+  m.Declare(app.add_option("--viewer-fps", o.viewer_fps, "Mesh frames per second to viewers")
+                ->check(CLI::Range(0.1, 240.0)),
+            kRealtime);
+  m.Declare(app.add_option("--frame-rate", o.frame_rate,
+                           "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
+                ->check(CLI::Range(1.0, 10000.0)),
+            kRealtime);
+  m.Declare(app.add_option("--stats-json", o.stats_json,
+                           "Also write the exit statistics (the JSON summary) to this file"),
+            kRun);
 }
 
 /// The session report, in every mode.
-void AddReportOptions(CLI::App& app, ServerOptions& o) {
-  app.add_option("--session-report", o.session_report,
-                 "At the end, write the session's measures and score to this JSON file and their plot beside it "
-                 "(.svg)");
-  app.add_option("--history", o.history,
-                 "At the end, append the session's score for --trainee to this SQLite file, the lab's score "
-                 "history (created when absent; a bad or locked file is logged, never stops the session)");
-  app.add_option("--trainee", o.trainee, "Whose session this is, in --history (A-Z a-z 0-9 . _ -, up to 64)");
+void AddReportOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
+  m.Declare(app.add_option("--session-report", o.session_report,
+                           "At the end, write the session's measures and score to this JSON file and their plot "
+                           "beside it (.svg)"),
+            kAny);
+  m.Declare(app.add_option("--history", o.history,
+                           "At the end, append the session's score for --trainee to this SQLite file, the lab's "
+                           "score history (created when absent; a bad or locked file is logged, never stops the "
+                           "session)"),
+            kRun);
+  m.Declare(app.add_option("--trainee", o.trainee, "Whose session this is, in --history (A-Z a-z 0-9 . _ -, up to 64)"),
+            kRun);
 }
 
 /// Recording, replay and access control of the tool stream.
-void AddRecordAndAccessOptions(CLI::App& app, ServerOptions& o) {
-  app.add_option("--record", o.record,
-                 "Record the session's inputs (tool poses applied, frame times, cuts, final mesh "
-                 "hash) to this LCM log");
-  app.add_option("--replay", o.replay,
-                 "With --headless: re-run a recording and check its cuts and final mesh hash "
-                 "(exit 4 on a mismatch)")
-      ->check(CLI::ExistingFile);
-  app.add_option("--key-file", o.key_file,
-                 "Session key (hex, 16-64 bytes): accept only tool messages signed with it; "
-                 "default $CUTSIM_SESSION_KEY, else an open session")
-      ->check(CLI::ExistingFile);
-  app.add_option("--auth-window", o.auth_window,
-                 "Seconds a signed tool message's timestamp may differ from this host's clock")
-      ->check(CLI::Range(0.001, 3600.0));
+void AddRecordAndAccessOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
+  m.Declare(app.add_option("--record", o.record,
+                           "Record the session's inputs (tool poses applied, frame times, cuts, final mesh "
+                           "hash) to this LCM log"),
+            kRealtime);
+  m.Declare(app.add_option("--replay", o.replay,
+                           "With --headless: re-run a recording and check its cuts and final mesh hash "
+                           "(exit 4 on a mismatch)")
+                ->check(CLI::ExistingFile),
+            kReplay);
+  m.Declare(app.add_option("--key-file", o.key_file,
+                           "Session key (hex, 16-64 bytes): accept only tool messages signed with it, and sign the "
+                           "event journal beside --checkpoint with it; default $CUTSIM_SESSION_KEY, else an open "
+                           "session")
+                ->check(CLI::ExistingFile),
+            kRun);
+  m.Declare(app.add_option("--auth-window", o.auth_window,
+                           "Seconds a signed tool message's timestamp may differ from this host's clock")
+                ->check(CLI::Range(0.001, 3600.0)),
+            kRealtime);
 }
 
 /// Checkpoints and resuming from one.
-void AddCheckpointOptions(CLI::App& app, ServerOptions& o) {
-  app.add_option("--checkpoint", o.checkpoint,
-                 "Save the tissue (every cut, positions, velocities) to this file every "
-                 "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace");
-  app.add_option("--checkpoint-every", o.checkpoint_every,
-                 "Wall seconds between checkpoints (0: only at exit)")
-      ->check(CLI::NonNegativeNumber);
-  app.add_flag("--resume", o.resume,
-               "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an error)");
+void AddCheckpointOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
+  m.Declare(app.add_option("--checkpoint", o.checkpoint,
+                           "Save the tissue (every cut, positions, velocities) to this file every "
+                           "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace"),
+            kRun);
+  m.Declare(app.add_option("--checkpoint-every", o.checkpoint_every,
+                           "Wall seconds between checkpoints (0: only at exit)")
+                ->check(CLI::NonNegativeNumber),
+            kRun);
+  m.Declare(app.add_flag("--resume", o.resume,
+                         "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an "
+                         "error)"),
+            kRun);
 }
 
 /// The message for flags that cannot go together, or null when they can.
@@ -226,11 +268,12 @@ const char* OptionConflict(const ServerOptions& o) {
 
 int ServerApp::ParseArgs(int argc, char** argv) {
   CLI::App app{"cutsim-server: owns the tissue FEM model and every cut"};
-  AddRunOptions(app, options_);
-  AddRealtimeOptions(app, options_);
-  AddRecordAndAccessOptions(app, options_);
-  AddCheckpointOptions(app, options_);
-  AddReportOptions(app, options_);
+  cli::FlagModes modes({"a real-time session", "--headless", "--headless --replay"});
+  AddRunOptions(app, options_, modes);
+  AddRealtimeOptions(app, options_, modes);
+  AddRecordAndAccessOptions(app, options_, modes);
+  AddCheckpointOptions(app, options_, modes);
+  AddReportOptions(app, options_, modes);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -238,6 +281,12 @@ int ServerApp::ParseArgs(int argc, char** argv) {
   }
   if (const char* conflict = OptionConflict(options_)) {
     std::fprintf(stderr, "%s\n", conflict);
+    return 2;
+  }
+  // A flag that does nothing in the chosen mode is refused, not ignored.
+  const int mode = !options_.replay.empty() ? kReplayMode : options_.headless ? kHeadlessMode : kRealtimeMode;
+  if (const std::optional<std::string> refusal = modes.Refusal(app, mode)) {
+    std::fprintf(stderr, "%s\n", refusal->c_str());
     return 2;
   }
   if (const std::string why = record::CheckTraineeName(options_.trainee); !options_.trainee.empty() && !why.empty()) {
@@ -312,6 +361,12 @@ bool FinishJournal(sim::PeriodicCheckpointer& checkpointer) {
   return false;
 }
 
+std::unique_ptr<transport::HmacJournalSigner> MakeJournalSigner(const ServerOptions& o) {
+  if (o.checkpoint.empty()) return nullptr;
+  const auto key = transport::LoadSessionKey(o.key_file);
+  return key ? std::make_unique<transport::HmacJournalSigner>(*key) : nullptr;
+}
+
 std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(const ServerOptions& o) {
   const auto key = transport::LoadSessionKey(o.key_file);
   if (!key) {
@@ -341,6 +396,10 @@ int ServerApp::RunReplay() {
   }
   Log().info("replay of {} matches: {} frames, {} cut frames, final mesh hash {:016x}", options_.replay,
              r.frames, r.cut_frames, r.mesh_hash);
+  if (r.report.status() == sim::kStatusUnconverged) {
+    Log().error("the re-run did not converge: {}", r.report.diagnosis());
+    return kExitUnconverged;
+  }
   return 0;
 }
 
@@ -351,7 +410,8 @@ int ServerApp::RunHeadless() {
               .precision = options_.precision,
               .integrator = options_.integrator,
               .frame_budget = std::max(0.0, options_.frame_budget) * scene.scene.time_step().frame_dt()});
-  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every);
+  const auto signer = MakeJournalSigner(options_);
+  sim::PeriodicCheckpointer checkpointer(options_.checkpoint, options_.checkpoint_every, signer.get());
   (void)checkpointer.Begin(*simulation, options_.resume);
   // The run ends at --duration, else when the tool path ends, else (with
   // --until-rest) at rest or --max-time.
@@ -427,7 +487,13 @@ int ServerApp::RunHeadless() {
   }
   std::printf("%s\n", json.c_str());
   if (std::fflush(stdout) != 0) outputs_ok = false;
-  return exit_code != 0 ? exit_code : outputs_ok ? 0 : kExitOutputFailed;
+  if (exit_code != 0) return exit_code;
+  if (!outputs_ok) return kExitOutputFailed;
+  if (summary.status() == sim::kStatusUnconverged) {
+    Log().error("the run did not converge: {}", summary.diagnosis());
+    return kExitUnconverged;
+  }
+  return 0;
 }
 
 }  // namespace cutsim::server

@@ -8,6 +8,7 @@
 #include <optional>
 #include <string>
 
+#include "common/transport/journal_auth.h"
 #include "common/transport/tool_auth.h"
 
 namespace cutsim::sim {
@@ -65,9 +66,19 @@ struct ServerOptions {
 [[nodiscard]] std::unique_ptr<transport::HmacToolAuthenticator> MakeToolAuthenticator(
     const ServerOptions& options);
 
+/// The event journal's signer: the session key's (`--key-file`, else
+/// `$CUTSIM_SESSION_KEY`) when there is a key and a `--checkpoint`, else
+/// null (an unsigned journal). Throws `InputError` for a bad key.
+[[nodiscard]] std::unique_ptr<transport::HmacJournalSigner> MakeJournalSigner(const ServerOptions& options);
+
 /// Exit status when the run itself succeeded but an output (recording,
 /// checkpoint, statistics, final state) could not be written completely.
 inline constexpr int kExitOutputFailed = 5;
+/// Exit status of a headless run that finished with every output written,
+/// but whose implicit steps did not all reach their force tolerance (the
+/// summary's status "unconverged"): its numbers are not the answer to the
+/// stated tolerance. (3: stepping stopped; 2: bad input; 6 is a duplicate server.)
+inline constexpr int kExitUnconverged = 7;
 /// The real-time default of --frame-budget: the implicit step gets 60 % of
 /// the frame, the rest is for the cut step, the local model's stiffness,
 /// the viewers' frame and the pacing's margin.

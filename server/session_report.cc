@@ -18,6 +18,11 @@ v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std
   r.set_session(session);
   r.set_scene(scene);
   r.set_sim_time(simulation.sim_time());
+  const sim::SimulationSummary summary = simulation.QuickSummary();
+  r.set_status(summary.status);
+  r.set_diagnosis(summary.diagnosis);
+  r.set_unconverged_steps(transport::ReportCount(summary.implicit.unconverged_steps));
+  r.set_max_residual_unconverged(summary.implicit.max_residual_unconverged);
   sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
   for (const sim::ForceSample& f : simulation.ForceSeries()) {
     r.add_force_t(f.t);
@@ -104,6 +109,11 @@ std::string SessionPlotSvg(const v1::SessionReport& r) {
       kWidth, kHeight);
   svg += fmt::format(R"(<text x="60" y="20" font-size="14">session {} — scene {}, {:.2f} s</text>)", Xml(r.session()),
                      Xml(r.scene()), r.sim_time());
+  // A plot of an answer that does not hold says so above the plot.
+  if (!r.status().empty() && r.status() != sim::kStatusOk) {
+    svg += fmt::format(R"(<text x="60" y="36" font-size="12" fill="#c33">status {}: {}</text>)", Xml(r.status()),
+                       Xml(r.diagnosis()));
+  }
 
   const Panel force{.x0 = 60, .y0 = 50, .w = 680, .h = 150, .t_end = t_end, .v_top = NiceTop(f_max)};
   Axes(svg, force, "|f| on the tool", 1.0, "N");

@@ -7,12 +7,14 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <tuple>
 
 #include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include "common/cli/flag_modes.h"
 #include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/install_paths.h"
@@ -308,18 +310,32 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--key-file", options_.key_file,
                  "Session key file (hex): only mesh frames signed with it are shown "
                  "(default $CUTSIM_SESSION_KEY; neither: an open session)");
-  app.add_option("--host-name", options_.host_names,
-                 "A further name browsers may open the page at (the Host and Origin it accepts; repeat for more)");
-  app.add_option("--token-file", options_.token_file,
-                 "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL");
+  // The browser page's flags act only with --serve; the rest always.
+  cli::FlagModes modes({"a viewer without --serve", "--serve"});
+  constexpr cli::ModeSet kServing = 1U << 1;
+  modes.Declare(app.add_option("--host-name", options_.host_names,
+                               "A further name browsers may open the page at (the Host and Origin it accepts; "
+                               "repeat for more)"),
+                kServing);
+  modes.Declare(app.add_option("--token-file", options_.token_file,
+                               "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL"),
+                kServing);
   options_.web_root = (DataDir() / "web" / "observer").string();
-  app.add_option("--web-root", options_.web_root, "The observer page's files (web/observer with three.js under node_modules/three; default: the "
-                 "installed data folder, share/cutsim beside bin/, else the source tree)")
-      ->capture_default_str();
+  modes.Declare(app.add_option("--web-root", options_.web_root,
+                               "The observer page's files (web/observer with three.js under node_modules/three; "
+                               "default: the installed data folder, share/cutsim beside bin/, else the source tree)")
+                    ->capture_default_str(),
+                kServing);
+  modes.DeclareRest(app, modes.all());
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  // A flag that does nothing without --serve is refused, not ignored.
+  if (const std::optional<std::string> refusal = modes.Refusal(app, options_.serve.empty() ? 0 : 1)) {
+    std::fprintf(stderr, "%s\n", refusal->c_str());
+    return 2;
   }
   transport::ValidateSessionName(options_.session, "--session");
   if (!eye.empty()) options_.eye = ParseVec3(eye, "--eye");

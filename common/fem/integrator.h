@@ -87,6 +87,10 @@ enum class StepStatus : uint8_t {
   kNonFiniteForce,  ///< An element force was NaN/Inf (element set).
   kRunaway,         ///< A node would exceed max_speed or become NaN (node set).
   kBadTimeStep,     ///< dt not finite or ≤ 0.
+  /// Implicit: no iterate of finite energy and residual, even in substeps
+  /// (e.g. a nodal volume inverted at the start, where the barrier is +∞).
+  /// Every value of the state is finite: it is the last completed step's.
+  kNoAdmissibleIterate,
 };
 
 /// What a step did; on failure, which element/node, at which step, which
@@ -96,7 +100,7 @@ struct StepResult {
   int64_t step = 0;      ///< state.step at the failure (or after the last step).
   int32_t element = -1;  ///< Offending tet, if any.
   int32_t node = -1;     ///< Offending node, if any.
-  const char* quantity = "";  ///< "element force", "speed", "dt".
+  const char* quantity = "";  ///< "element force", "speed", "dt", "implicit residual".
   double value = 0;      ///< The offending value (e.g. speed in m/s).
   int substeps = 0;      ///< Steps taken by Advance.
   double dt = 0;         ///< Last step size, s.

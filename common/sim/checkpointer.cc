@@ -52,8 +52,9 @@ void CheckJournalIdentity(const v1::JournalHeader& h, const v1::JournalHeader& s
 
 }  // namespace
 
-PeriodicCheckpointer::PeriodicCheckpointer(std::filesystem::path path, double every)
+PeriodicCheckpointer::PeriodicCheckpointer(std::filesystem::path path, double every, JournalSigner* signer)
     : path_(std::move(path)),
+      signer_(signer),
       journal_path_(path_.empty() ? std::filesystem::path() : JournalPathFor(path_)),
       period_ns_(every > 0 ? static_cast<int64_t>(std::llround(every * 1e9)) : 0),
       next_ns_(MonotonicNs() + period_ns_) {}
@@ -68,15 +69,17 @@ bool PeriodicCheckpointer::Begin(Simulation& sim, bool resume) {
   }
   header.set_lineage(lineage_);
   header.set_base_topology_version(base_);
-  journal_.emplace(journal_path_);
+  journal_.emplace(journal_path_, signer_);
   try {
     journal_->Start(header, carried_);
   } catch (...) {
     journal_.reset();
     throw;
   }
-  Log().info("event journal {}: every cut is synced to it as it happens (after version {}, {} events carried over)",
-             journal_path_.string(), base_, carried_.size());
+  Log().info("event journal {}: every cut is synced to it as it happens (after version {}, {} events carried over; "
+             "{})",
+             journal_path_.string(), base_, carried_.size(),
+             signer_ != nullptr ? "records signed with the session key" : "no session key: records unsigned");
   carried_.clear();
   journaled_ = sim.TopologyEvents().size();
   return restored;
@@ -95,7 +98,7 @@ bool PeriodicCheckpointer::Resume(Simulation& sim) {
   const std::string jsource = journal_path_.string();
   bool use_checkpoint = body.has_value();
   if (have_journal) {
-    journal = ReadJournalFile(journal_path_);
+    journal = ReadJournalFile(journal_path_, signer_);
     CheckJournalIdentity(journal->header, IdentityHeader(sim), jsource);
     const v1::JournalHeader& h = journal->header;
     // Two sessions' files side by side: resuming either would lose the

@@ -36,8 +36,10 @@ namespace cutsim::sim {
 class PeriodicCheckpointer {
  public:
   /// An empty `path` disables everything; `every` ≤ 0 saves only at exit.
-  /// The journal is JournalPathFor(`path`).
-  PeriodicCheckpointer(std::filesystem::path path, double every);
+  /// The journal is JournalPathFor(`path`); with `signer` (the session key,
+  /// kept; may be null) its records are signed, and at resume only a journal
+  /// signed with that key is read.
+  PeriodicCheckpointer(std::filesystem::path path, double every, JournalSigner* signer = nullptr);
 
   [[nodiscard]] bool enabled() const { return !path_.empty(); }
   [[nodiscard]] const std::filesystem::path& journal_path() const { return journal_path_; }
@@ -75,6 +77,7 @@ class PeriodicCheckpointer {
   bool Resume(Simulation& sim);
 
   std::filesystem::path path_;
+  JournalSigner* signer_ = nullptr;
   std::filesystem::path journal_path_;
   int64_t period_ns_ = 0;
   int64_t next_ns_ = 0;

@@ -106,7 +106,7 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
         }
       }
       if (!recovered) {
-        r.status = fem::StepStatus::kNonFiniteForce;
+        r.status = fem::StepStatus::kNoAdmissibleIterate;
         r.step = step_before;
         r.quantity = "implicit residual";
         r.value = result.residual;

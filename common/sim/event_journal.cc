@@ -107,7 +107,7 @@ std::string FrameJournalRecord(const std::string& payload) {
 
 // ---- reading ----------------------------------------------------------------
 
-JournalContents ReadJournalFile(const std::filesystem::path& path) {
+JournalContents ReadJournalFile(const std::filesystem::path& path, JournalSigner* signer) {
   const std::string source = path.string();
   const std::string bytes = ReadInputFile(source, "event journal", kMaxCheckpointBytes);
   JournalContents out;
@@ -150,6 +150,23 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
     }
     const size_t end = offset + kJournalFrameBytes + static_cast<size_t>(length);
     std::string payload = bytes.substr(offset + kJournalFrameBytes, static_cast<size_t>(length));
+    // With the key, only what it signed is read: the tag is checked on the
+    // bytes as stored, before anything is parsed.
+    size_t body_size = payload.size();
+    if (signer != nullptr && Fnv1a64(payload.data(), payload.size()) == checksum) {
+      switch (signer->Check(payload, &body_size)) {
+        case JournalSigner::Verdict::kOk:
+          break;
+        case JournalSigner::Verdict::kUnsigned:
+          ThrowInputError({.file = source, .field = at(offset)},
+                          "not signed: the journal was written without the session key (or altered); with a key "
+                          "only a journal signed with it is read");
+        case JournalSigner::Verdict::kForged:
+          ThrowInputError({.file = source, .field = at(offset)},
+                          "its HMAC does not match the session key: the record was altered, or the journal was "
+                          "written with another key");
+      }
+    }
     if (Fnv1a64(payload.data(), payload.size()) != checksum) {
       if (end == bytes.size() || AllZero(bytes, offset + kJournalFrameBytes)) {
         torn("the last record's checksum fails");
@@ -163,7 +180,8 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
                       "checksum mismatch with records after it: the journal is corrupted");
     }
     if (!have_header) {
-      if (!out.header.ParseFromString(payload) || out.header.magic() != kJournalMagic) {
+      if (!out.header.ParseFromArray(payload.data(), static_cast<int>(body_size)) ||
+          out.header.magic() != kJournalMagic) {
         ThrowInputError({.file = source, .field = at(offset)}, "not a cutsim event journal (no journal header)");
       }
       if (out.header.format_version() != kJournalFormatVersion) {
@@ -171,10 +189,15 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
                         fmt::format("version {}, this build reads {}", out.header.format_version(),
                                     kJournalFormatVersion));
       }
+      if (out.header.authenticated() && signer == nullptr) {
+        ThrowInputError({.file = source, .field = at(offset)},
+                        "the journal is signed with a session key: resume with the same key (--key-file or "
+                        "$CUTSIM_SESSION_KEY)");
+      }
       have_header = true;
     } else {
       JournalEntry entry{.offset = offset};
-      if (!entry.record.ParseFromString(payload) || !entry.record.has_event()) {
+      if (!entry.record.ParseFromArray(payload.data(), static_cast<int>(body_size)) || !entry.record.has_event()) {
         ThrowInputError({.file = source, .field = at(offset)}, "the record does not parse as a journal record");
       }
       entry.payload = std::move(payload);
@@ -189,7 +212,8 @@ JournalContents ReadJournalFile(const std::filesystem::path& path) {
 
 // ---- writing ----------------------------------------------------------------
 
-EventJournal::EventJournal(std::filesystem::path path) : path_(std::move(path)) {}
+EventJournal::EventJournal(std::filesystem::path path, JournalSigner* signer)
+    : path_(std::move(path)), signer_(signer) {}
 
 EventJournal::~EventJournal() {
   if (thread_.joinable()) {
@@ -208,6 +232,7 @@ void EventJournal::Start(const v1::JournalHeader& header, std::span<const std::s
   header_ = header;
   header_.set_magic(kJournalMagic);
   header_.set_format_version(kJournalFormatVersion);
+  header_.set_authenticated(signer_ != nullptr);
   WriteNewJournal(header_, carried);
   restarts_.fetch_add(1, std::memory_order_relaxed);
   thread_ = std::thread([this] { Run(); });
@@ -307,7 +332,7 @@ void EventJournal::WriteRecord(const Item& item) {
     Fail(fmt::format("cannot serialise the event of version {} ({} bytes)", item.event.version, payload.size()));
     return;
   }
-  frame_ = FrameJournalRecord(payload);
+  frame_ = FrameJournalRecord(signer_ != nullptr ? signer_->Sign(std::move(payload)) : payload);
   const char* step = nullptr;
   if (!WriteAll(fd_, frame_.data(), frame_.size())) {
     step = "write";
@@ -350,7 +375,7 @@ void EventJournal::DoRestart(uint64_t base_version) {
 void EventJournal::WriteNewJournal(const v1::JournalHeader& header, std::span<const std::string> carried) {
   std::string head;
   if (!header.SerializeToString(&head)) ThrowFileError(path_.string(), "cannot serialise the journal header");
-  std::string bytes = FrameJournalRecord(head);
+  std::string bytes = FrameJournalRecord(signer_ != nullptr ? signer_->Sign(std::move(head)) : head);
   for (const std::string& payload : carried) bytes += FrameJournalRecord(payload);
 
   CheckOutputPath(path_.string(), "event journal");  // the rename below would replace a device or a pipe

@@ -24,6 +24,13 @@
 /// prefix. A record with more bytes after it that fails its checksum, or any
 /// checksummed record that does not parse, is corruption: refused with an
 /// InputError naming the file and byte offset.
+///
+/// Authentication: with the session key (a JournalSigner, journal_signer.h)
+/// the header says `authenticated` and the header and every record carry the
+/// key's HMAC as a trailer, so an edited record whose checksum was
+/// recomputed is still refused, naming the record. A signed journal is
+/// refused without the key, and an unsigned one with a key (it could have
+/// been written by anyone).
 
 #include <atomic>
 #include <condition_variable>
@@ -38,6 +45,7 @@
 #include <vector>
 
 #include "common/cutting/topology_event.h"
+#include "common/sim/journal_signer.h"
 #include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
@@ -73,8 +81,10 @@ struct JournalContents {
 
 /// Reads `path` (see the file comment for torn tails and corruption); logs a
 /// warning for a torn tail. Throws InputError naming the file and the byte
-/// offset for a bad header or a corrupt record.
-[[nodiscard]] JournalContents ReadJournalFile(const std::filesystem::path& path);
+/// offset for a bad header or a corrupt record, and with `signer` (the
+/// session key) for a record whose tag is missing or does not match; without
+/// one, for a signed journal.
+[[nodiscard]] JournalContents ReadJournalFile(const std::filesystem::path& path, JournalSigner* signer = nullptr);
 
 /// Journal counters (a snapshot; the writer thread updates them).
 struct JournalCounters {
@@ -89,7 +99,9 @@ struct JournalCounters {
 /// The journal's writer. Not copyable; one per journal file.
 class EventJournal {
  public:
-  explicit EventJournal(std::filesystem::path path);
+  /// With `signer` (kept; may be null) every record is signed with the
+  /// session key.
+  explicit EventJournal(std::filesystem::path path, JournalSigner* signer = nullptr);
   /// Writes everything queued, then stops the writer thread.
   ~EventJournal();
   EventJournal(const EventJournal&) = delete;
@@ -142,6 +154,7 @@ class EventJournal {
   void Fail(const std::string& what);
 
   const std::filesystem::path path_;
+  JournalSigner* const signer_;  ///< used by one thread at a time: Start's, then the writer's
   v1::JournalHeader header_;
   // Writer thread only (and Start, before the thread runs).
   int fd_ = -1;

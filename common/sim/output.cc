@@ -5,6 +5,7 @@
 #include <limits>
 
 #include <Eigen/Eigenvalues>
+#include <fmt/format.h>
 
 #include "common/fem/forces.h"
 #include "common/fem/stable_dt.h"
@@ -22,8 +23,10 @@ const char* StatusName(SimStatus status) {
       return "non_finite";
     case SimStatus::kEnergyRunaway:
       return "runaway";
+    case SimStatus::kStepFailed:
+      return "step_failed";
   }
-  return "runaway";
+  return "step_failed";
 }
 
 /// Per tet: principal stresses σ1 ≥ σ2 ≥ σ3, von Mises and element quality.
@@ -102,6 +105,43 @@ SimulationSummary QuickSummaryOf(const std::string& scene_name, const SceneFem<T
   s.diagnosis = run.diagnosis;
   s.topology_version = model.topology_version();
   return s;
+}
+
+void ReportConvergence(SimulationSummary& s) {
+  const ImplicitCounters& c = s.implicit;
+  if (s.status != kStatusOk || c.unconverged_steps <= 0) return;
+  s.status = kStatusUnconverged;
+  s.diagnosis = fmt::format(
+      "{} of {} implicit steps stopped at the Newton cap above their force tolerance; largest residual {:.3g} N",
+      c.unconverged_steps, c.steps, c.max_residual_unconverged);
+}
+
+std::string StepFailureDiagnosis(const fem::StepResult& r) {
+  std::string where;
+  if (r.element >= 0) where += fmt::format(" at element {}", r.element);
+  if (r.node >= 0) where += fmt::format(" at node {}", r.node);
+  if (r.status == fem::StepStatus::kNoAdmissibleIterate) {
+    return fmt::format("step {}: the implicit step found no iterate of finite energy, even in 2, 4 and 8 substeps "
+                       "(a nodal volume inverted, or an overflow); {} = {:.6g} N at its last iterate; the state "
+                       "is the last completed step's",
+                       r.step, r.quantity, r.value);
+  }
+  return fmt::format("step {}: {} = {:.6g}{}", r.step, r.quantity, r.value, where);
+}
+
+SimStatus StepFailureStatus(const fem::StepResult& r) {
+  switch (r.status) {
+    case fem::StepStatus::kOk:
+      return SimStatus::kOk;
+    case fem::StepStatus::kNonFiniteForce:
+      return SimStatus::kNonFinite;
+    case fem::StepStatus::kRunaway:
+      return SimStatus::kEnergyRunaway;
+    case fem::StepStatus::kBadTimeStep:
+    case fem::StepStatus::kNoAdmissibleIterate:
+      return SimStatus::kStepFailed;
+  }
+  return SimStatus::kStepFailed;
 }
 
 template <typename T>

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "common/cutting/cut_mesh.h"
+#include "common/fem/integrator.h"
 #include "common/fem/model.h"
 #include "common/fem/state.h"
 #include "common/mesh/tet_mesh.h"
@@ -41,6 +42,24 @@ template <typename T>
 template <typename T>
 [[nodiscard]] SimulationSummary QuickSummaryOf(const std::string& scene_name, const SceneFem<T>& fem,
                                                const RunCounters& run, bool at_rest);
+
+/// Makes `s`'s status honest about the implicit step: a run that went on
+/// while some steps stopped at the Newton cap above their force tolerance
+/// is "unconverged", its diagnosis the count and the largest residual (N).
+/// Steps stopped at a frame budget within its carry limit are not: their
+/// residual is bounded and carries into the next frame (their own counters
+/// report them). A stopped run keeps its own status.
+void ReportConvergence(SimulationSummary& s);
+
+/// The status a failed step stops the run with: "non_finite" only for a
+/// non-finite computed value, "runaway" for the speed guard, "step_failed"
+/// for a step that found no admissible iterate (all values finite) or had
+/// no usable step size.
+[[nodiscard]] SimStatus StepFailureStatus(const fem::StepResult& r);
+
+/// What a failed step's diagnosis says: the step, the quantity and its
+/// value, and the element or node when the step names one.
+[[nodiscard]] std::string StepFailureDiagnosis(const fem::StepResult& r);
 
 /// The whole-mesh passes of a summary: strain energy, total mass,
 /// face-connected parts, opened faces, smallest rest volume.

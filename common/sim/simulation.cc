@@ -131,6 +131,7 @@ class Engine final : public Simulation {
     SimulationSummary s = QuickSummaryOf(scene_.scene.name(), fem_, run_, AtRest());
     dynamics_.AddToSummary(s);
     if (cuts_) cuts_->AddToSummary(s);
+    ReportConvergence(s);
     return s;
   }
 
@@ -314,9 +315,8 @@ class Engine final : public Simulation {
   bool CheckStep(const fem::StepResult& r) {
     ++run_.frames;
     if (r.ok()) return true;
-    run_.status = r.status == fem::StepStatus::kRunaway ? SimStatus::kEnergyRunaway : SimStatus::kNonFinite;
-    run_.diagnosis = fmt::format("step {}: {} = {:.6g} at element {} / node {}", r.step, r.quantity, r.value,
-                                 r.element, r.node);
+    run_.status = StepFailureStatus(r);
+    run_.diagnosis = StepFailureDiagnosis(r);
     return false;
   }
 

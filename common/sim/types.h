@@ -32,12 +32,23 @@ struct SimulationOptions {
   double frame_budget = 0;
 };
 
-/// Why stepping stopped, if it did.
+/// Why stepping stopped, if it did. Each names what happened: the state
+/// itself stays the last completed step's and is finite in every case.
 enum class SimStatus {
   kOk,
-  kNonFinite,       ///< NaN/Inf detected: the diagnosis says where
-  kEnergyRunaway,   ///< energy grew past the guard's bound
+  kNonFinite,       ///< a computed value (an element force) was NaN/Inf: the diagnosis says where
+  kEnergyRunaway,   ///< a node passed the speed guard
+  /// The step found no admissible iterate with every value finite (an
+  /// implicit step whose energy is +∞ at every trial, even in substeps, as
+  /// where a nodal volume is inverted), or its step size was not usable.
+  kStepFailed,
 };
+
+/// The summary's status names (`SimulationSummary::status`).
+inline constexpr const char* kStatusOk = "ok";
+/// The run went on, but some implicit steps stopped above their force
+/// tolerance: the state is not the answer to the stated tolerance.
+inline constexpr const char* kStatusUnconverged = "unconverged";
 
 /// What the implicit step did over a run (zero with the explicit one).
 struct ImplicitCounters {
@@ -80,7 +91,10 @@ struct SimulationSummary {
   double residual_force = 0.0;  ///< N, largest net force on a free node
   double max_displacement = 0.0;///< m
   bool at_rest = false;
-  std::string status = "ok";
+  /// "ok"; "unconverged" (the run finished, some implicit steps did not
+  /// reach their tolerance: ReportConvergence); or why stepping stopped:
+  /// "non_finite", "runaway", "step_failed" (SimStatus).
+  std::string status = kStatusOk;
   std::string diagnosis;
   std::string integrator = "explicit";  ///< "explicit" or "implicit" (after AUTO's choice)
   ImplicitCounters implicit;

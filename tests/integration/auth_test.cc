@@ -90,7 +90,7 @@ class AuthIntegrationTest : public ::testing::Test {
                                      std::string(CUTSIM_SOURCE_DIR) + "/scenes/ligament.pbtxt",
                                      "--duration", duration_s, "--session", session_, "--lcm-url", url_,
                                      "--dds-domain", domain_, "--stats-json", dir_.path() + "/server.json",
-                                     "--no-progress", "--no-rt"};
+                                     "--no-rt"};
     if (keyed) {
       const std::string key = dir_.path() + "/session.key";
       std::ofstream(key) << kKeyHex << "\n";

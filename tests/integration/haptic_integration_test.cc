@@ -410,6 +410,28 @@ TEST(HapticIntegrationTest, ReplayDeviceReplaysAnLcmLog) {
   EXPECT_NE(bad.err.find(log), std::string::npos) << bad.err;
 }
 
+// A device plugin whose read blocks (2 s each) never stalls the loop: it
+// keeps ticking, every reading is late, and after 1 s without one the
+// station stops naming the device (exit 4) with its summary written.
+TEST(HapticIntegrationTest, BlockedPluginReadStopsTheStationNamingTheDevice) {
+  TempDir dir;
+  const std::string csv = dir.path() + "/haptic.csv";
+  const auto r = RunProcess(Client("memq://", Session("stuck"), csv,
+                                   {"--device", "example_spring", "--device-arg", "read_delay_ms=2000",
+                                    "--duration", "30"}),
+                            60s);
+  EXPECT_EQ(r.exit_code, 4) << r.err;
+  EXPECT_NE(r.err.find("device example_spring stopped answering"), std::string::npos) << r.err;
+  const std::string stats = JsonLine(r.out, "haptic_stats");
+  ASSERT_FALSE(stats.empty()) << r.out;
+  EXPECT_EQ(testing::JsonString(stats, "end"), "device stuck") << stats;
+  EXPECT_NE(stats.find("\"device_stuck\":true"), std::string::npos) << stats;
+  // A tick per deadline while the plugin slept, up to the 1 s limit.
+  EXPECT_GE(Json(stats, "ticks") + Json(stats, "missed_deadlines"), 1000.0) << stats;
+  EXPECT_GE(Json(stats, "device_late_ticks"), 900.0) << stats;
+  EXPECT_FALSE(ReadCsv(csv).empty());
+}
+
 // A device plugin (the example spring) pressing on the server's plane is
 // unplugged mid-session: the client logs it, the tool holds its last pose,
 // and the loop, the link and the server go on until the end.

@@ -138,6 +138,98 @@ TEST(ServerHeadlessTest, StatsJsonIsWrittenInHeadlessMode) {
   EXPECT_EQ(json, r.out);
 }
 
+// An implicit step that stops at its Newton cap above its force tolerance
+// is not an answer: the summary's status is "unconverged" with the count
+// and the largest residual in newtons, the session report says the same,
+// every output is still written, and the run exits 7 (not 0).
+TEST(ServerHeadlessTest, UnconvergedImplicitStepsAreNeverReportedOk) {
+  TempDir dir;
+  // One Newton iteration per step against a 1e-12 N tolerance: the beam
+  // falling under gravity cannot meet it.
+  const std::string scene = Write(dir, "beam.pbtxt", std::string(kSmallBeam) + R"pb(
+time_step { integrator: INTEGRATOR_IMPLICIT implicit { force_tolerance: 1e-12 max_newton_iterations: 1 } }
+)pb");
+  const std::string report = dir.path() + "/report.json";
+  const std::string out = dir.path() + "/beam.vtu";
+  const auto r = RunProcess({BinPath("cutsim-server"), "--headless", "--scene", scene, "--duration", "0.05",
+                             "--threads", "1", "--session-report", report, "--out", out, "--no-progress"},
+                            120s);
+  EXPECT_EQ(r.exit_code, 7) << r.err;
+  EXPECT_EQ(testing::JsonString(r.out, "status").value_or(""), "unconverged") << r.out;
+  const double steps = JsonNumber(r.out, "unconverged_steps");
+  EXPECT_GT(steps, 0) << r.out;
+  const double residual = JsonNumber(r.out, "max_residual_unconverged");
+  EXPECT_GT(residual, 1e-12) << r.out;
+  const std::string diagnosis = testing::JsonString(r.out, "diagnosis").value_or("");
+  EXPECT_NE(diagnosis.find(std::to_string(static_cast<int64_t>(steps)) + " of "), std::string::npos) << diagnosis;
+  EXPECT_NE(diagnosis.find(" N"), std::string::npos) << diagnosis;
+  EXPECT_NE(r.err.find("did not converge"), std::string::npos) << r.err;
+  // The outputs are written all the same: the state is finite, only not
+  // at the tolerance.
+  EXPECT_TRUE(std::filesystem::exists(out));
+  std::ifstream in(report);
+  const std::string json((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(testing::JsonString(json, "status").value_or(""), "unconverged") << json.substr(0, 400);
+  EXPECT_EQ(JsonNumber(json, "unconverged_steps"), steps) << json.substr(0, 400);
+  std::ifstream svg_in(dir.path() + "/report.svg");
+  const std::string svg((std::istreambuf_iterator<char>(svg_in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(svg.find("status unconverged"), std::string::npos) << svg.substr(0, 400);
+
+  // The same beam with Newton free to converge: ok, exit 0.
+  const std::string converged = Write(dir, "converged.pbtxt", std::string(kSmallBeam) + R"pb(
+time_step { integrator: INTEGRATOR_IMPLICIT }
+)pb");
+  const auto ok = RunProcess({BinPath("cutsim-server"), "--headless", "--scene", converged, "--duration", "0.05",
+                              "--threads", "1", "--no-progress"},
+                             120s);
+  EXPECT_EQ(ok.exit_code, 0) << ok.err;
+  EXPECT_EQ(testing::JsonString(ok.out, "status").value_or(""), "ok") << ok.out;
+  EXPECT_EQ(JsonNumber(ok.out, "unconverged_steps"), 0) << ok.out;
+}
+
+// A flag that does nothing in the chosen mode is refused before anything
+// runs, naming the flag and the mode (exit 2): real-time flags with
+// --headless, headless flags in a real-time session, and run flags with
+// --replay (which re-runs what the recording holds).
+TEST(ServerHeadlessTest, FlagsThatDoNothingInTheModeAreRefused) {
+  TempDir dir;
+  const std::string scene = Write(dir, "beam.pbtxt", kSmallBeam);
+  const std::string headless = "--headless";
+  struct Case {
+    std::vector<std::string> args;
+    std::string flag, mode;
+  };
+  // --replay needs an existing file; the refusal comes before it is read,
+  // so the scene stands in.
+  const std::vector<Case> cases = {
+      {{headless, "--scene", scene, "--duration", "0.01", "--no-rt"}, "--no-rt", "--headless"},
+      {{headless, "--scene", scene, "--duration", "0.01", "--session", "s"}, "--session", "--headless"},
+      {{headless, "--scene", scene, "--duration", "0.01", "--auth-window", "1"}, "--auth-window", "--headless"},
+      {{headless, "--scene", scene, "--duration", "0.01", "--viewer-fps", "5"}, "--viewer-fps", "--headless"},
+      {{headless, "--scene", scene, "--duration", "0.01", "--frame-rate", "50"}, "--frame-rate", "--headless"},
+      {{"--scene", scene, "--duration", "0.01", "--until-rest"}, "--until-rest", "a real-time session"},
+      {{"--scene", scene, "--duration", "0.01", "--no-progress"}, "--no-progress", "a real-time session"},
+      {{"--scene", scene, "--duration", "0.01", "--max-time", "1"}, "--max-time", "a real-time session"},
+      {{headless, "--replay", scene, "--stats-json", dir.path() + "/s.json"}, "--stats-json", "--headless --replay"},
+      {{headless, "--replay", scene, "--threads", "1"}, "--threads", "--headless --replay"},
+      {{headless, "--replay", scene, "--duration", "1"}, "--duration", "--headless --replay"},
+      {{headless, "--replay", scene, "--out", dir.path() + "/o.vtu"}, "--out", "--headless --replay"},
+  };
+  for (const Case& c : cases) {
+    std::vector<std::string> args = {BinPath("cutsim-server")};
+    args.insert(args.end(), c.args.begin(), c.args.end());
+    const auto r = RunProcess(args, 30s);
+    EXPECT_EQ(r.exit_code, 2) << c.flag << ": " << r.err;
+    EXPECT_NE(r.err.find(c.flag + ": does nothing in " + c.mode), std::string::npos) << r.err;
+    EXPECT_EQ(r.out, "") << c.flag;
+  }
+  // The same flags in the modes they act in are accepted.
+  const auto ok = RunProcess({BinPath("cutsim-server"), headless, "--scene", scene, "--duration", "0.01",
+                              "--no-progress", "--max-time", "1", "--threads", "1"},
+                             60s);
+  EXPECT_EQ(ok.exit_code, 0) << ok.err;
+}
+
 TEST(ServerHeadlessTest, BadSceneNamesFileAndLine) {
   TempDir dir;
   const std::string scene = Write(dir, "bad.pbtxt", std::string(kSmallBeam) + "\ngravity { z: oops }\n");

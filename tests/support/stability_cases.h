@@ -89,6 +89,7 @@ inline const char* StatusName(fem::StepStatus s) {
     case fem::StepStatus::kNonFiniteForce: return "non-finite force";
     case fem::StepStatus::kRunaway: return "runaway (speed guard)";
     case fem::StepStatus::kBadTimeStep: return "bad dt";
+    case fem::StepStatus::kNoAdmissibleIterate: return "no admissible iterate (implicit)";
   }
   return "?";
 }

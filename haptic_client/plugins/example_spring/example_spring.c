@@ -17,6 +17,8 @@
  *   half_extent      m, workspace = +-half_extent on each axis (0.1)
  *   max_force, max_stiffness, max_damping, rate_hz   capabilities (4, 1000, 5, 1000)
  *   fail_open        1 = open fails (for tests)
+ *   read_delay_ms    ms each read sleeps: a driver that blocks (for the
+ *                    benchmark of the station's device deadline; 0)
  *
  * For tests it also exports cutsim_example_spring_force(): the last force
  * written and the number of writes.
@@ -25,6 +27,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "haptic_client/plugin/cutsim_device.h"
 
@@ -34,6 +37,7 @@ struct cutsim_device {
   double hand_stiffness;
   unsigned buttons;
   long unplug_after;
+  double read_delay_ms;
   cutsim_device_caps caps;
   long reads;
   long writes;
@@ -88,6 +92,7 @@ static int parse_config(cutsim_device* d, const char* config, int* fail_open, ch
     else if (strcmp(item, "max_damping") == 0) d->caps.max_damping = v;
     else if (strcmp(item, "rate_hz") == 0) d->caps.rate_hz = v;
     else if (strcmp(item, "fail_open") == 0) *fail_open = v != 0.0;
+    else if (strcmp(item, "read_delay_ms") == 0) d->read_delay_ms = v;
     else {
       snprintf(error, error_size, "example_spring: unknown --device-arg key \"%s\"", item);
       rc = -1;
@@ -123,6 +128,11 @@ static cutsim_device* spring_open(const char* config, char* error, size_t error_
     free(d);
     return NULL;
   }
+  if (!(d->read_delay_ms >= 0.0 && d->read_delay_ms <= 10000.0)) {
+    snprintf(error, error_size, "example_spring: read_delay_ms %g must lie in [0, 10000]", d->read_delay_ms);
+    free(d);
+    return NULL;
+  }
   if (!(d->hand_stiffness >= 0.0)) {
     snprintf(error, error_size, "example_spring: hand_stiffness %g N/m must be >= 0", d->hand_stiffness);
     free(d);
@@ -143,6 +153,11 @@ static int spring_read(cutsim_device* d, int64_t now_ns, cutsim_device_pose* pos
     return CUTSIM_DEVICE_UNPLUGGED;
   }
   ++d->reads;
+  if (d->read_delay_ms > 0.0) {
+    const double s = 1e-3 * d->read_delay_ms;
+    const struct timespec nap = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+    nanosleep(&nap, NULL);
+  }
   if (!d->started) {
     d->started = 1;
     d->t0_ns = now_ns;

@@ -163,3 +163,48 @@ TEST(DeviceGuard, RefusesBadSettingsNamingThem) {
 
 }  // namespace
 }  // namespace cutsim::haptic_client
+
+namespace cutsim::haptic_client {
+namespace {
+
+// A late reading: the tool holds, nothing cuts, the force ramps to zero
+// over the fade; once readings are on time the force ramps back, and the
+// device is not taken as lost.
+TEST(DeviceGuard, LateReadingsHoldTheToolAndTheForceRampsDownAndBack) {
+  FakeDevice device;
+  DeviceGuard guard(device, GuardOptions{.fade_s = 0.01});
+  DeviceState s;
+  device.next = At(0.01, 0.02, 0.0);
+  guard.Read(0, &s);
+  const Eigen::Vector3d held = s.pose.tip;
+  guard.SetForce(Eigen::Vector3d(0.0, 0.0, 1.5));
+  EXPECT_EQ(device.force.z(), 1.5);
+  device.next = At(0.03, 0.03, 0.03);
+  device.next.late = true;
+  double previous = 1.5;
+  for (int i = 1; i <= 15; ++i) {
+    guard.Read(i * kMs, &s);
+    EXPECT_EQ(s.pose.tip, held);
+    EXPECT_EQ(s.velocity, Eigen::Vector3d::Zero());
+    EXPECT_EQ(s.buttons, 0U);
+    guard.SetForce(Eigen::Vector3d(0.0, 0.0, 1.5));
+    EXPECT_TRUE(device.force.z() < previous || device.force.z() == 0.0) << "falls until zero, tick " << i;
+    EXPECT_LE(previous - device.force.z(), 1.5 * 1e-3 / 0.01 + 1e-9) << "a ramp, tick " << i;
+    previous = device.force.z();
+  }
+  EXPECT_EQ(previous, 0.0);
+  device.next.late = false;
+  for (int i = 16; i <= 30; ++i) {
+    guard.Read(i * kMs, &s);
+    guard.SetForce(Eigen::Vector3d(0.0, 0.0, 1.5));
+    EXPECT_GE(device.force.z(), previous) << i;
+    EXPECT_LE(device.force.z() - previous, 1.5 * 1e-3 / 0.01 + 1e-9) << "a ramp back, tick " << i;
+    previous = device.force.z();
+  }
+  EXPECT_EQ(device.force.z(), 1.5);
+  EXPECT_EQ(s.pose.tip, Eigen::Vector3d(0.03, 0.03, 0.03));
+  EXPECT_FALSE(guard.stats().lost);
+}
+
+}  // namespace
+}  // namespace cutsim::haptic_client

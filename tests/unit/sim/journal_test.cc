@@ -21,6 +21,7 @@
 #include "common/sim/checkpointer.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
+#include "common/transport/journal_auth.h"
 #include "tests/support/block_scene.h"
 
 namespace cutsim::sim {
@@ -200,6 +201,61 @@ TEST_F(JournalTest, CorruptRecordInTheMiddleIsRefusedNamingFileAndOffset) {
   EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }).find("header"), std::string::npos);
   WriteBytes(path, "");
   EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }), "");
+}
+
+transport::SessionKey KeyOf(uint8_t fill) {
+  transport::SessionKey key;
+  key.size = 32;
+  for (size_t i = 0; i < key.size; ++i) key.bytes[i] = static_cast<uint8_t>(fill + i);
+  return key;
+}
+
+// With the session key every record carries its HMAC: a record edited and
+// re-framed with a correct checksum is refused, naming it; so is the
+// journal without the key, with another key, and an unsigned journal read
+// with a key.
+TEST_F(JournalTest, SignedJournalRefusesAnEditedRecordWhoseChecksumWasFixed) {
+  transport::HmacJournalSigner signer(KeyOf(0x11));
+  transport::HmacJournalSigner other(KeyOf(0x22));
+  const fs::path path = dir_ / "signed.journal";
+  {
+    EventJournal journal(path, &signer);
+    v1::JournalHeader header;
+    header.set_scene_name("journal-block");
+    header.set_lineage(7);
+    journal.Start(header, {});
+    for (const cutting::TopologyEvent& e : session_->TopologyEvents()) journal.Append(e, 1, 0.5);
+    journal.Drain();
+    ASSERT_EQ(journal.counters().failures, 0u);
+  }
+  const JournalContents good = ReadJournalFile(path, &signer);
+  EXPECT_TRUE(good.header.authenticated());
+  ASSERT_EQ(good.entries.size(), session_->TopologyEvents().size());
+  ASSERT_GE(good.entries.size(), 2u);
+  EXPECT_EQ(good.entries[1].record.cuts(), 1u);
+
+  // The second record says 99 cuts; its old tag is kept, the frame's
+  // length and checksum are made right.
+  const JournalEntry& victim = good.entries[1];
+  v1::JournalRecord edited = victim.record;
+  edited.set_cuts(99);
+  const std::string old_tag = victim.payload.substr(victim.payload.size() - transport::kTrailerBytes);
+  const std::string whole = ReadBytes(path);
+  std::string bytes = whole;
+  bytes.replace(victim.offset, kJournalFrameBytes + victim.payload.size(),
+                FrameJournalRecord(edited.SerializeAsString() + old_tag));
+  WriteBytes(path, bytes);
+  const std::string err = ErrorOf([&] { (void)ReadJournalFile(path, &signer); });
+  EXPECT_NE(err.find(path.string()), std::string::npos) << err;
+  EXPECT_NE(err.find("record at byte " + std::to_string(victim.offset)), std::string::npos) << err;
+  EXPECT_NE(err.find("HMAC does not match"), std::string::npos) << err;
+
+  WriteBytes(path, whole);
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path, &other); }).find("HMAC does not match"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(path); }).find("signed with a session key"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { (void)ReadJournalFile(WriteWholeJournal(), &signer); }).find("not signed"),
+            std::string::npos);
+  EXPECT_EQ(ErrorOf([&] { (void)ReadJournalFile(path, &signer); }), "");
 }
 
 TEST_F(JournalTest, CheckpointRestartsTheJournalAfterItsLastEvent) {

@@ -106,6 +106,31 @@ TEST(DisplacementBoundaryTest, BadValuesAreRefusedByName) {
   EXPECT_EQ(LoadError(StretchedBlock(0, 0.1, "ramp_time: 0.5")), "");
 }
 
+/// A face driven through the clamped one inverts the nodal volumes beside
+/// it: the implicit step meets the volumetric barrier (energy +∞) at every
+/// trial, even in substeps, and the run stops. Every value of the state is
+/// finite, so the status says the step failed, never "non_finite", and the
+/// diagnosis names no element or node it does not have.
+TEST(DisplacementBoundaryTest, AnInvertingDriveStopsAsAFailedStepNotANonFiniteOne) {
+  std::string text = StretchedBlock(4000.0, -0.8);
+  const std::string linear = "element: ELEMENT_LINEAR\n";
+  text.replace(text.find(linear), linear.size(), "element: ELEMENT_NODAL_PRESSURE\n");
+  const std::string settle = "settle: true\n";
+  text.replace(text.find(settle), settle.size(), "time_step { integrator: INTEGRATOR_IMPLICIT }\n");
+  const LoadedScene scene = ParseScene(text, "bc.pbtxt", ".");
+  const auto sim = Simulation::Create(scene, {.threads = 1});
+  SimStatus status = SimStatus::kOk;
+  for (int frame = 0; frame < 10 && status == SimStatus::kOk; ++frame) status = sim->AdvanceFrame(0.0);
+  EXPECT_EQ(status, SimStatus::kStepFailed);
+  const SimulationSummary s = sim->QuickSummary();
+  EXPECT_EQ(s.status, "step_failed") << s.diagnosis;
+  EXPECT_NE(s.diagnosis.find("implicit step"), std::string::npos) << s.diagnosis;
+  EXPECT_EQ(s.diagnosis.find("-1"), std::string::npos) << s.diagnosis;
+  MeshView view;
+  sim->FillMeshView(view);
+  EXPECT_TRUE(view.world.allFinite());
+}
+
 /// Uniaxial stretch with λ = 0: no lateral contraction, so the clamped
 /// block's exact solution is homogeneous, F = diag(1 + ε, 1, 1), and the
 /// reaction at the moved face is P_xx·A with P = F·S, S = 2μE.
