@@ -432,6 +432,22 @@ TEST(HapticIntegrationTest, BlockedPluginReadStopsTheStationNamingTheDevice) {
   EXPECT_FALSE(ReadCsv(csv).empty());
 }
 
+// A plugin that crashes in its close takes the station down with it, but
+// only after every output is written: the statistics line and the CSV.
+TEST(HapticIntegrationTest, PluginCrashInCloseLosesNoOutput) {
+  TempDir dir;
+  const std::string csv = dir.path() + "/haptic.csv";
+  const auto r = RunProcess(
+      Client("memq://", Session("crash"), csv, {"--device", CUTSIM_CRASH_CLOSE_PLUGIN, "--duration", "0.3"}), 60s);
+  // Killed by the signal (128 + SIGSEGV), or by a sanitizer's abort on it.
+  EXPECT_GT(r.exit_code, 128) << r.err;
+  const std::string stats = JsonLine(r.out, "haptic_stats");
+  ASSERT_FALSE(stats.empty()) << r.out << r.err;
+  EXPECT_EQ(testing::JsonString(stats, "end"), "duration") << stats;
+  EXPECT_GE(Json(stats, "ticks"), 200.0) << stats;
+  EXPECT_GE(ReadCsv(csv).size(), 200u);
+}
+
 // A device plugin (the example spring) pressing on the server's plane is
 // unplugged mid-session: the client logs it, the tool holds its last pose,
 // and the loop, the link and the server go on until the end.
