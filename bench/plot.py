@@ -3,6 +3,7 @@
 summary table (summary.md) in the same folder.
 
     /usr/bin/python3 bench/plot.py out/bench
+    /usr/bin/python3 bench/plot.py out/bench link   # the link fidelity plots only
 """
 import json
 import os
@@ -378,7 +379,120 @@ def plot_poisson(folder):
     fig.savefig(os.path.join(folder, "poisson_pareto.png"), dpi=120)
 
 
+SCENE_COLORS = {"ligament": "tab:red", "block": "tab:blue", "skin_pad": "tab:green"}
+
+
+def plot_link(folder):
+    """link_fidelity_bench: force error, energy into the hand and the hand's
+    oscillation against one-way delay, one line per scene (link_fidelity.png),
+    and the block's fast press at 0, 25 and 100 ms beside the reference
+    (link_fidelity_trace.png)."""
+    path = os.path.join(folder, "link_fidelity.json")
+    if not os.path.exists(path):
+        return
+    doc = load(path)
+    rows, hand = doc["rows"], doc["hand_rows"]
+    scenes = [s for s in SCENE_COLORS if any(r["scene"] == s for r in rows)]
+    delays = sorted({r["one_way_ms"] for r in rows})
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.6))
+
+    def by_delay(select, value, reduce=max):
+        out = []
+        for d in delays:
+            vals = [value(r) for r in select if r["one_way_ms"] == d]
+            out.append(reduce(vals) if vals else float("nan"))
+        return out
+
+    ax = axes[0]
+    for scene in scenes:
+        for loss, style in ((0.0, "o-"), (0.05, "s--")):
+            sel = [r for r in rows if r["scene"] == scene and r["loss"] == loss and r["term"] == "buffer_model"]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: 100 * r["rms_error"]), style, color=SCENE_COLORS[scene],
+                        label=f"{scene}, loss {loss:.0%}")
+    ax.plot([25, 50], [10, 20], "kv", ms=9, label="targets: 10 % at 25 ms, 20 % at 50 ms")
+    ax.axhline(10, color="k", ls=":", lw=1, label="10 % budget")
+    ax.set_xlabel("one-way delay, ms (±20 % jitter)")
+    ax.set_ylabel("RMS force error, % of peak (worst stroke)")
+    ax.set_title("Buffer model: force the device gets vs in-process", fontsize=10)
+    ax.legend(fontsize=7)
+
+    ax = axes[1]
+    styles = {"buffer_model": "o-", "zero_order_hold": "x:", "buffer_model_patch_k": "^--"}
+    for scene in scenes:
+        for term, style in styles.items():
+            sel = [r for r in rows if r["scene"] == scene and r["loss"] == 0.0 and r["term"] == term
+                   and r["stroke"] in ("fast_press", "saw", "press_hold")]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: 100 * r["rms_error"]), style, color=SCENE_COLORS[scene],
+                        label=f"{scene}: {term.replace('_', ' ')}", lw=1)
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("RMS force error, % of peak (worst stroke, loss 0)")
+    ax.set_title("Stiffness term: server K, none (ZOH), patch-only K", fontsize=10)
+    ax.legend(fontsize=6, ncol=1)
+
+    ax = axes[2]
+    for scene in scenes:
+        for term, style in (("buffer_model", "o-"), ("zero_order_hold", "x:")):
+            sel = [r for r in hand if r["scene"] == scene and r["term"] == term]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: -1e3 * r["energy_j"], max), style,
+                        color=SCENE_COLORS[scene], label=f"{scene}: {term.replace('_', ' ')}")
+    ax.axhline(0, color="k", lw=1, ls="--", label="0: passive (no net energy into the hand)")
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("net energy into the hand, mJ (−E_obs, worst loss)")
+    ax.set_title("Virtual hand holding the press", fontsize=10)
+    ax.legend(fontsize=7)
+
+    ax = axes[3]
+    limit = 1e6 * doc["oscillation_limit_m"]
+    for scene in scenes:
+        for term, style in (("buffer_model", "o-"), ("zero_order_hold", "x:"), ("buffer_model_patch_k", "^--")):
+            sel = [r for r in hand if r["scene"] == scene and r["term"] == term]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: max(1e6 * r["oscillation_p2p_m"], 1e-3)), style,
+                        color=SCENE_COLORS[scene], label=f"{scene}: {term.replace('_', ' ')}", lw=1)
+    ax.axhline(limit, color="r", ls="--", label=f"stability limit {limit:g} µm")
+    ax.set_yscale("log")
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("tool peak-to-peak at the end of the hold, µm")
+    ax.set_title("Stability under the virtual hand (worst loss)", fontsize=10)
+    ax.legend(fontsize=6)
+    for a in axes:
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "link_fidelity.png"), dpi=110)
+
+    trace_path = os.path.join(folder, "link_fidelity_trace.json")
+    if not os.path.exists(trace_path):
+        return
+    trace = load(trace_path)
+    dt = trace["dt"]
+    fig, ax = plt.subplots(figsize=(9, 4.6))
+    ref = trace["reference"]
+    ax.plot([i * dt for i in range(len(ref))], ref, "k-", lw=2.5, alpha=0.5, label="reference (in-process, 1 kHz)")
+    colors = {0: "tab:blue", 25: "tab:orange", 100: "tab:red"}
+    for run in trace["runs"]:
+        if run["term"] == "buffer_model_patch_k":
+            continue
+        style = "-" if run["term"] == "buffer_model" else ":"
+        ax.plot([i * dt for i in range(len(run["force"]))], run["force"], style,
+                color=colors.get(int(run["one_way_ms"]), "gray"), lw=1.2,
+                label=f"{run['term'].replace('_', ' ')}, {run['one_way_ms']:g} ms one-way")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("force on the tool along the normal, N")
+    ax.set_title(f"{trace['scene']}: {trace['stroke'].replace('_', ' ')} (10 cm/s), loss 0", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "link_fidelity_trace.png"), dpi=110)
+
+
 if __name__ == "__main__":
+    if len(sys.argv) > 2 and sys.argv[2] == "link":
+        plot_link(sys.argv[1])
+        sys.exit(0)
+    plot_link(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     main(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_accuracy(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_cut(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
