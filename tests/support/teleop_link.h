@@ -20,10 +20,11 @@
 ///   fraction of them.
 ///
 /// The station renders the same model stream with one or more stiffness
-/// terms (StiffnessTerm): the server's K, none (a zero-order hold of f0), or
-/// K with the tissue's part from the static contact patch only. With a
-/// scripted device every term sees the same stream from one server run;
-/// with a virtual hand the force moves the tool, so each term has its own.
+/// stations (Station): a stiffness term (the server's K, none = a zero-order
+/// hold of f0, or K with the tissue's part from the static contact patch
+/// only), with or without the passivity controller. With a scripted device
+/// every station sees the same stream from one server run; with a virtual
+/// hand the force moves the tool, so each station has its own.
 ///
 /// The virtual hand is a mass on a spring and damper whose other end
 /// follows the scripted path: m ẍ = F + k_h (x_set − x) + b_h (ẋ_set − ẋ),
@@ -36,10 +37,12 @@
 #include <memory>
 #include <optional>
 #include <span>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "common/core/tool_pose.h"
 #include "common/haptics/haptic_renderer.h"
 #include "common/haptics/local_model.h"
 #include "common/haptics/tool_path.h"
@@ -83,6 +86,20 @@ enum class StiffnessTerm : uint8_t {
   return "?";
 }
 
+/// One station's rendering: its stiffness term and whether the passivity
+/// controller acts (off: the observer still sums, so the energy the
+/// rendering would put into the hand shows).
+struct Station {
+  StiffnessTerm term = StiffnessTerm::kServer;
+  bool passivity = true;
+};
+
+/// "buffer_model", "zero_order_hold", ..., with "_no_pc" when the passivity
+/// controller is off.
+[[nodiscard]] inline std::string Name(const Station& station) {
+  return std::string(Name(station.term)) + (station.passivity ? "" : "_no_pc");
+}
+
 /// A virtual hand holding the handle: mass, grip stiffness and damping.
 struct HandModel {
   double mass = 0.1;        ///< kg, hand and handle
@@ -90,16 +107,16 @@ struct HandModel {
   double damping = 4.0;     ///< N·s/m, grip
 };
 
-/// What the station felt with one stiffness term, per 1 ms tick.
+/// What one station felt, per 1 ms tick.
 struct StationTrace {
-  StiffnessTerm term = StiffnessTerm::kServer;
+  Station station;
   std::vector<Eigen::Vector3d> position;  ///< #ticks, tool tip, m
   std::vector<Eigen::Vector3d> force;     ///< #ticks, force commanded to the device, N
   std::vector<double> watchdog_gain;      ///< #ticks, 0..1
   haptics::RendererStats stats;           ///< at the end of the run
 };
 
-/// A whole run: one trace per stiffness term and the link's counters.
+/// A whole run: one trace per station and the link's counters.
 struct TeleopResult {
   std::vector<StationTrace> stations;
   transport::FaultStats uplink;    ///< tool poses, station → server
@@ -110,7 +127,7 @@ struct TeleopResult {
 /// Settings of one run.
 struct TeleopOptions {
   LinkSpec link;
-  std::vector<StiffnessTerm> terms{StiffnessTerm::kServer};
+  std::vector<Station> stations{Station{}};
   std::optional<HandModel> hand;       ///< empty: the device follows the path exactly
   haptics::RendererConfig renderer;    ///< device limits, watchdog, passivity
   double tick = 1e-3;                  ///< s, station loop period
@@ -170,7 +187,7 @@ inline haptics::LocalModel ToModel(const ModelDatagram& d, StiffnessTerm term) {
 /// The server side: the tissue, the newest pose it has, its frame clock.
 class ServerSide {
  public:
-  ServerSide(const sim::LoadedScene& scene, const haptics::ToolPose& start)
+  ServerSide(const sim::LoadedScene& scene, const ToolPose& start)
       : sim_(sim::Simulation::Create(scene)), frame_ns_(std::llround(sim_->frame_dt() * 1e9)) {
     pose_ = start;
   }
@@ -215,7 +232,7 @@ class ServerSide {
   int64_t next_frame_ns_ = 0;
   uint64_t newest_ = 0;
   uint64_t frames_ = 0;
-  haptics::ToolPose pose_;
+  ToolPose pose_;
 };
 
 /// The hand's state; x_set, v_set from the path.
@@ -224,10 +241,10 @@ struct HandState {
   Eigen::Vector3d v = Eigen::Vector3d::Zero();
 };
 
-/// One run with the given stiffness terms sharing one server (scripted
-/// device) or with one term and a virtual hand.
+/// One run with the given stations sharing one server (scripted device) or
+/// with one station and a virtual hand.
 inline TeleopResult RunStations(const sim::LoadedScene& scene, const haptics::ToolPath& path,
-                                const TeleopOptions& options, std::span<const StiffnessTerm> terms) {
+                                const TeleopOptions& options, std::span<const Station> stations) {
   const int ticks = static_cast<int>(std::lround(path.end_time() / options.tick));
   const int64_t tick_ns = std::llround(options.tick * 1e9);
   transport::FaultInjector uplink(FaultsFor(options.link, 0), 4096);
@@ -236,10 +253,13 @@ inline TeleopResult RunStations(const sim::LoadedScene& scene, const haptics::To
 
   TeleopResult result;
   std::vector<haptics::HapticRenderer> renderers;
-  for (const StiffnessTerm term : terms) {
-    renderers.emplace_back(options.renderer);
+  renderers.reserve(stations.size());
+  for (const Station& station : stations) {
+    haptics::RendererConfig config = options.renderer;
+    config.passivity.enabled = station.passivity;
+    renderers.emplace_back(config);
     StationTrace s;
-    s.term = term;
+    s.station = station;
     s.position.reserve(static_cast<size_t>(ticks));
     s.force.reserve(static_cast<size_t>(ticks));
     s.watchdog_gain.reserve(static_cast<size_t>(ticks));
@@ -249,13 +269,13 @@ inline TeleopResult RunStations(const sim::LoadedScene& scene, const haptics::To
   for (int i = 0; i < ticks; ++i) {
     const int64_t now_ns = i * tick_ns;
     const double t = i * options.tick;
-    const haptics::ToolPose set = path.Sample(t);
+    const ToolPose set = path.Sample(t);
     const Eigen::Vector3d v_set = (path.Sample(t + options.tick).tip - set.tip) / options.tick;
     downlink.Release(now_ns, [&](std::span<const uint8_t> bytes) {
       ModelDatagram d;
       if (!FromBytes(bytes, d)) return;
       for (size_t r = 0; r < renderers.size(); ++r)
-        renderers[r].SetModel(ToModel(d, result.stations[r].term), now_ns);
+        renderers[r].SetModel(ToModel(d, result.stations[r].station.term), now_ns);
     });
     const Eigen::Vector3d x = options.hand ? hand.x : set.tip;
     const Eigen::Vector3d v = options.hand ? hand.v : v_set;
@@ -291,14 +311,14 @@ inline TeleopResult RunStations(const sim::LoadedScene& scene, const haptics::To
 }  // namespace teleop_detail
 
 /// Runs the station and the server over the link for the whole path. With
-/// a virtual hand each stiffness term gets its own server run, and the
+/// a virtual hand each station gets its own server run, and the
 /// link counters are those of the last.
 [[nodiscard]] inline TeleopResult RunTeleop(const sim::LoadedScene& scene, const haptics::ToolPath& path,
                                             const TeleopOptions& options) {
-  if (!options.hand) return teleop_detail::RunStations(scene, path, options, options.terms);
+  if (!options.hand) return teleop_detail::RunStations(scene, path, options, options.stations);
   TeleopResult all;
-  for (const StiffnessTerm term : options.terms) {
-    const StiffnessTerm one[] = {term};
+  for (const Station& station : options.stations) {
+    const Station one[] = {station};
     TeleopResult r = teleop_detail::RunStations(scene, path, options, one);
     all.stations.push_back(std::move(r.stations[0]));
     all.uplink = r.uplink;
