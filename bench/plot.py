@@ -382,6 +382,60 @@ def plot_poisson(folder):
 SCENE_COLORS = {"ligament": "tab:red", "block": "tab:blue", "skin_pad": "tab:green"}
 
 
+def link_tables(doc):
+    """Markdown tables of link_fidelity_bench's JSON (link_fidelity.md)."""
+    rows, hand = doc["rows"], doc["hand_rows"]
+    delays = sorted({r["one_way_ms"] for r in rows})
+    losses = sorted({r["loss"] for r in rows})
+    pct = lambda v: f"{100 * v:.0f}"
+    out = ["RMS force error of the buffer model, % of the stroke's peak force (unfelt share of the squared "
+           "error in brackets), by one-way delay:\n",
+           "| scene | stroke | loss | " + " | ".join(f"{d:g} ms" for d in delays) + " |",
+           "|---|---|---|" + "---|" * len(delays)]
+    for scene in SCENE_COLORS:
+        for stroke in ("press_hold", "fast_press", "saw"):
+            for loss in losses:
+                sel = {r["one_way_ms"]: r for r in rows if r["scene"] == scene and r["stroke"] == stroke
+                       and r["loss"] == loss and r["term"] == "buffer_model"}
+                if sel:
+                    out.append(f"| {scene} | {stroke} | {loss:.0%} | " + " | ".join(
+                        f"{pct(sel[d]['rms_error'])} ({pct(sel[d]['unfelt_share'])})" if d in sel else "–"
+                        for d in delays) + " |")
+    terms = ["buffer_model", "zero_order_hold", "buffer_model_patch_k", "buffer_model_no_pc"]
+    out += ["", "Stiff strokes, loss 0: RMS force error, % of peak, per rendering (server K / zero-order hold / "
+            "patch-only K / server K without the passivity controller):\n",
+            "| scene | stroke | " + " | ".join(f"{d:g} ms" for d in delays) + " |",
+            "|---|---|" + "---|" * len(delays)]
+    for scene, stroke in (("block", "fast_press"), ("ligament", "press_hold"), ("ligament", "saw"),
+                          ("block", "saw"), ("skin_pad", "saw")):
+        cells = []
+        for d in delays:
+            sel = {r["term"]: r for r in rows if r["scene"] == scene and r["stroke"] == stroke and r["loss"] == 0
+                   and r["one_way_ms"] == d}
+            cells.append(" / ".join(pct(sel[t]["rms_error"]) if t in sel else "–" for t in terms))
+        out.append(f"| {scene} | {stroke} | " + " | ".join(cells) + " |")
+    out += ["", "Virtual hand on the press-and-hold, buffer model with the passivity controller: tool peak-to-peak "
+            "(µm), force peak-to-peak / mean hold force, hold force (mN), energy the controller removed (µJ), "
+            "E_obs of the same rendering without the controller (µJ; < 0: energy it would put into the hand), "
+            "watchdog trips:\n",
+            "| scene | delay | loss | tool p2p | force ripple | hold force | PC removed | E_obs without PC | trips |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for scene in SCENE_COLORS:
+        for loss in losses:
+            for d in delays:
+                sel = {r["term"]: r for r in hand if r["scene"] == scene and r["loss"] == loss
+                       and r["one_way_ms"] == d}
+                b, n = sel.get("buffer_model"), sel.get("buffer_model_no_pc")
+                if not b:
+                    continue
+                ripple = b["force_p2p_n"] / max(abs(b["hold_force_n"]), 1e-12)
+                out.append(f"| {scene} | {d:g} ms | {loss:.0%} | {1e6 * b['oscillation_p2p_m']:.1f} | "
+                           f"{100 * ripple:.0f} % | {1e3 * b['hold_force_n']:.1f} | {1e6 * b['pc_dissipated_j']:.1f} | "
+                           f"{1e6 * n['energy_j'] if n else float('nan'):.2f} | {b['watchdog_trips']} |")
+    out += ["", f"Targets missed: {len(doc['missed'])}; goals missed: {len(doc['goals_missed'])}.", ""]
+    return "\n".join(out)
+
+
 def plot_link(folder):
     """link_fidelity_bench: force error, energy into the hand and the hand's
     oscillation against one-way delay, one line per scene (link_fidelity.png),
@@ -462,6 +516,9 @@ def plot_link(folder):
         a.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(os.path.join(folder, "link_fidelity.png"), dpi=110)
+
+    with open(os.path.join(folder, "link_fidelity.md"), "w") as f:
+        f.write(link_tables(doc))
 
     trace_path = os.path.join(folder, "link_fidelity_trace.json")
     if not os.path.exists(trace_path):

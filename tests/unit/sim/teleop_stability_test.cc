@@ -4,6 +4,7 @@
 // the passivity controller the tool must come to rest on the tissue.
 // Deterministic: a simulated clock, seeded faults, no wall time.
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 #include <Eigen/Core>
@@ -65,6 +66,8 @@ Hold RunHold(const Station& station, const HandModel& hand) {
   hold.peak_to_peak = PeakToPeak(s.position, Eigen::Vector3d::UnitZ(), from, end);
   for (size_t i = from; i < end; ++i) hold.force += s.force.at(i).z() / static_cast<double>(end - from);
   hold.energy = s.stats.observed_energy;
+  std::printf("%s: tool peak-to-peak %.3g m, hold force %.3g N, E_obs %.3g J\n", Name(station).c_str(),
+              hold.peak_to_peak, hold.force, hold.energy);
   return hold;
 }
 
