@@ -487,14 +487,14 @@ def plot_link(folder):
 
     ax = axes[2]
     for scene in scenes:
-        for term, style in (("buffer_model", "o-"), ("zero_order_hold", "x:")):
+        for term, style in (("buffer_model", "o-"), ("buffer_model_no_pc", "s--")):
             sel = [r for r in hand if r["scene"] == scene and r["term"] == term]
             if sel:
-                ax.plot(delays, by_delay(sel, lambda r: -1e3 * r["energy_j"], max), style,
+                ax.plot(delays, by_delay(sel, lambda r: -1e6 * r["energy_j"], max), style,
                         color=SCENE_COLORS[scene], label=f"{scene}: {term.replace('_', ' ')}")
     ax.axhline(0, color="k", lw=1, ls="--", label="0: passive (no net energy into the hand)")
     ax.set_xlabel("one-way delay, ms")
-    ax.set_ylabel("net energy into the hand, mJ (−E_obs, worst loss)")
+    ax.set_ylabel("net energy into the hand, µJ (−E_obs, worst loss)")
     ax.set_title("Virtual hand holding the press", fontsize=10)
     ax.legend(fontsize=7)
 
@@ -532,7 +532,7 @@ def plot_link(folder):
     for run in trace["runs"]:
         if run["term"] == "buffer_model_patch_k":
             continue
-        style = "-" if run["term"] == "buffer_model" else ":"
+        style = {"buffer_model": "-", "zero_order_hold": ":"}.get(run["term"], "--")
         ax.plot([i * dt for i in range(len(run["force"]))], run["force"], style,
                 color=colors.get(int(run["one_way_ms"]), "gray"), lw=1.2,
                 label=f"{run['term'].replace('_', ' ')}, {run['one_way_ms']:g} ms one-way")
