@@ -3,6 +3,7 @@
 summary table (summary.md) in the same folder.
 
     /usr/bin/python3 bench/plot.py out/bench
+    /usr/bin/python3 bench/plot.py out/bench link   # the link fidelity plots only
 """
 import json
 import os
@@ -378,7 +379,177 @@ def plot_poisson(folder):
     fig.savefig(os.path.join(folder, "poisson_pareto.png"), dpi=120)
 
 
+SCENE_COLORS = {"ligament": "tab:red", "block": "tab:blue", "skin_pad": "tab:green"}
+
+
+def link_tables(doc):
+    """Markdown tables of link_fidelity_bench's JSON (link_fidelity.md)."""
+    rows, hand = doc["rows"], doc["hand_rows"]
+    delays = sorted({r["one_way_ms"] for r in rows})
+    losses = sorted({r["loss"] for r in rows})
+    pct = lambda v: f"{100 * v:.0f}"
+    out = ["RMS force error of the buffer model, % of the stroke's peak force (unfelt share of the squared "
+           "error in brackets), by one-way delay:\n",
+           "| scene | stroke | loss | " + " | ".join(f"{d:g} ms" for d in delays) + " |",
+           "|---|---|---|" + "---|" * len(delays)]
+    for scene in SCENE_COLORS:
+        for stroke in ("press_hold", "fast_press", "saw"):
+            for loss in losses:
+                sel = {r["one_way_ms"]: r for r in rows if r["scene"] == scene and r["stroke"] == stroke
+                       and r["loss"] == loss and r["term"] == "buffer_model"}
+                if sel:
+                    out.append(f"| {scene} | {stroke} | {loss:.0%} | " + " | ".join(
+                        f"{pct(sel[d]['rms_error'])} ({pct(sel[d]['unfelt_share'])})" if d in sel else "–"
+                        for d in delays) + " |")
+    terms = ["buffer_model", "zero_order_hold", "buffer_model_patch_k", "buffer_model_no_pc"]
+    out += ["", "Stiff strokes, loss 0: RMS force error, % of peak, per rendering (server K / zero-order hold / "
+            "patch-only K / server K without the passivity controller):\n",
+            "| scene | stroke | " + " | ".join(f"{d:g} ms" for d in delays) + " |",
+            "|---|---|" + "---|" * len(delays)]
+    for scene, stroke in (("block", "fast_press"), ("ligament", "press_hold"), ("ligament", "saw"),
+                          ("block", "saw"), ("skin_pad", "saw")):
+        cells = []
+        for d in delays:
+            sel = {r["term"]: r for r in rows if r["scene"] == scene and r["stroke"] == stroke and r["loss"] == 0
+                   and r["one_way_ms"] == d}
+            cells.append(" / ".join(pct(sel[t]["rms_error"]) if t in sel else "–" for t in terms))
+        out.append(f"| {scene} | {stroke} | " + " | ".join(cells) + " |")
+    out += ["", "Virtual hand on the press-and-hold, buffer model with the passivity controller: tool peak-to-peak "
+            "(µm), force peak-to-peak / mean hold force, hold force (mN), energy the controller removed (µJ), "
+            "E_obs of the same rendering without the controller (µJ; < 0: energy it would put into the hand), "
+            "watchdog trips:\n",
+            "| scene | delay | loss | tool p2p | force ripple | hold force | PC removed | E_obs without PC | trips |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for scene in SCENE_COLORS:
+        for loss in losses:
+            for d in delays:
+                sel = {r["term"]: r for r in hand if r["scene"] == scene and r["loss"] == loss
+                       and r["one_way_ms"] == d}
+                b, n = sel.get("buffer_model"), sel.get("buffer_model_no_pc")
+                if not b:
+                    continue
+                ripple = b["force_p2p_n"] / max(abs(b["hold_force_n"]), 1e-12)
+                out.append(f"| {scene} | {d:g} ms | {loss:.0%} | {1e6 * b['oscillation_p2p_m']:.1f} | "
+                           f"{100 * ripple:.0f} % | {1e3 * b['hold_force_n']:.1f} | {1e6 * b['pc_dissipated_j']:.1f} | "
+                           f"{1e6 * n['energy_j'] if n else float('nan'):.2f} | {b['watchdog_trips']} |")
+    out += ["", f"Targets missed: {len(doc['missed'])}; goals missed: {len(doc['goals_missed'])}.", ""]
+    return "\n".join(out)
+
+
+def plot_link(folder):
+    """link_fidelity_bench: force error, energy into the hand and the hand's
+    oscillation against one-way delay, one line per scene (link_fidelity.png),
+    and the block's fast press at 0, 25 and 100 ms beside the reference
+    (link_fidelity_trace.png)."""
+    path = os.path.join(folder, "link_fidelity.json")
+    if not os.path.exists(path):
+        return
+    doc = load(path)
+    rows, hand = doc["rows"], doc["hand_rows"]
+    scenes = [s for s in SCENE_COLORS if any(r["scene"] == s for r in rows)]
+    delays = sorted({r["one_way_ms"] for r in rows})
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.6))
+
+    def by_delay(select, value, reduce=max):
+        out = []
+        for d in delays:
+            vals = [value(r) for r in select if r["one_way_ms"] == d]
+            out.append(reduce(vals) if vals else float("nan"))
+        return out
+
+    ax = axes[0]
+    for scene in scenes:
+        for loss, style in ((0.0, "o-"), (0.05, "s--")):
+            sel = [r for r in rows if r["scene"] == scene and r["loss"] == loss and r["term"] == "buffer_model"]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: 100 * r["rms_error"]), style, color=SCENE_COLORS[scene],
+                        label=f"{scene}, loss {loss:.0%}")
+    ax.plot([25, 50], [10, 20], "kv", ms=9, label="targets: 10 % at 25 ms, 20 % at 50 ms")
+    ax.axhline(10, color="k", ls=":", lw=1, label="10 % budget")
+    ax.set_xlabel("one-way delay, ms (±20 % jitter)")
+    ax.set_ylabel("RMS force error, % of peak (worst stroke)")
+    ax.set_title("Buffer model: force the device gets vs in-process", fontsize=10)
+    ax.legend(fontsize=7)
+
+    ax = axes[1]
+    styles = {"buffer_model": "o-", "zero_order_hold": "x:", "buffer_model_patch_k": "^--"}
+    for scene in scenes:
+        for term, style in styles.items():
+            sel = [r for r in rows if r["scene"] == scene and r["loss"] == 0.0 and r["term"] == term
+                   and r["stroke"] in ("fast_press", "saw", "press_hold")]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: 100 * r["rms_error"]), style, color=SCENE_COLORS[scene],
+                        label=f"{scene}: {term.replace('_', ' ')}", lw=1)
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("RMS force error, % of peak (worst stroke, loss 0)")
+    ax.set_title("Stiffness term: server K, none (ZOH), patch-only K", fontsize=10)
+    ax.legend(fontsize=6, ncol=1)
+
+    ax = axes[2]
+    for scene in scenes:
+        for term, style in (("buffer_model", "o-"), ("buffer_model_no_pc", "s--")):
+            sel = [r for r in hand if r["scene"] == scene and r["term"] == term]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: -1e6 * r["energy_j"], max), style,
+                        color=SCENE_COLORS[scene], label=f"{scene}: {term.replace('_', ' ')}")
+    ax.axhline(0, color="k", lw=1, ls="--", label="0: passive (no net energy into the hand)")
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("net energy into the hand, µJ (−E_obs, worst loss)")
+    ax.set_title("Virtual hand holding the press", fontsize=10)
+    ax.legend(fontsize=7)
+
+    ax = axes[3]
+    limit = 1e6 * doc["oscillation_limit_m"]
+    for scene in scenes:
+        for term, style in (("buffer_model", "o-"), ("zero_order_hold", "x:"), ("buffer_model_patch_k", "^--")):
+            sel = [r for r in hand if r["scene"] == scene and r["term"] == term]
+            if sel:
+                ax.plot(delays, by_delay(sel, lambda r: max(1e6 * r["oscillation_p2p_m"], 1e-3)), style,
+                        color=SCENE_COLORS[scene], label=f"{scene}: {term.replace('_', ' ')}", lw=1)
+    ax.axhline(limit, color="r", ls="--", label=f"stability limit {limit:g} µm")
+    ax.set_yscale("log")
+    ax.set_xlabel("one-way delay, ms")
+    ax.set_ylabel("tool peak-to-peak at the end of the hold, µm")
+    ax.set_title("Stability under the virtual hand (worst loss)", fontsize=10)
+    ax.legend(fontsize=6)
+    for a in axes:
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "link_fidelity.png"), dpi=110)
+
+    with open(os.path.join(folder, "link_fidelity.md"), "w") as f:
+        f.write(link_tables(doc))
+
+    trace_path = os.path.join(folder, "link_fidelity_trace.json")
+    if not os.path.exists(trace_path):
+        return
+    trace = load(trace_path)
+    dt = trace["dt"]
+    fig, ax = plt.subplots(figsize=(9, 4.6))
+    ref = trace["reference"]
+    ax.plot([i * dt for i in range(len(ref))], ref, "k-", lw=2.5, alpha=0.5, label="reference (in-process, 1 kHz)")
+    colors = {0: "tab:blue", 25: "tab:orange", 100: "tab:red"}
+    for run in trace["runs"]:
+        if run["term"] == "buffer_model_patch_k":
+            continue
+        style = {"buffer_model": "-", "zero_order_hold": ":"}.get(run["term"], "--")
+        ax.plot([i * dt for i in range(len(run["force"]))], run["force"], style,
+                color=colors.get(int(run["one_way_ms"]), "gray"), lw=1.2,
+                label=f"{run['term'].replace('_', ' ')}, {run['one_way_ms']:g} ms one-way")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("force on the tool along the normal, N")
+    ax.set_title(f"{trace['scene']}: {trace['stroke'].replace('_', ' ')} (10 cm/s), loss 0", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "link_fidelity_trace.png"), dpi=110)
+
+
 if __name__ == "__main__":
+    if len(sys.argv) > 2 and sys.argv[2] == "link":
+        plot_link(sys.argv[1])
+        sys.exit(0)
+    plot_link(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     main(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_accuracy(sys.argv[1] if len(sys.argv) > 1 else "out/bench")
     plot_cut(sys.argv[1] if len(sys.argv) > 1 else "out/bench")

@@ -192,6 +192,25 @@ run buffer_model_bench "$out/buffer_model.log" "$bin/buffer_model_bench" --scene
   > "$out/buffer_model.jsonl"
 cat "$out/buffer_model.jsonl"
 
+echo "== link_fidelity_bench (force error, energy into the hand and stability against one-way delay and loss)"
+# A simulated link (fault injector on a simulated clock): deterministic.
+run link_fidelity "$out/link_fidelity.log" "$bin/link_fidelity_bench" --scene-dir scenes \
+  --trace "$out/link_fidelity_trace.json" > "$out/link_fidelity.json"
+/usr/bin/python3 -c 'import json,sys; print("missed:", json.load(open(sys.argv[1]))["missed"])' \
+  "$out/link_fidelity.json" 2>/dev/null || true
+
+echo "== link across namespaces (real server and station over a veth pair, the block's fast press)"
+# Exit 77: no namespaces or veth here, a skip.
+rc=0
+bench/link_netns.sh "$PWD/$bin" "$PWD/$out/link_netns" >"$out/link_netns.jsonl" 2>"$out/link_netns.log" || rc=$?
+if [[ $rc -eq 77 ]]; then
+  echo "link across namespaces skipped (see $out/link_netns.log)"
+elif [[ $rc -ne 0 ]]; then
+  echo "!! link_netns failed (exit $rc, see $out/link_netns.log)"
+  failed+=(link_netns)
+fi
+cat "$out/link_netns.jsonl" 2>/dev/null || true
+
 echo "== mesh_stream_bench (observers: delta vs snapshot bytes, late join, encode cost)"
 run mesh_stream_bench "$out/mesh_stream.log" "$bin/mesh_stream_bench" --json "$out/mesh_stream.json" >/dev/null
 cat "$out/mesh_stream.json" 2>/dev/null || true

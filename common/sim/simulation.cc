@@ -98,6 +98,9 @@ class Engine final : public Simulation {
   Eigen::Matrix3d ContactStiffness() const override {
     return tool_ ? dynamics_.ContactStiffness(*tool_, fem_) : Eigen::Matrix3d::Zero();
   }
+  Eigen::Matrix3d PatchContactStiffness() const override {
+    return tool_ ? tool_->ContactStiffness(fem_.model(), fem_.state().x.data()) : Eigen::Matrix3d::Zero();
+  }
   uint64_t topology_version() const override { return fem_.model().topology_version(); }
   const std::vector<CutStepTiming>& CutTimings() const override { return cuts_ ? cuts_->timings() : no_timings_; }
 

@@ -57,6 +57,11 @@ class Simulation {
   /// K = −∂f_tool/∂x_tool at the current contact (see tool_contact.h), N/m;
   /// zero without contact. Computed on demand (only a haptic client needs it).
   [[nodiscard]] virtual Eigen::Matrix3d ContactStiffness() const = 0;
+  /// The same K with the tissue's part taken from the static patch of free
+  /// nodes around the contact only (PatchStiffness in contact_stiffness.h),
+  /// whatever the integrator: without the implicit step's whole-body
+  /// response. For comparisons of the haptic side's stiffness term.
+  [[nodiscard]] virtual Eigen::Matrix3d PatchContactStiffness() const = 0;
   [[nodiscard]] virtual uint64_t topology_version() const = 0;
   /// Per executed cut step, its phases' wall times (empty without cutting).
   [[nodiscard]] virtual const std::vector<CutStepTiming>& CutTimings() const = 0;
