@@ -19,8 +19,10 @@
 // Prints one JSON document; --trace FILE writes the force over time of the
 // block's fast press at 0, 25 and 100 ms beside its reference, and the
 // block's hold under the hand (for bench/plot.py). Exits 1 when a target is
-// missed ("missed": net energy into the hand, or a tool that is not still);
-// the force-error goals are reported in "goals_missed" only.
+// missed ("missed": net energy into the hand, a tool that is not still, an
+// RMS force error above 10 % at 25 ms or 20 % at 50 ms, a buffer model not
+// within half the zero-order hold's error on a stiff stroke); a force that
+// is not steady under the hand is reported in "goals_missed" only.
 //
 //   link_fidelity_bench [--scene-dir scenes] [--trace FILE]
 #include <algorithm>
@@ -236,8 +238,8 @@ void ScriptedRows(const cutsim::sim::LoadedScene& scene, const Spot& spot, const
     if (Shipped(s.station)) {
       shipped_rms = e.rms;
       sweep.targets.Check(s.stats.observed_energy >= 0.0, "net energy into the hand, " + where);
-      if (delay == 25) sweep.goals.Check(e.rms <= 0.10, "rms error <= 10 %, " + where);
-      if (delay == 50) sweep.goals.Check(e.rms <= 0.20, "rms error <= 20 %, " + where);
+      if (delay == 25) sweep.targets.Check(e.rms <= 0.10, "rms error <= 10 %, " + where);
+      if (delay == 50) sweep.targets.Check(e.rms <= 0.20, "rms error <= 20 %, " + where);
     }
     if (s.station.term == StiffnessTerm::kNone) hold_rms = e.rms;
     const bool traced = sweep.trace && spot.name == "block" && stroke.name == "fast_press" && loss == 0 &&
@@ -248,7 +250,7 @@ void ScriptedRows(const cutsim::sim::LoadedScene& scene, const Spot& spot, const
               NormalForces(s.force).c_str());
   }
   if (Stiff(spot, stroke) && delay >= 10)
-    sweep.goals.Check(shipped_rms <= 0.5 * hold_rms, "buffer model <= half the zero-order hold, " + where);
+    sweep.targets.Check(shipped_rms <= 0.5 * hold_rms, "buffer model <= half the zero-order hold, " + where);
 }
 
 /// The press-and-hold with a virtual hand on the handle: one row per station.
