@@ -167,7 +167,9 @@ void AddRunOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
 
 /// The real-time session's flags: session name, LCM and DDS, rates, priority.
 void AddRealtimeOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
-  m.Declare(app.add_option("--session", o.session, "Session name (LCM channels, DDS key)"), kRealtime);
+  m.Declare(app.add_option("--session", o.session,
+                           "Session name (LCM channels, DDS key; the session's name in the score history)"),
+            kRun);
   m.Declare(app.add_option("--lcm-url", o.lcm_url,
                            "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)"),
             kRealtime);
@@ -279,6 +281,7 @@ int ServerApp::ParseArgs(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  options_.session_given = app.count("--session") > 0;
   if (const char* conflict = OptionConflict(options_)) {
     std::fprintf(stderr, "%s\n", conflict);
     return 2;
@@ -472,7 +475,9 @@ int ServerApp::RunHeadless() {
   }
   if (!options_.session_report.empty()) {
     outputs_ok &= WriteOutput([&] {
-      WriteSessionReport(options_.session_report, MakeSessionReport(*simulation, "headless", scene.scene.name()));
+      WriteSessionReport(options_.session_report,
+                         MakeSessionReport(*simulation, options_.session_given ? options_.session : "headless",
+                                           scene.scene.name()));
     });
   }
   if (!options_.history.empty() && exit_code == 0) {

@@ -32,8 +32,11 @@ struct ServerOptions {
   std::string integrator;          ///< "", "explicit", "implicit", "auto": overrides the scene's
   std::string log_level = "info";
   bool progress = true;
-  // Real-time session (not --headless).
+  /// The session's name: its LCM channels and DDS key in real time, and in
+  /// every run the name its report and score-history row carry.
   std::string session = "default";
+  bool session_given = false;      ///< --session was on the command line
+  // Real-time session (not --headless).
   std::string lcm_url = "udpm://239.255.76.67:7667?ttl=0";
   uint32_t dds_domain = 0;
   std::string dds_config;          ///< file; empty: CYCLONEDDS_URI, else loopback

@@ -203,7 +203,6 @@ TEST(ServerHeadlessTest, FlagsThatDoNothingInTheModeAreRefused) {
   // so the scene stands in.
   const std::vector<Case> cases = {
       {{headless, "--scene", scene, "--duration", "0.01", "--no-rt"}, "--no-rt", "--headless"},
-      {{headless, "--scene", scene, "--duration", "0.01", "--session", "s"}, "--session", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--auth-window", "1"}, "--auth-window", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--viewer-fps", "5"}, "--viewer-fps", "--headless"},
       {{headless, "--scene", scene, "--duration", "0.01", "--frame-rate", "50"}, "--frame-rate", "--headless"},
