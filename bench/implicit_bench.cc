@@ -163,6 +163,17 @@ Phase RunSteps(ImplicitIntegrator& integ, const Model<double>& model, State<doub
   return p;
 }
 
+template <typename Body>
+double MedianSeconds(int reps, Body&& body) {
+  std::vector<double> t;
+  for (int rep = 0; rep < reps; ++rep) {
+    const auto t0 = std::chrono::steady_clock::now();
+    body();
+    t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  return Median(t);
+}
+
 /// Median time of the preconditioner's solve on M + h²K (h = 10 ms, at
 /// rest) with each FactorSolve, and the relative difference to CHOLMOD's.
 void PrintSolves(const Model<double>& model) {
@@ -188,12 +199,8 @@ void PrintSolves(const Model<double>& model) {
     LinearSolver solver(false, mode);
     solver.Resize(sys);
     solver.RequestFactor(sys, a.data());
-    std::vector<double> t;
-    for (int rep = 0; rep < 30; ++rep) {
-      const auto t0 = std::chrono::steady_clock::now();
-      solver.Precondition(sys, a.data(), active.data(), r.data(), z.data());
-      t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    }
+    const double median_s =
+        MedianSeconds(30, [&] { solver.Precondition(sys, a.data(), active.data(), r.data(), z.data()); });
     if (mode == FactorSolve::kCholmod) z_ref = z;
     double d = 0, s = 0;
     for (size_t i = 0; i < z.size(); ++i) {
@@ -201,21 +208,10 @@ void PrintSolves(const Model<double>& model) {
       s += z_ref[i] * z_ref[i];
     }
     std::printf("%s\n    {\"solve\": \"%s\", \"median_s\": %.6f, \"relative_difference\": %.3g}", k == 0 ? "" : ",",
-                names[k], Median(t), std::sqrt(d / s));
+                names[k], median_s, std::sqrt(d / s));
     ++k;
   }
   std::printf("]");
-}
-
-template <typename Body>
-double MedianSeconds(int reps, Body&& body) {
-  std::vector<double> t;
-  for (int rep = 0; rep < reps; ++rep) {
-    const auto t0 = std::chrono::steady_clock::now();
-    body();
-    t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-  }
-  return Median(t);
 }
 
 /// K·p assembled against matrix-free at a smoothly deformed state (2 % of

@@ -417,6 +417,12 @@ inline Result FixedStep(const std::string& name, int cells, int64_t steps, doubl
   if (!adaptive) r.min_dt = r.max_dt = dt;
   const std::string energy_note = "energy drift " + std::to_string(drift) + ", largest excursion " +
                                   std::to_string(excursion) + " of E0";
+  // What the run's own guards said (finite, no runaway) and whether the speed
+  // guard ended it cleanly.
+  const bool guard_ok = r.holds;
+  const bool guard_stop = !last.ok() && r.finite && last.status == fem::StepStatus::kRunaway;
+  const std::string guard_note =
+      "the speed guard stopped it at step " + std::to_string(last.step) + ", state finite";
   if (beyond_limit) {
     // Correct behaviour: the run diverges and the speed guard stops it
     // without writing the state.
@@ -426,36 +432,27 @@ inline Result FixedStep(const std::string& name, int cells, int64_t steps, doubl
     r.reason = stopped ? "diverged; guard stopped it at step " + std::to_string(last.step) + " (" +
                              StatusName(last.status) + "), state finite"
                        : (r.holds ? "did not diverge within the run" : "energy grew without a guard stop");
-  } else if (track_limit && min_limit <= dt) {
+    return r;
+  }
+  r.holds = guard_ok && drift < 0.05;
+  if (track_limit && min_limit <= dt) {
     // The fixed step is beyond the limit of a state the motion reached: a
     // guard stop (state finite, nothing written) is the correct outcome.
     r.expectation = "holds, or (dt beyond a later state's limit) the guard stops it";
-    const bool guard_ok = r.holds;
-    r.holds = guard_ok && drift < 0.05;
-    const bool stopped = !last.ok() && r.finite && last.status == fem::StepStatus::kRunaway;
-    r.expected_ok = r.holds || stopped;
+    r.expected_ok = r.holds || guard_stop;
     r.reason = (min_limit_step == 0 ? std::string("dt is the start state's own limit (any stiffer state is beyond it); ")
                                     : "the motion reached a state whose Lanczos limit is " +
                                           std::to_string(min_limit / est.dt).substr(0, 5) + " x the start's (step " +
                                           std::to_string(min_limit_step) + "), below this dt; ") +
-               (r.holds ? "held anyway, " + energy_note
-                        : stopped ? "the speed guard stopped it at step " + std::to_string(last.step) + ", state finite"
-                                  : r.reason);
+               (r.holds ? "held anyway, " + energy_note : guard_stop ? guard_note : r.reason);
   } else if (!adaptive && fraction > kFixedStepResonanceOnset) {
     // In the resonance band the energy may grow; what must hold is that the
     // run either stays finite or the speed guard stops it, nothing written.
     r.expectation = "holds, or (in the 4:1 resonance band) the energy grows and the guard stops it";
-    const bool guard_ok = r.holds;
-    r.holds = guard_ok && drift < 0.05;
-    const bool stopped = !last.ok() && r.finite && last.status == fem::StepStatus::kRunaway;
-    r.expected_ok = r.finite && (guard_ok || stopped);
+    r.expected_ok = r.finite && (guard_ok || guard_stop);
     r.reason = std::string("in the leapfrog's 4:1 resonance band; ") +
-               (stopped ? "the speed guard stopped it at step " + std::to_string(last.step) + ", state finite"
-                        : guard_ok ? energy_note
-                                   : r.reason);
+               (guard_stop ? guard_note : guard_ok ? energy_note : r.reason);
   } else {
-    const bool guard_ok = r.holds;
-    r.holds = guard_ok && drift < 0.05;
     r.expected_ok = r.holds;
     if (guard_ok) r.reason = energy_note;
     if (track_limit) {

@@ -5,7 +5,10 @@
  *   cutsim_test_slow_block(0)   ... lets them return again
  *   cutsim_test_slow_sleeping() 1 while a read is sleeping
  *   cutsim_test_slow_closed()   1 once close has run
- * Otherwise it is a device at rest at the origin that records the force. */
+ * Otherwise it is a device at rest at the origin that records the force.
+ * Built with CRASH_IN_CLOSE, its close then raises SIGSEGV: the stand-in for
+ * a driver whose teardown faults. */
+#include <signal.h>
 #include <stddef.h>
 #include <stdlib.h>
 #include <time.h>
@@ -80,6 +83,9 @@ static int slow_write(cutsim_device* d, int64_t now_ns, const double force[3]) {
 static void slow_close(cutsim_device* d) {
   free(d);
   __atomic_store_n(&g_closed, 1, __ATOMIC_SEQ_CST);
+#ifdef CRASH_IN_CLOSE
+  raise(SIGSEGV);
+#endif
 }
 
 static const char* slow_last_error(cutsim_device* d) {

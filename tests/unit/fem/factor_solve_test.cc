@@ -35,15 +35,6 @@ std::vector<double> Wave(int32_t n, double f) {
   return b;
 }
 
-double RelativeDifference(const std::vector<double>& a, const std::vector<double>& b) {
-  double d = 0, s = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    d += (a[i] - b[i]) * (a[i] - b[i]);
-    s += b[i] * b[i];
-  }
-  return std::sqrt(d / s);
-}
-
 std::vector<double> Precondition(LinearSolver& solver, const SparseSystem& sys, const std::vector<double>& values,
                                  const std::vector<double>& r) {
   const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
@@ -68,13 +59,13 @@ TEST(SupernodalSolve, SingleAndDoubleAgreeWithCholmod) {
     ASSERT_TRUE(solver.RequestFactor(sys, a.data()));
     z.push_back(Precondition(solver, sys, a, r));
   }
-  EXPECT_LT(RelativeDifference(z[1], z[0]), 1e-12);
-  const double float_error = RelativeDifference(z[2], z[0]);
+  EXPECT_LT(testing::RelativeDifference(z[1], z[0]), 1e-12);
+  const double float_error = testing::RelativeDifference(z[2], z[0]);
   EXPECT_LT(float_error, 1e-5);
   EXPECT_GT(float_error, 1e-12);  // it is a float solve
   std::vector<double> az(r.size());
   sys.MultiplyTeam(a.data(), z[1].data(), az.data());
-  EXPECT_LT(RelativeDifference(az, r), 1e-10);
+  EXPECT_LT(testing::RelativeDifference(az, r), 1e-10);
 }
 
 /// The cantilever before and after a cut through the node at (x, y, z)
@@ -96,7 +87,7 @@ struct CutFixture {
     }
     for (const double y : {0.0, 0.01, 0.02}) {
       for (const double z : {0.01, 0.02}) {
-        const int32_t mid = Find(0.04, y, z);
+        const int32_t mid = testing::FindNode(model, 0.04, y, z);
         testing::SplitNodeAsACut(model, state, mid, [&](const Vec3<double>& c) { return c(0) > 0.04; });
       }
     }
@@ -114,13 +105,6 @@ struct CutFixture {
       if (mark[static_cast<size_t>(n)] != 0) changed.push_back(n);
     }
     b = SystemMatrix(after, model);
-  }
-  int32_t Find(double x, double y, double z) const {
-    for (int32_t n = 0; n < model.num_nodes(); ++n) {
-      const Vec3<double> p = model.rest_position(n);
-      if (std::abs(p(0) - x) < 1e-9 && std::abs(p(1) - y) < 1e-9 && std::abs(p(2) - z) < 1e-9) return n;
-    }
-    return 0;
   }
 };
 
@@ -148,8 +132,8 @@ TEST(FactorCorrection, EqualsAFreshFactorOfTheCutMatrix) {
   EXPECT_EQ(old.correction_rank(), 3 * static_cast<int32_t>(f.changed.size()) + sys.num_dofs() - f.old_dofs);
   const std::vector<double> z_corrected = Precondition(old, sys, f.b, r);
 
-  EXPECT_LT(RelativeDifference(z_corrected, z_fresh), 1e-4);
-  EXPECT_GT(RelativeDifference(z_stale, z_fresh), 1e-2);
+  EXPECT_LT(testing::RelativeDifference(z_corrected, z_fresh), 1e-4);
+  EXPECT_GT(testing::RelativeDifference(z_stale, z_fresh), 1e-2);
 
   // PCG with it converges in the iterations of a fresh factor.
   const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);

@@ -85,4 +85,23 @@ inline bool HasQuadraticStep(const ImplicitResult& r, double scale) {
   return false;
 }
 
+/// ‖a − b‖ / ‖b‖ of two vectors of one length.
+inline double RelativeDifference(const std::vector<double>& a, const std::vector<double>& b) {
+  double d = 0, n = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    d += (a[i] - b[i]) * (a[i] - b[i]);
+    n += b[i] * b[i];
+  }
+  return std::sqrt(d / n);
+}
+
+/// The node whose rest position is (x, y, z) to 1 nm, or −1.
+inline int32_t FindNode(const Model<double>& model, double x, double y, double z) {
+  for (int32_t n = 0; n < model.num_nodes(); ++n) {
+    const Vec3<double> r = model.rest_position(n);
+    if (std::abs(r(0) - x) < 1e-9 && std::abs(r(1) - y) < 1e-9 && std::abs(r(2) - z) < 1e-9) return n;
+  }
+  return -1;
+}
+
 }  // namespace cutsim::fem::testing

@@ -25,7 +25,7 @@ struct CutCantilever {
   explicit CutCantilever(ElementKind element)
       : model(Make(element)), state(model) {
     for (const double y : {0.0, 0.01}) {
-      tets_moved += testing::SplitNodeAsACut(model, state, Find(0.04, y, 0.01),
+      tets_moved += testing::SplitNodeAsACut(model, state, testing::FindNode(model, 0.04, y, 0.01),
                                              [](const Vec3<double>& c) { return c(0) > 0.04; });
     }
     x = testing::DeformedPositions(model, 2e-3, 1.2);
@@ -42,28 +42,12 @@ struct CutCantilever {
     }
     return m;
   }
-  int32_t Find(double px, double py, double pz) const {
-    for (int32_t n = 0; n < model.num_nodes(); ++n) {
-      const Vec3<double> r = model.rest_position(n);
-      if (std::abs(r(0) - px) < 1e-9 && std::abs(r(1) - py) < 1e-9 && std::abs(r(2) - pz) < 1e-9) return n;
-    }
-    return -1;
-  }
 };
 
 std::vector<double> Direction(int32_t dofs) {
   std::vector<double> p(static_cast<size_t>(dofs));
   for (size_t i = 0; i < p.size(); ++i) p[i] = std::cos(0.91 * static_cast<double>(i) + 0.3);
   return p;
-}
-
-double RelativeDifference(const std::vector<double>& a, const std::vector<double>& b) {
-  double d = 0, s = 0;
-  for (size_t i = 0; i < a.size(); ++i) {
-    d += (a[i] - b[i]) * (a[i] - b[i]);
-    s += b[i] * b[i];
-  }
-  return std::sqrt(d / s);
 }
 
 class TangentProductTest : public ::testing::TestWithParam<ElementKind> {};
@@ -87,7 +71,7 @@ TEST_P(TangentProductTest, EqualsTheAssembledTangentAfterCuts) {
       op.Linearize(c.model, sys, c.x.data(), clamped, threads);
       std::vector<double> q(p.size(), 0.0);
       op.AddProduct(p.data(), 1.0, nullptr, q.data());
-      EXPECT_LT(RelativeDifference(q, assembled), 1e-12) << "clamped " << clamped << ", threads " << threads;
+      EXPECT_LT(testing::RelativeDifference(q, assembled), 1e-12) << "clamped " << clamped << ", threads " << threads;
     }
   }
 }
@@ -123,7 +107,7 @@ TEST_P(TangentProductTest, InactiveNodesDropOutOfThePairs) {
     largest = std::max(largest, std::abs(full[i]));
   }
   EXPECT_GT(largest, 0.0);
-  EXPECT_LT(RelativeDifference(q, full), 1e-12);
+  EXPECT_LT(testing::RelativeDifference(q, full), 1e-12);
 }
 
 INSTANTIATE_TEST_SUITE_P(BothElements, TangentProductTest,
@@ -156,7 +140,7 @@ TEST(TangentProductFd, IsTheDerivativeOfTheForce) {
   integ.InternalForce(c.model, xm.data(), fm.data());
   std::vector<double> fd(p.size());
   for (size_t i = 0; i < p.size(); ++i) fd[i] = -(fp[i] - fm[i]) / (2 * eps);
-  EXPECT_LT(RelativeDifference(q, fd), 1e-6);
+  EXPECT_LT(testing::RelativeDifference(q, fd), 1e-6);
 }
 
 }  // namespace
