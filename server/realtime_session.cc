@@ -38,6 +38,7 @@
 #include "common/transport/report_json.h"
 #include "common/transport/server_presence.h"
 #include "cutsim/v1/report.pb.h"
+#include "server/frame_profile.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 
@@ -157,6 +158,7 @@ class RealtimeLoop {
   SessionCounters counters_;
   FrameStats frame_time_{1 << 16};
   LatencyStats latency_;
+  FrameProfile profile_;
   v1::ObserverSession observed_;  // reused every viewer frame
 };
 
@@ -181,11 +183,13 @@ int RealtimeLoop::Run() {
   while (!g_stop && !StopRequested()) {
     if (options_.duration && simulation.sim_time() >= *options_.duration - 1e-9) break;
     const int64_t frame_start = MonotonicNs();
+    profile_.BeginFrame(frame_start);
     // Frame order, for the pose-to-model latency: the newest tool pose is
     // taken right before the step (after the pacing sleep, so a pose that
     // arrived during it is not a frame late), the local model goes out right
     // after the step, and only then recording, viewers and status.
     const std::optional<sim::ToolPose> applied = TakeToolPose(frame_start);
+    profile_.End(ServerStage::kToolPose, MonotonicNs());
     const bool client_present = frame_start - tool_.frame_ns < client_timeout_ns_;
     if (client_present != client_was_present_) {
       client_was_present_ = client_present;
@@ -200,20 +204,27 @@ int RealtimeLoop::Run() {
       Log().error("simulation stopped: {}", simulation.Summary().diagnosis);
       return 3;
     }
+    profile_.EndSimulation(simulation.LastFrameTimes(), MonotonicNs());
     ++counters_.frames;
     // The frame's cut goes to the journal's writer thread before the
     // haptic client feels it; the write and fdatasync happen there.
     p_.checkpointer.JournalNewEvents(simulation);
+    profile_.End(ServerStage::kJournal, MonotonicNs());
     // The local model only when a haptic client listens.
     if (client_present && simulation.has_tool()) PublishLocalModel(applied.has_value());
+    profile_.End(ServerStage::kLocalModel, MonotonicNs());
     if (p_.recorder) p_.recorder->Frame(frame_dt_, applied, simulation);  // off the latency path
+    profile_.End(ServerStage::kRecord, MonotonicNs());
     if (frame_start >= next_viewer_ns_) PublishViewerFrame(frame_start);
+    profile_.End(ServerStage::kViewer, MonotonicNs());
     if (frame_start >= next_status_ns_) PublishStatus(frame_start);
+    profile_.End(ServerStage::kStatus, MonotonicNs());
     if (g_print_stats) {
       g_print_stats = 0;
       Log().info("stats: {}", transport::ReportJson(Stats()));
     }
     p_.checkpointer.MaybeSave(simulation);
+    profile_.End(ServerStage::kCheckpoint, MonotonicNs());
     Pace(frame_start);
   }
   return 0;
@@ -331,6 +342,8 @@ void RealtimeLoop::Pace(int64_t frame_start) {
   frame_time_.Add(1e-9 * static_cast<double>(end - frame_start));
   deadline_ns_ += frame_ns_;
   p_.governor.Update(end);
+  profile_.EndFrame(counters_.frames, p_.simulation.sim_time(), 1e-9 * static_cast<double>(end - frame_start),
+                    end > deadline_ns_);
   if (end > deadline_ns_) {
     ++counters_.overruns;
     if (end - start_ns_ > 1'000'000'000) ++counters_.late_overruns;
@@ -385,11 +398,14 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_diagnosis(s.diagnosis);
   r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
   r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
+  r.set_max_correction_rank(ReportCount(s.implicit.max_correction_rank));
+  r.set_max_correction_seconds(s.implicit.max_correction_seconds);
   sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
   if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
   FillJournalStats(p_.checkpointer, r.mutable_journal());
   transport::ToReport(link.packets, r.mutable_tool_packets());
   r.set_models_signed(p_.link.signs_models());
+  profile_.AddToStats(r);
   return r;
 }
 

@@ -444,12 +444,62 @@ Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t) {
 }
 
 template <typename T>
+void ComputeNodePressures(const Model<T>& model, const T* x, std::vector<double>& tet_volume,
+                          std::vector<double>& node_pressure, int num_threads) {
+  const int32_t nt = model.num_tets();
+  const int32_t nn = model.num_nodes();
+  node_pressure.assign(static_cast<size_t>(nn), 0.0);
+  if (model.element() != ElementKind::kNodalPressure) return;
+  tet_volume.resize(static_cast<size_t>(nt));
+  const int32_t* slots = model.incidence_slots();
+#pragma omp parallel num_threads(Threads(num_threads))
+  {
+    // A quarter of each tet's current volume, once per tet.
+#pragma omp for schedule(static)
+    for (int32_t t = 0; t < nt; ++t) {
+      tet_volume[static_cast<size_t>(t)] = 0.25 * static_cast<double>(model.rest_volume(t)) *
+                                           static_cast<double>(DeformationGradient(model, x, t).determinant());
+    }
+    // Each node gathers its patch's volume: no write is shared.
+#pragma omp for schedule(static)
+    for (int32_t a = 0; a < nn; ++a) {
+      const double rest = static_cast<double>(model.node_rest_volume(a));
+      if (!(rest > 0)) continue;
+      double now = 0;
+      for (int32_t k = model.incidence_begin(a); k < model.incidence_end(a); ++k) {
+        now += tet_volume[static_cast<size_t>(slots[k] / 12)];
+      }
+      node_pressure[static_cast<size_t>(a)] = VolumetricPressure(now / rest, static_cast<double>(model.node_kappa(a)));
+    }
+  }
+}
+
+template <typename T>
+Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t, std::span<const double> node_pressure) {
+  const Mat3<T> F = DeformationGradient(model, x, t);
+  const T lam = model.element_lambdas()[t], mu = model.mus()[t];
+  const Mat3<T> P = F.determinant() >= model.inversion_det_threshold()
+                        ? StvkFirstPiola<T>(F, lam, mu)
+                        : InvertibleStvkFirstPiola<T>(F, lam, mu, model.min_singular_value());
+  Mat3<T> sigma = CauchyStress<T>(F, P);
+  if (model.element() == ElementKind::kNodalPressure) {
+    double sum = 0;
+    for (int c = 0; c < 4; ++c) sum += node_pressure[static_cast<size_t>(model.tet_node(t, c))];
+    sigma.diagonal().array() += static_cast<T>(0.25 * sum);
+  }
+  return sigma;
+}
+
+template <typename T>
 void ComputeElementStresses(const Model<T>& model, const T* x, std::span<T> sigma_max,
                             std::span<T> sigma_min, std::span<T> von_mises, int num_threads) {
   const int32_t nt = model.num_tets();
+  std::vector<double> tet_volume;
+  std::vector<double> node_pressure;
+  ComputeNodePressures(model, x, tet_volume, node_pressure, num_threads);
 #pragma omp parallel for schedule(static) num_threads(Threads(num_threads))
   for (int32_t t = 0; t < nt; ++t) {
-    const Mat3<T> s = ElementCauchyStress(model, x, t);
+    const Mat3<T> s = ElementCauchyStress(model, x, t, std::span<const double>(node_pressure));
     const Vec3<T> p = PrincipalStresses<T>(s);
     if (!sigma_max.empty()) sigma_max[static_cast<size_t>(t)] = p(0);
     if (!sigma_min.empty()) sigma_min[static_cast<size_t>(t)] = p(2);
@@ -467,6 +517,9 @@ void ComputeElementStresses(const Model<T>& model, const T* x, std::span<T> sigm
   template double KineticEnergy<T>(const Model<T>&, const T*);                                 \
   template double GravityPotential<T>(const Model<T>&, const T*);                              \
   template Mat3<T> ElementCauchyStress<T>(const Model<T>&, const T*, int32_t);                \
+  template Mat3<T> ElementCauchyStress<T>(const Model<T>&, const T*, int32_t, std::span<const double>); \
+  template void ComputeNodePressures<T>(const Model<T>&, const T*, std::vector<double>&,      \
+                                        std::vector<double>&, int);                          \
   template void ComputeElementStresses<T>(const Model<T>&, const T*, std::span<T>, std::span<T>, \
                                           std::span<T>, int);
 

@@ -10,6 +10,7 @@
 
 #include <cstdint>
 #include <span>
+#include <vector>
 
 #include "common/fem/element.h"
 #include "common/fem/model.h"
@@ -71,6 +72,20 @@ double GravityPotential(const Model<T>& model, const T* x);
 /// criterion reads is the one the element carries.
 template <typename T>
 Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t);
+
+/// The nodal-pressure element's pressure U'(J_a) at every node, Pa (#N;
+/// zero at a node without patch volume, all zero for the linear element).
+/// One pass over the tets (their current volumes into `tet_volume`, #T
+/// scratch) and one over the nodes, so a whole-mesh stress field costs
+/// O(#T) where ElementCauchyStress per tet costs O(#T × patch size).
+template <typename T>
+void ComputeNodePressures(const Model<T>& model, const T* x, std::vector<double>& tet_volume,
+                          std::vector<double>& node_pressure, int num_threads = 0);
+
+/// ElementCauchyStress with the nodes' pressures of ComputeNodePressures
+/// (#N) at the same x: the whole-mesh form.
+template <typename T>
+Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t, std::span<const double> node_pressure);
 
 /// Per-tet stress fields for cutting and output: largest principal Cauchy
 /// stress σ₁, smallest σ₃, and von Mises, Pa. Spans of length num_tets()

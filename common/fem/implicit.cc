@@ -7,6 +7,8 @@
 #include <cstring>
 #include <limits>
 
+#include <Eigen/Cholesky>
+
 #include "common/core/clock.h"
 #include "common/core/hash.h"
 #include "common/fem/implicit_internal.h"
@@ -28,10 +30,11 @@ constexpr int32_t kMinTetsForThreads = 4096;
 
 /// Out-of-pattern penalty couplings kept without allocation (more allocate).
 constexpr size_t kExtraBlockReserve = 64;
-/// PCG tolerance of EffectiveStiffness, relative to ‖w‖: the compliance
-/// wᵀA⁻¹w is a quadratic form, so its relative error is about the square of
-/// the solve's (far below what a hand can feel).
-constexpr double kCompliancePcgTolerance = 1e-4;
+/// EffectiveStiffness: the most blocks of its Krylov space and the
+/// relative Galerkin residual that ends it (the compliance's relative error
+/// is about its square).
+constexpr int kComplianceBlocks = 3;
+constexpr double kComplianceResidual = 1e-2;
 /// Armijo sufficient-decrease constant of the line search.
 constexpr double kArmijo = 1e-4;
 /// Relative round-off of Φ: near the solution the decrease Φ can show is
@@ -60,6 +63,16 @@ uint64_t TetSignature(const Model<double>& model, int32_t t) {
   return Fnv1a64(&vol, sizeof(vol), h);
 }
 
+/// Σ a[ao + i]·b[bo + i] over the #N×3 DOFs.
+double Dot(const std::vector<double>& a, const std::vector<double>& b, size_t ao, size_t bo, int32_t nn, int nt) {
+  NodeSums<1> sums(nn);
+#pragma omp parallel num_threads(nt)
+  sums.Team([&](int32_t n, std::array<double, 1>& acc) {
+    for (int d = 0; d < 3; ++d) acc[0] += a[ao + static_cast<size_t>(3 * n + d)] * b[bo + static_cast<size_t>(3 * n + d)];
+  });
+  return sums.Total(0);
+}
+
 double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t nn, int nt) {
   NodeSums<1> sums(nn);
 #pragma omp parallel num_threads(nt)
@@ -70,6 +83,22 @@ double Dot(const std::vector<double>& a, const std::vector<double>& b, int32_t n
 }
 
 }  // namespace
+
+const char* ImplicitPhaseName(ImplicitPhase phase) {
+  switch (phase) {
+    case ImplicitPhase::kSetup:
+      return "setup";
+    case ImplicitPhase::kEvaluate:
+      return "evaluate";
+    case ImplicitPhase::kAssemble:
+      return "assemble";
+    case ImplicitPhase::kFactorSetup:
+      return "factor_setup";
+    case ImplicitPhase::kSolve:
+      return "solve";
+  }
+  return "setup";
+}
 
 ImplicitIntegrator::ImplicitIntegrator(const ImplicitOptions& options)
     : options_(options), solver_(options.asynchronous_factorization, options.factor_solve) {
@@ -93,6 +122,9 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
                     &bv_, &dir_, &rhs_}) {
       v->assign(nd, 0.0);
     }
+    compliance_z_.assign(3 * kComplianceBlocks * nd, 0.0);
+    compliance_q_.assign(3 * kComplianceBlocks * nd, 0.0);
+    compliance_r_.assign(3 * nd, 0.0);
     tet_energy_.assign(static_cast<size_t>(system_.num_tets()), 0.0);
     active_.assign(static_cast<size_t>(system_.num_nodes()), 0);
     extra_.clear();
@@ -377,22 +409,30 @@ bool ImplicitIntegrator::SolveDirection(double h, double tolerance, int64_t dead
   const int nt = NumThreads();
   const int32_t nn = system_.num_nodes();
   for (int32_t i = 0; i < 3 * nn; ++i) rhs_[static_cast<size_t>(i)] = -residual_[static_cast<size_t>(i)];
+  Stopwatch watch;
   solver_.Acquire();
   if (!solver_.has_factor() || solver_.factor_pattern_id() != system_.pattern_id()) {
     RequestFactor(*model_, result);
     if (!solver_.has_factor() && options_.wait_for_first_factor) solver_.WaitForFactor();
     if (solver_.has_factor() && solver_.factor_pattern_id() != system_.pattern_id()) CorrectFactor(*model_, result);
   }
+  result.AddPhase(ImplicitPhase::kFactorSetup, watch.ElapsedSeconds());
+  watch.Reset();
   const double rhs_norm = std::sqrt(Dot(rhs_, rhs_, nn, nt));
   const double lin_tol = std::max(options_.linear_tolerance * rhs_norm, 0.1 * h * tolerance);
   const PcgResult pr = solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), dir_.data(), lin_tol,
                                      options_.max_pcg_iterations, NumThreads(), extra_, matrix_free(), deadline_ns);
+  result.AddPhase(ImplicitPhase::kSolve, watch.ElapsedSeconds());
   result.pcg_iterations += pr.iterations;
   result.max_pcg_iterations = std::max(result.max_pcg_iterations, pr.iterations);
   result.factor_dofs = solver_.factor_dofs();
   // A step whose solves needed many iterations asks for a fresher factor
   // (counted over the step: a solve cut short by the deadline stays short).
-  if (result.pcg_iterations > options_.refactor_pcg_iterations) RequestFactor(*model_, result);
+  if (result.pcg_iterations > options_.refactor_pcg_iterations) {
+    watch.Reset();
+    RequestFactor(*model_, result);
+    result.AddPhase(ImplicitPhase::kFactorSetup, watch.ElapsedSeconds());
+  }
   if (pr.negative_curvature) {
     result.negative_curvature = true;
     if (options_.tangent == TangentMode::kAuto) *clamped = true;
@@ -430,6 +470,7 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     result.status = ImplicitStatus::kNonFinite;
     return result;
   }
+  Stopwatch watch;
   Prepare(model, result);
   const int32_t nn = system_.num_nodes();
   const double h = StartStep(state, step_size, result.pattern_rebuilt);
@@ -442,6 +483,8 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     b_values_h_ = h;
     b_values_valid_ = true;
   }
+  result.AddPhase(ImplicitPhase::kSetup, watch.ElapsedSeconds());
+  watch.Reset();
   Eval current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
   if (!current.finite) {
     // The guess x + h·v (the velocity held over the step) can invert a
@@ -451,6 +494,7 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
     result.restarted_at_rest = true;
   }
+  result.AddPhase(ImplicitPhase::kEvaluate, watch.ElapsedSeconds());
   result.tolerance = options_.force_tolerance > 0
                          ? options_.force_tolerance
                          : options_.relative_force_tolerance * LoadScale(model, state, penalties);
@@ -470,14 +514,18 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     result.over_budget = result.over_budget || (late && !out_of_time);
     if (out_of_time || it >= options_.max_newton_iterations) {
       result.status = out_of_time ? ImplicitStatus::kOutOfTime : ImplicitStatus::kCapped;
+      watch.Reset();
       if (x_stale) current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+      result.AddPhase(ImplicitPhase::kEvaluate, watch.ElapsedSeconds());
       result.residual = current.residual;
       break;
     }
     result.newton_iterations = it + 1;
     const bool assemble = !have_k_ || reassemble_k_ || k_clamped_ != clamped ||
                           options_.tangent_reuse_contraction <= 0;
+    watch.Reset();
     AssembleJacobian(model, h, penalties, clamped, assemble);
+    result.AddPhase(ImplicitPhase::kAssemble, watch.ElapsedSeconds());
     result.tangent_assemblies += assemble ? 1 : 0;
     k_fresh_ = k_fresh_ || assemble;
     const bool was_clamped = clamped;
@@ -485,7 +533,9 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
     const bool truncated =
         SolveDirection(h, result.tolerance, result.over_budget ? 0 : deadline_ns, result, &clamped);
     result.clamped = result.clamped || was_clamped;
+    watch.Reset();
     const bool accepted = LineSearch(model, state, h, penalties, current, result);
+    result.AddPhase(ImplicitPhase::kEvaluate, watch.ElapsedSeconds());
     // A solve cut short by the deadline says nothing about the tangent.
     reassemble_k_ = !accepted ||
                     (!truncated && !(current.residual <= options_.tangent_reuse_contraction * last_residual));
@@ -494,7 +544,9 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
       if (clamped != was_clamped) continue;  // retry the iteration with K⁺
       if (!assemble) continue;                // retry with K assembled here
       // No acceptable step: the state gets the last accepted iterate.
+      watch.Reset();
       current = Evaluate(model, state, h, penalties, v_.data(), residual_.data());
+      result.AddPhase(ImplicitPhase::kEvaluate, watch.ElapsedSeconds());
       result.residual = current.residual;
       result.status = ImplicitStatus::kCapped;
       break;
@@ -530,30 +582,113 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
     k_fresh_ = true;
     reassemble_k_ = false;
   }
-  Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
-  bool any = false;
+  // W (#N×3·3): column c holds the weights on DOF c of the point's nodes.
+  // The compliance Wᵀ A⁻¹ W is the Galerkin one on the block Krylov space
+  // V = [P⁻¹W, P⁻¹R₁, …] of the preconditioner in use (block PCG's space):
+  // (VᵀW)ᵀ(VᵀAV)⁻¹(VᵀW). One block is exact when P = A, and the error is
+  // second order in P⁻¹A − I; a block is added while the Galerkin
+  // residual R = W − AV·Y stays above kComplianceResidual of W.
+  const int nt = NumThreads();
+  const auto nd = static_cast<size_t>(3 * nn);
+  auto column = [&](std::vector<double>& v, int c) { return v.data() + static_cast<size_t>(c) * nd; };
+  std::fill(compliance_r_.begin(), compliance_r_.end(), 0.0);
   for (int c = 0; c < 3; ++c) {
-    std::fill(rhs_.begin(), rhs_.end(), 0.0);
     for (size_t i = 0; i < nodes.size(); ++i) {
       const int32_t n = nodes[i];
       if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
-      rhs_[static_cast<size_t>(3 * n + c)] += weights[i];
-      any = true;
+      column(compliance_r_, c)[3 * n + c] += weights[i];
     }
-    if (!any) return Eigen::Matrix3d::Zero();
-    const double norm = std::sqrt(Dot(rhs_, rhs_, nn, NumThreads()));
-    solver_.Solve(system_, a_values_.data(), active_.data(), rhs_.data(), v_try_.data(),
-                  kCompliancePcgTolerance * norm,
-                  options_.max_pcg_iterations, NumThreads(), extra_, matrix_free());
-    for (size_t i = 0; i < nodes.size(); ++i) {
-      const int32_t n = nodes[i];
-      if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
-      compliance.col(c) += weights[i] * Eigen::Map<const Eigen::Vector3d>(v_try_.data() + 3 * n);
+  }
+  const double w_norm = std::sqrt(Dot(compliance_r_, compliance_r_, 0, 0, nn, nt) +
+                                  Dot(compliance_r_, compliance_r_, nd, nd, nn, nt) +
+                                  Dot(compliance_r_, compliance_r_, 2 * nd, 2 * nd, nn, nt));
+  Eigen::MatrixXd vav = Eigen::MatrixXd::Zero(3 * kComplianceBlocks, 3 * kComplianceBlocks);  // VᵀAV
+  Eigen::MatrixXd vw = Eigen::MatrixXd::Zero(3 * kComplianceBlocks, 3);                       // VᵀW
+  Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
+  for (int block = 0; block < kComplianceBlocks; ++block) {
+    const int k0 = 3 * block, k = k0 + 3;
+    for (int c = 0; c < 3; ++c) {
+      std::copy(column(compliance_r_, c), column(compliance_r_, c) + nd, rhs_.begin());
+      solver_.Precondition(system_, a_values_.data(), active_.data(), rhs_.data(), column(compliance_z_, k0 + c), nt);
+      ApplyJacobian(column(compliance_z_, k0 + c), column(compliance_q_, k0 + c));
     }
+    for (int a = k0; a < k; ++a) {
+      for (int b = 0; b <= a; ++b) {
+        vav(a, b) = vav(b, a) =
+            Dot(compliance_z_, compliance_q_, static_cast<size_t>(a) * nd, static_cast<size_t>(b) * nd, nn, nt);
+      }
+      for (int c = 0; c < 3; ++c) {
+        double sum = 0;
+        for (size_t i = 0; i < nodes.size(); ++i) {
+          const int32_t n = nodes[i];
+          if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
+          sum += weights[i] * column(compliance_z_, a)[3 * n + c];
+        }
+        vw(a, c) = sum;
+      }
+    }
+    const Eigen::LLT<Eigen::MatrixXd> llt(vav.topLeftCorner(k, k));
+    if (llt.info() != Eigen::Success) return Eigen::Matrix3d::Zero();  // V lost rank or A is indefinite on it
+    const Eigen::MatrixXd y = llt.solve(vw.topRows(k));  // k×3
+    compliance = vw.topRows(k).transpose() * y;
+    // R = W − AV·Y, column by column.
+    double r2 = 0;
+    for (int c = 0; c < 3; ++c) {
+      double* r = column(compliance_r_, c);
+      std::fill(r, r + nd, 0.0);
+      for (size_t i = 0; i < nodes.size(); ++i) {
+        const int32_t n = nodes[i];
+        if (n < 0 || n >= nn || active_[static_cast<size_t>(n)] == 0) continue;
+        r[3 * n + c] += weights[i];
+      }
+      for (int a = 0; a < k; ++a) {
+        const double ya = y(a, c);
+        const double* q = column(compliance_q_, a);
+        for (size_t i = 0; i < nd; ++i) r[i] -= ya * q[i];
+      }
+      r2 += Dot(compliance_r_, compliance_r_, static_cast<size_t>(c) * nd, static_cast<size_t>(c) * nd, nn, nt);
+    }
+    if (std::sqrt(r2) <= kComplianceResidual * w_norm) break;
+    if (block + 1 == kComplianceBlocks) return Eigen::Matrix3d::Zero();
   }
   compliance *= last_h_ * last_h_;
   const Eigen::Matrix3d sym = 0.5 * (compliance + compliance.transpose());
-  return sym.inverse();
+  const Eigen::Matrix3d stiffness = sym.inverse();
+  return stiffness.allFinite() ? stiffness : Eigen::Matrix3d::Zero();
+}
+
+void ImplicitIntegrator::ApplyJacobian(const double* p, double* q) const {
+  const int32_t nn = system_.num_nodes();
+#pragma omp parallel num_threads(NumThreads())
+  system_.MultiplyTeam(a_values_.data(), p, q);
+  if (const MatrixFreeTerm* term = matrix_free()) term->AddProduct(p, q);
+  for (const ExtraBlock& e : extra_) {
+    Eigen::Map<Eigen::Vector3d>(q + 3 * e.a) += e.k * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.b);
+    if (e.a != e.b) {
+      Eigen::Map<Eigen::Vector3d>(q + 3 * e.b) += e.k.transpose() * Eigen::Map<const Eigen::Vector3d>(p + 3 * e.a);
+    }
+  }
+  for (int32_t n = 0; n < nn; ++n) {
+    if (active_[static_cast<size_t>(n)] == 0) q[3 * n] = q[3 * n + 1] = q[3 * n + 2] = 0.0;
+  }
+}
+
+void ImplicitIntegrator::Prime(const Model<double>& model, const State<double>& state, double step_size) {
+  if (!(step_size > 0) || !std::isfinite(step_size)) return;
+  ImplicitResult unused;
+  Prepare(model, unused);
+  const double h = step_size;
+  const int32_t nd = system_.num_dofs();
+  for (int32_t i = 0; i < nd; ++i) {
+    x0_[static_cast<size_t>(i)] = state.x[static_cast<size_t>(i)];
+    v_[static_cast<size_t>(i)] = 0.0;
+  }
+  DampingPass(model, x0_.data(), h, 1.0 + h * options_.mass_damping, true, b_values_.data());
+  b_values_h_ = h;
+  b_values_valid_ = true;
+  AssembleJacobian(model, h, {}, options_.tangent == TangentMode::kClamped, true);
+  RequestFactor(model, unused);
+  solver_.WaitForFactor();
 }
 
 void ImplicitIntegrator::AssembleStiffness(const Model<double>& model, const double* x, bool clamped,

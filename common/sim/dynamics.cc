@@ -35,6 +35,7 @@ Dynamics<T>::~Dynamics() = default;
 template <typename T>
 fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
                                        double frame_time, int64_t deadline_ns, RunCounters& run) {
+  phase_seconds_.fill(0.0);
   if (kind_ == IntegratorKind::kImplicit) return StepImplicit(fem, tool, start, frame_time, deadline_ns, run);
   return StepExplicit(fem, tool, start, frame_time, run);
 }
@@ -168,6 +169,7 @@ bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const Too
 
 template <typename T>
 void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
+  for (size_t p = 0; p < phase_seconds_.size(); ++p) phase_seconds_[p] += r.phase_seconds[p];
   ImplicitCounters& c = counters_;
   ++c.steps;
   c.newton_iterations += r.newton_iterations;
@@ -200,6 +202,15 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
 }
 
 template <typename T>
+void Dynamics<T>::Prime(SceneFem<T>& fem, double frame_time) {
+  if constexpr (std::is_same_v<T, double>) {
+    if (kind_ == IntegratorKind::kImplicit) implicit_->Prime(fem.model(), fem.state(), frame_time);
+  } else {
+    (void)fem, (void)frame_time;
+  }
+}
+
+template <typename T>
 Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const {
   if constexpr (std::is_same_v<T, double>) {
     // Without load the stiffness is zero (ToolState): no tangent to assemble.
@@ -208,10 +219,18 @@ Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const Sc
       const Eigen::Vector3d& w = tool.force_weights();
       const std::array<double, 3> weights{w[0], w[1], w[2]};
       Eigen::Matrix3d tissue = implicit_->EffectiveStiffness(fem.model(), nodes, weights);
-      if (tissue.isZero()) return tool.ContactStiffness(fem.model(), fem.state().x.data());
+      if (tissue.isZero()) {
+        // No whole-body answer this frame (its solve hit the cap, as after
+        // a cut before the factor catches up): the last one on the same
+        // facet still holds; elsewhere the static patch around the contact.
+        if (held_nodes_ == nodes) return tool.ContactStiffness(held_tissue_);
+        return tool.ContactStiffness(fem.model(), fem.state().x.data());
+      }
       // The last Jacobian holds the contact spring on the same point
       // (W·k_pen·Wᵀ): (h²WᵀA⁻¹W)⁻¹ is the tissue's stiffness plus k_pen.
       if (last_penalty_.nodes == nodes && last_penalty_.weights == weights) tissue -= last_penalty_.stiffness;
+      held_nodes_ = nodes;
+      held_tissue_ = tissue;
       return tool.ContactStiffness(tissue);
     }
   }

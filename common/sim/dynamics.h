@@ -13,6 +13,7 @@
 /// minus the contact spring the last step put in its Jacobian, in series
 /// with the contact spring (ToolState::ContactStiffness).
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -21,6 +22,7 @@
 
 #include "common/fem/implicit.h"
 #include "common/fem/integrator.h"
+#include "common/sim/frame_times.h"
 #include "common/sim/integrator_choice.h"
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
@@ -59,11 +61,19 @@ class Dynamics {
   fem::StepResult StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
                             int64_t deadline_ns, RunCounters& run);
 
+  /// The implicit step's first factor, made now at the state (load time;
+  /// ImplicitIntegrator::Prime) for frames of `frame_time` s. No-op when
+  /// explicit.
+  void Prime(SceneFem<T>& fem, double frame_time);
+
   /// The haptic stiffness at the tool's contact (file comment), N/m.
   [[nodiscard]] Eigen::Matrix3d ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const;
 
   /// The integrator and the implicit step's counters.
   void AddToSummary(SimulationSummary& s) const;
+
+  /// Wall time of the last frame's implicit phases, s (zero when explicit).
+  [[nodiscard]] const std::array<double, kNumDynamicsPhases>& last_phase_seconds() const { return phase_seconds_; }
 
  private:
   fem::StepResult StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
@@ -84,8 +94,13 @@ class Dynamics {
   mutable std::unique_ptr<fem::ImplicitIntegrator> implicit_;
   std::vector<fem::PenaltyTerm> penalties_;  // the frame's contact spring, 0 or 1
   fem::PenaltyTerm last_penalty_;            // the one in the last Jacobian (zero stiffness if none)
+  // The last whole-body tissue stiffness at the contact and its facet's
+  // nodes (held while a capped solve gives none), N/m.
+  mutable std::array<int32_t, 3> held_nodes_{-1, -1, -1};
+  mutable Eigen::Matrix3d held_tissue_ = Eigen::Matrix3d::Zero();
   std::vector<double> saved_x_, saved_v_;    // the state before a recovery  // #N×3
   ImplicitCounters counters_;
+  std::array<double, kNumDynamicsPhases> phase_seconds_{};  // the last frame's, s
 };
 
 extern template class Dynamics<float>;

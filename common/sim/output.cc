@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include <Eigen/Eigenvalues>
 #include <fmt/format.h>
@@ -34,8 +35,12 @@ template <typename T>
 void StressFields(const fem::Model<T>& model, const T* x, const mesh::TetMesh& world, mesh::VtkField& von_mises,
                   mesh::VtkField& principal, mesh::VtkField& quality) {
   const mesh::TetQuality q = mesh::ComputeTetQuality(world);
+  std::vector<double> tet_volume;
+  std::vector<double> node_pressure;
+  fem::ComputeNodePressures(model, x, tet_volume, node_pressure);
   for (int32_t t = 0; t < model.num_tets(); ++t) {
-    const Eigen::Matrix3d sigma = fem::ElementCauchyStress(model, x, t).template cast<double>();
+    const Eigen::Matrix3d sigma =
+        fem::ElementCauchyStress(model, x, t, std::span<const double>(node_pressure)).template cast<double>();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(sigma, Eigen::EigenvaluesOnly);
     const Eigen::Vector3d p = eig.eigenvalues().reverse();  // σ1 ≥ σ2 ≥ σ3
     for (int k = 0; k < 3; ++k) principal.values[3 * t + k] = p[k];

@@ -46,12 +46,16 @@ void SessionMeter<T>::Sample(const fem::Model<T>& model, const T* x, const Incis
   MarkIncision(model, x, incision);
   // Von Mises only (no principal stresses) and only where it counts.
   const auto count = static_cast<int64_t>(nt);
+  const int threads = std::max(1, options_.threads);
+  fem::ComputeNodePressures(model, x, tet_volume_, node_pressure_, threads);
+  const std::span<const double> pressure(node_pressure_);
   double largest = 0.0;
-#pragma omp parallel for schedule(static) num_threads(std::max(1, options_.threads)) reduction(max : largest)
+#pragma omp parallel for schedule(static) num_threads(threads) reduction(max : largest)
   for (int64_t i = 0; i < count; ++i) {
     const auto t = static_cast<size_t>(i);
     if (cut_off_[t] || tet_mark_[t]) continue;
-    const auto s = static_cast<double>(fem::VonMises<T>(fem::ElementCauchyStress(model, x, static_cast<int32_t>(i))));
+    const auto s =
+        static_cast<double>(fem::VonMises<T>(fem::ElementCauchyStress(model, x, static_cast<int32_t>(i), pressure)));
     if (std::isfinite(s)) largest = std::max(largest, s);
   }
   metrics_.stress_outside = largest;

@@ -103,6 +103,8 @@ class SessionMeter {
   std::vector<uint8_t> cut_off_;    // #T: tet in a piece separated from the anchored body
   std::vector<uint8_t> node_mark_;  // #N scratch: node in the incision (grown ring by ring)
   std::vector<uint8_t> tet_mark_;   // #T scratch: tet in the incision
+  std::vector<double> tet_volume_;     // #T scratch: a quarter of each tet's current volume, m³
+  std::vector<double> node_pressure_;  // #N scratch: the nodal-pressure element's pressures, Pa
 };
 
 extern template class SessionMeter<float>;

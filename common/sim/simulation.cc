@@ -57,6 +57,7 @@ class Engine final : public Simulation {
       scorer_->SetTissue(mesh_.mesh);
     }
     RebuildSurface();
+    dynamics_.Prime(fem_, frame_dt());
     const fem::Model<T>& model = fem_.model();
     Log().info("scene '{}': {} nodes, {} tets, {} free nodes, {} precision, {} threads, viscosity {}, {} integrator",
                scene_.scene.name(), model.num_nodes(), model.num_tets(), fem_.num_free(), PrecisionName(),
@@ -74,16 +75,25 @@ class Engine final : public Simulation {
     if (frame_time <= 0) frame_time = frame_dt();
     Stopwatch watch;
     const int64_t deadline_ns = frame_budget_ns_ > 0 ? MonotonicNs() + frame_budget_ns_ : 0;
+    StageClock clock(frame_times_);
     const ToolPose start = BeginFrame();
     fem_.PrescribeMotion(sim_time() + frame_time, TopologyEvents());
+    clock.End(FrameStage::kPrescribe);
     MoveTool(sim_time() + frame_time);
     FindContact();
+    clock.End(FrameStage::kContact);
     const fem::StepResult step = StepDynamics(start, frame_time, deadline_ns);
+    frame_times_.dynamics_seconds = dynamics_.last_phase_seconds();
+    clock.End(FrameStage::kDynamics);
     if (CheckStep(step)) TryCut();
+    clock.End(FrameStage::kCut);
     Measure(frame_time);
+    clock.End(FrameStage::kMeasure);
     run_.wall_time += watch.ElapsedSeconds();
     return run_.status;
   }
+
+  const FrameTimes& LastFrameTimes() const override { return frame_times_; }
 
   bool has_tool() const override { return tool_.has_value(); }
   double path_end_time() const override { return tool_ ? tool_->path_end_time() : 0.0; }
@@ -290,6 +300,21 @@ class Engine final : public Simulation {
 
   // ---- the frame's stages -------------------------------------------------
 
+  /// Records each stage's wall time as it ends.
+  class StageClock {
+   public:
+    explicit StageClock(FrameTimes& times) : times_(times), last_ns_(MonotonicNs()) {}
+    void End(FrameStage stage) {
+      const int64_t now = MonotonicNs();
+      times_.stage_seconds[static_cast<size_t>(stage)] = 1e-9 * static_cast<double>(now - last_ns_);
+      last_ns_ = now;
+    }
+
+   private:
+    FrameTimes& times_;
+    int64_t last_ns_;
+  };
+
   /// Clears the last frame's cut flag; returns the tool's pose at the
   /// frame's start.
   ToolPose BeginFrame() {
@@ -398,6 +423,7 @@ class Engine final : public Simulation {
   StateWorld<T> world_access_;  // the cut code's view of fem_'s positions
   Dynamics<T> dynamics_;
   int64_t frame_budget_ns_;  // the dynamics' wall-clock budget per frame (0: none)
+  FrameTimes frame_times_;   // the last frame's stages
   SurfaceTracker surface_;
   std::optional<ToolState<T>> tool_;      // with a tool
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting

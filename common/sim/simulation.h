@@ -17,6 +17,7 @@
 
 #include "common/cutting/topology_event.h"
 #include "common/mesh/tet_mesh.h"
+#include "common/sim/frame_times.h"
 #include "common/sim/incision_score.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/types.h"  // re-exported: the types the interface speaks
@@ -63,6 +64,8 @@ class Simulation {
   /// response. For comparisons of the haptic side's stiffness term.
   [[nodiscard]] virtual Eigen::Matrix3d PatchContactStiffness() const = 0;
   [[nodiscard]] virtual uint64_t topology_version() const = 0;
+  /// Wall time of the last frame's stages (frame_times.h).
+  [[nodiscard]] virtual const FrameTimes& LastFrameTimes() const = 0;
   /// Per executed cut step, its phases' wall times (empty without cutting).
   [[nodiscard]] virtual const std::vector<CutStepTiming>& CutTimings() const = 0;
   /// The session's measures so far (session_metrics.h).
