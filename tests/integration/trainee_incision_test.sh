@@ -45,7 +45,7 @@ cleanup() {
 trap cleanup EXIT
 fail() { echo "trainee_incision_test: FAIL: $*; logs in $out" >&2; exit 1; }
 
-cd "$src"
+cd "$src" || exit 1
 umask 077
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$out/key"
 rm -f "$out/url" "$out/server.json" "$out/report.json" "$out/final.vtu"
