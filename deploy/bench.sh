@@ -130,7 +130,7 @@ for run in "ligament.pbtxt ligament-cut.path 6 0" "ligament.pbtxt ligament-cut.p
   cat "$out/$name.json" 2>/dev/null || true
 done
 
-echo "== browser trainee (input-to-force latency of --device browser, p50/p99)"
+echo "== browser trainee on the skin pad (input-to-force and input-to-picture latency, p99 targets 50 and 100 ms)"
 rc=0
 bench/trainee_latency.sh "$PWD/$bin" "$PWD/$out/trainee" "${TRAINEE_MOVES:-600}" >"$out/trainee_latency.json" \
   2>"$out/trainee_latency.log" || rc=$?

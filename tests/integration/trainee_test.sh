@@ -10,15 +10,13 @@
 # Screenshots of the page before and after the cut are kept in OUT_DIR.
 # Runs in a private loopback namespace.
 #
-#   tests/integration/trainee_test.sh BIN_DIR [OUT_DIR] [--bench N]
+#   tests/integration/trainee_test.sh BIN_DIR [OUT_DIR]
 #
-# With --bench N the page also times N mouse moves from the input event to
-# the force computed from them and the last line on stdout is that JSON
-# (bench/trainee_latency.sh). Exits 77 (skip) without chromium, node or the
-# observer page's npm packages (deploy/install-deps.sh installs them).
+# Exits 77 (skip) without chromium, node or the observer page's npm
+# packages (deploy/install-deps.sh installs them).
 set -uo pipefail
 
-bin="$(cd "${1:?usage: $0 BIN_DIR [OUT_DIR] [--bench N]}" && pwd)"
+bin="$(cd "${1:?usage: $0 BIN_DIR [OUT_DIR]}" && pwd)"
 src="$(cd "$(dirname "$0")/../.." && pwd)"
 modules="$src/web/observer/node_modules"
 skip() { echo "trainee_test: SKIP: $*" >&2; exit 77; }
@@ -32,8 +30,6 @@ if [ "${CUTSIM_IN_NETNS:-}" != "1" ]; then
 fi
 
 out="${2:-$(mktemp -d /tmp/cutsim-trainee.XXXXXX)}"
-bench=()
-[ "${3:-}" = "--bench" ] && bench=(--bench "${4:?--bench needs N}")
 mkdir -p "$out"
 pids=()
 cleanup() {
@@ -59,7 +55,7 @@ for _ in $(seq 100); do [ -s "$out/url" ] && break; sleep 0.1; done
 [ -s "$out/url" ] || fail "the trainee page did not start: $(tail -3 "$out/haptic.log")"
 grep -qf "$out/key" "$out/haptic.log" "$out/server.log" "$out/haptic.json" && fail "the session key was logged"
 
-node "$src/web/trainee/test/trainee_test.mjs" --url "$(cat "$out/url")" --out "$out" "${bench[@]}" \
+node "$src/web/trainee/test/trainee_test.mjs" --url "$(cat "$out/url")" --out "$out" \
   >"$out/page_test.log" 2>&1
 rc=$?
 cat "$out/page_test.log" >&2

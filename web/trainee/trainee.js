@@ -13,10 +13,14 @@
 // at 60 Hz, and binary mesh frames (web/common/mesh_frames.js) from the
 // session's mesh stream.
 //
-// Input lands where the trainee looks: the tip follows the point under the
-// cursor on the plane through the tip that faces the camera most (the
-// horizontal plane from above), so the depth stays while the mouse moves;
-// the wheel and the arrow keys change the depth along that plane's axis.
+// Input lands where the trainee looks: the cursor points at the place on
+// the tissue where the blade goes in. The mouse moves the tip in the plane
+// through it that faces the camera most (the horizontal plane from above),
+// so the depth stays while the mouse moves, and puts the tip where the
+// blade, at that depth, crosses the tissue's face towards the camera under
+// the cursor: a line seen on the surface is cut where it is seen, whatever
+// the depth and the view's tilt. The wheel and the arrow keys change the
+// depth along that plane's axis.
 
 import * as THREE from 'three';
 import { parseMeshFrame, KIND_SNAPSHOT } from '/common/mesh_frames.js';
@@ -37,6 +41,7 @@ const FOV_DEG = 35;
 const VIEW_DIRECTION = new THREE.Vector3(0.0, -0.55, 1.0).normalize();  // from above, tilted towards −y
 const HEARTBEAT_MS = 1000;
 const ARROW_FULL_LENGTH = 0.03;  // m, the arrow of the largest force
+const PLAN_RADIUS = 0.00025;     // m, the planned incision's tube
 
 const state = {
   ws: null,
@@ -53,6 +58,7 @@ const state = {
   lastCuts: 0,
   lastSentMs: 0,
   surfaceGap: null,       // m, tip above (+) or below (−) the surface under it; null: no surface there
+  tissueBox: null,        // world box of the tissue as first shown: the cursor aims on its face towards the camera
 };
 
 // What the tests and the latency benchmark read.
@@ -70,10 +76,11 @@ const stats = {
   rendered: 0,
   fps: 0,
   errors: [],
-  latencyMs: [],          // input event → first frame from a pose that includes it
+  latencyMs: [],          // input event → first force frame from a pose that includes it
+  pictureMs: [],          // input event → the animation frame after the one that drew that pose
   pending: [],            // input event times awaiting their frame
 };
-window.trainee = { state, stats, toClient, sendRaw: (text) => state.ws && state.ws.send(text) };
+window.trainee = { state, stats, toClient, worldToClient, sendRaw: (text) => state.ws && state.ws.send(text) };
 
 const canvas = document.getElementById('view');
 const $ = (id) => document.getElementById(id);
@@ -228,11 +235,12 @@ function applyMesh(buffer) {
       scene.add(surfaceMesh);
     }
     if (!view.framed && frame.V > 0) {
+      state.tissueBox = geometry.boundingBox.clone();
       // The tissue fills the view, with room around it for the tool.
       const box = geometry.boundingBox.clone();
       const centre = box.getCenter(new THREE.Vector3());
-      box.min.sub(centre).multiplyScalar(1.6).add(centre);
-      box.max.sub(centre).multiplyScalar(1.6).add(centre);
+      box.min.sub(centre).multiplyScalar(1.3).add(centre);
+      box.max.sub(centre).multiplyScalar(1.3).add(centre);
       frameOn(box);
       view.framed = true;
     }
@@ -270,8 +278,12 @@ function onHello(m) {
   planLine = null;
   if (state.plan.length >= 2) {
     const points = state.plan.map((p) => new THREE.Vector3(p[0], p[1], p[2]));
-    planLine = new THREE.Line(new THREE.BufferGeometry().setFromPoints(points),
-      new THREE.LineBasicMaterial({ color: COLOURS.plan, depthTest: false }));
+    // A thin tube rather than a line: WebGL draws lines one pixel wide,
+    // too faint on the tissue to aim at.
+    const path = new THREE.CurvePath();
+    for (let i = 1; i < points.length; ++i) path.add(new THREE.LineCurve3(points[i - 1], points[i]));
+    planLine = new THREE.Mesh(new THREE.TubeGeometry(path, 16 * (points.length - 1), PLAN_RADIUS, 8, false),
+      new THREE.MeshBasicMaterial({ color: COLOURS.plan, depthTest: false }));
     planLine.renderOrder = 5;
     scene.add(planLine);
   }
@@ -315,18 +327,45 @@ function inputAxis() {
 }
 
 const ndc = new THREE.Vector2();
-/** Moves the commanded tip to the point under the client point (x, y) at its depth. */
+
+/**
+ * Where the cursor aims along the input axis: the tissue's face towards the
+ * camera as first shown (its top seen from above); without a tissue view,
+ * the tip's own plane.
+ */
+function aimLevel(axis, sign, tip) {
+  const box = state.tissueBox;
+  if (!box) return tip.getComponent(axis);
+  return sign > 0 ? box.max.getComponent(axis) : box.min.getComponent(axis);
+}
+
+/**
+ * From the tip (world) to where its blade crosses the aim level: along the
+ * blade while it is within 60° of the input axis, else straight along the
+ * axis.
+ */
+function tipToAim(tip, axis, level) {
+  const d = bladeDirection();
+  const along = Math.abs(d[axis]) >= 0.5 ? new THREE.Vector3(d[0], d[1], d[2])
+    : new THREE.Vector3().setComponent(axis, 1);
+  return along.multiplyScalar((level - tip.getComponent(axis)) / along.getComponent(axis));
+}
+
+/** Moves the commanded tip, at its depth, under the client point (x, y) (see the file's comment). */
 function aimAt(clientX, clientY) {
   if (!state.workspace) return;
   const r = canvas.getBoundingClientRect();
   ndc.set(2 * (clientX - r.left) / r.width - 1, 1 - 2 * (clientY - r.top) / r.height);
   raycaster.setFromCamera(ndc, camera);
-  const { axis } = inputAxis();
+  const { axis, sign } = inputAxis();
   const tip = toWorld(commandedDevice());
+  const level = aimLevel(axis, sign, tip);
   const normal = new THREE.Vector3().setComponent(axis, 1);
-  const plane = new THREE.Plane().setFromNormalAndCoplanarPoint(normal, tip);
+  const plane = new THREE.Plane(normal, -level);
   const hit = raycaster.ray.intersectPlane(plane, new THREE.Vector3());
   if (!hit) return;
+  hit.sub(tipToAim(tip, axis, level));  // the tip at its depth under the aimed point
+  hit.setComponent(axis, tip.getComponent(axis));
   const d = toDevice(hit);
   const ws = state.workspace;
   const n = d.map((x, i) => clamp01((x - ws.min[i]) / (ws.max[i] - ws.min[i])));
@@ -335,12 +374,19 @@ function aimAt(clientX, clientY) {
   if (axis !== 2) state.w = n[2];
 }
 
-/** The client point over device (x, y) at the commanded depth (tests). */
-function toClient(x, y) {
-  const d = commandedDevice();
-  const p = toWorld([x, y, d[2]]).project(camera);
+/** The client point of world point `p` ([x, y, z], m) in the view (tests). */
+function worldToClient(p) {
+  const q = new THREE.Vector3(p[0], p[1], p[2]).project(camera);
   const r = canvas.getBoundingClientRect();
-  return { x: r.left + (p.x + 1) / 2 * r.width, y: r.top + (1 - p.y) / 2 * r.height };
+  return { x: r.left + (q.x + 1) / 2 * r.width, y: r.top + (1 - q.y) / 2 * r.height };
+}
+
+/** The client point that puts the tip over device (x, y) at the commanded depth (tests). */
+function toClient(x, y) {
+  const { axis, sign } = inputAxis();
+  const tip = toWorld([x, y, commandedDevice()[2]]);
+  const aimed = tip.clone().add(tipToAim(tip, axis, aimLevel(axis, sign, tip)));
+  return worldToClient([aimed.x, aimed.y, aimed.z]);
 }
 
 function stepDepth(sign) {
@@ -464,14 +510,17 @@ function onFrame(m) {
   stats.maxForceSeen = Math.max(stats.maxForceSeen, f);
   stats.maxCuts = Math.max(stats.maxCuts, m.cuts);
   state.lastCuts = m.cuts;
-  // Latency: every input up to the newest sample in the rendered pose.
+  // Latency: every input up to the newest sample in the rendered pose; the
+  // view draws that pose at the next animation frame.
   if (m.used_ms >= 0) {
     let n = 0;
     while (n < stats.pending.length && stats.pending[n] <= m.used_ms + 1e-3) ++n;
     for (let i = 0; i < n; ++i) {
       if (stats.latencyMs.length < 100000) stats.latencyMs.push(now - stats.pending[i]);
+      if (toDraw.length < 1000) toDraw.push(stats.pending[i]);
     }
     stats.pending.splice(0, n);
+    if (n > 0) dirty = true;
   }
   $('force-value').textContent = `${f.toFixed(2)} N`;
   $('force-bar').style.width = `${Math.min(100, 100 * f / state.maxForce).toFixed(1)}%`;
@@ -579,8 +628,18 @@ function placeTool() {
 let fpsWindowStart = performance.now();
 let fpsFrames = 0;
 let lastBlade = '';
+// Input-to-picture: the input times whose pose a force frame brought
+// (toDraw), then drawn and waiting for the next animation frame, by which
+// the drawn frame has gone to the compositor (drawn).
+let toDraw = [];
+let drawn = [];
 function draw(now) {
   requestAnimationFrame(draw);
+  if (drawn.length > 0) {
+    const shown = performance.now();
+    for (const t of drawn) if (stats.pictureMs.length < 100000) stats.pictureMs.push(shown - t);
+    drawn = [];
+  }
   const blade = `${state.tiltX} ${state.tiltY}`;
   if (blade !== lastBlade) {
     lastBlade = blade;
@@ -590,6 +649,8 @@ function draw(now) {
   dirty = false;
   placeTool();
   renderer.render(scene, camera);
+  drawn = toDraw;
+  toDraw = [];
   stats.rendered += 1;
   fpsFrames += 1;
   if (now - fpsWindowStart >= 1000) {

@@ -3,7 +3,7 @@
 // the ligament (scenes/ligament.pbtxt):
 //
 //   node web/trainee/test/trainee_test.mjs --url http://127.0.0.1:PORT/?token=T [--out DIR]
-//        [--bench N] [--chromium PATH]
+//        [--chromium PATH]
 //
 // Drives Debian's chromium headless through playwright-core (from
 // web/observer's npm packages) at 1280×720: the page shows the tissue in
@@ -13,49 +13,19 @@
 // Screenshots before and after the cut go to DIR (trainee-before.png,
 // trainee-after.png). Plain WebSocket clients (ws) try a wrong token, a
 // foreign Origin, a rebound Host, a second trainee, oversized and malformed
-// messages. With --bench N, N mouse moves are timed from the input event to
-// the first force frame computed from a pose that includes it.
+// messages.
 // Prints `ok NAME` or `FAIL NAME: why` per check and a JSON summary line
 // (also DIR/summary.json); exits 0 when every check passes, 1 otherwise.
 
 import fs from 'node:fs';
 import path from 'node:path';
-import { createRequire } from 'node:module';
-import { fileURLToPath } from 'node:url';
+import { check, classifyCanvas, openTraineePage, parseArgs, require, results, sleep } from './page.mjs';
 
-const here = path.dirname(fileURLToPath(import.meta.url));
-const require = createRequire(path.join(here, '../../observer/package.json'));
-const { chromium } = require('playwright-core');
 const WebSocket = require('ws');
-
-function parseArgs(argv) {
-  const args = { url: null, out: null, bench: 0, chromium: '/usr/bin/chromium' };
-  for (let i = 0; i < argv.length; ++i) {
-    const value = () => argv[++i];
-    switch (argv[i]) {
-      case '--url': args.url = value(); break;
-      case '--out': args.out = value(); break;
-      case '--bench': args.bench = Number(value()); break;
-      case '--chromium': args.chromium = value(); break;
-      default:
-        console.error(`trainee_test: unknown argument ${argv[i]}`);
-        process.exit(2);
-    }
-  }
-  if (!args.url) { console.error('usage: trainee_test.mjs --url URL [--out DIR] [--bench N]'); process.exit(2); }
-  return args;
-}
-
-const args = parseArgs(process.argv.slice(2));
+const args = parseArgs(process.argv.slice(2), 'trainee_test.mjs --url URL [--out DIR] [--chromium PATH]');
 const url = new URL(args.url);
 const token = url.searchParams.get('token');
 const wsUrl = (t) => `ws://${url.host}/ws?token=${t}`;
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-const results = [];
-function check(name, ok, why) {
-  results.push({ name, ok, why: ok ? undefined : why });
-  console.log(ok ? `ok ${name}` : `FAIL ${name}: ${why}`);
-}
 
 /// Opens a WebSocket; resolves {opened, status, closeCode}.
 function tryWs(target, options = {}, onOpen = null) {
@@ -67,31 +37,6 @@ function tryWs(target, options = {}, onOpen = null) {
     ws.on('open', () => { opened = true; if (onOpen) onOpen(ws); });
     ws.on('close', (code) => resolve({ opened, closeCode: code }));
   });
-}
-
-/// Pixel classes of the page's WebGL canvas (the observer test's rules).
-function classifyCanvas() {
-  const src = document.getElementById('view');
-  const c = document.createElement('canvas');
-  c.width = src.width;
-  c.height = src.height;
-  const g = c.getContext('2d');
-  g.drawImage(src, 0, 0);
-  const d = g.getImageData(0, 0, c.width, c.height).data;
-  const counts = { pixels: c.width * c.height, tissue: 0, tool: 0, cut: 0 };
-  for (let i = 0; i < d.length; i += 4) {
-    const r = d[i], gr = d[i + 1], b = d[i + 2];
-    const hi = Math.max(r, gr, b), lo = Math.min(r, gr, b);
-    if (hi < 40 || hi === lo) continue;
-    const delta = hi - lo;
-    let hue = hi === r ? (60 * (gr - b)) / delta : hi === gr ? 60 * (2 + (b - r) / delta) : 60 * (4 + (r - gr) / delta);
-    if (hue < 0) hue += 360;
-    const sat = delta / hi;
-    if ((hue >= 345 || hue <= 20) && sat >= 0.2 && sat <= 0.6) counts.tissue += 1;
-    if (hue >= 195 && hue <= 250 && sat >= 0.04 && sat <= 0.22) counts.tool += 1;
-    if (hue >= 30 && hue <= 65 && sat >= 0.6) counts.cut += 1;
-  }
-  return counts;
 }
 
 async function hostileChecks(page) {
@@ -118,18 +63,9 @@ async function hostileChecks(page) {
 }
 
 async function main() {
-  const browser = await chromium.launch({
-    executablePath: args.chromium,
-    args: ['--headless=new', '--use-gl=swiftshader', '--enable-unsafe-swiftshader', '--no-sandbox'],
-  });
-  const page = await browser.newPage({ viewport: { width: 1280, height: 720 } });
-  const errors = [];
-  page.on('pageerror', (e) => errors.push(String(e)));
-  await page.goto(args.url);
-  await page.waitForFunction(() => window.trainee && window.trainee.stats.framesReceived > 5, null, { timeout: 15000 });
+  const { browser, page, errors } = await openTraineePage(args);
   check('page-connects', true);
   // The tissue from the session's mesh stream, the scalpel over it.
-  await page.waitForFunction(() => window.trainee.stats.meshFrames >= 1, null, { timeout: 20000 }).catch(() => {});
   await sleep(500);
   const before = await page.evaluate(classifyCanvas);
   check('page-shows-tissue-and-blade', before.tissue >= 2000 && before.tool >= 30,
@@ -192,25 +128,6 @@ async function main() {
 
   await hostileChecks(page);
 
-  let bench = null;
-  if (args.bench > 0) {
-    await page.evaluate(() => { window.trainee.stats.latencyMs = []; window.trainee.stats.pending = []; });
-    // Above the ligament (the tip is back at +20 mm), inside the view.
-    const a = await to(0.01, 0.0);
-    const b = await to(0.02, 0.0);
-    for (let i = 0; i < args.bench; ++i) {
-      const f = 0.5 + 0.5 * Math.sin(i / 10);
-      await page.mouse.move(a.x + f * (b.x - a.x), a.y);
-      await sleep(8 + (i % 9));  // ~60–120 Hz, off the frame clock
-    }
-    await sleep(300);
-    const lat = (await page.evaluate(() => window.trainee.stats.latencyMs)).slice().sort((a, b) => a - b);
-    const q = (f) => lat[Math.min(lat.length - 1, Math.floor(f * lat.length))];
-    const r = (x) => Math.round(x * 100) / 100;
-    bench = { kind: 'trainee_latency', inputs: args.bench, samples: lat.length, p10_ms: r(q(0.1)), p50_ms: r(q(0.5)),
-      p90_ms: r(q(0.9)), p99_ms: r(q(0.99)), max_ms: r(lat[lat.length - 1]) };
-    check('latency-measured', lat.length >= args.bench * 0.9, `${lat.length} of ${args.bench} inputs timed`);
-  }
   // An oversized message closes the trainee's socket; the slot is free again.
   await page.evaluate(() => window.trainee.sendRaw('p'.repeat(4096)));
   await page.waitForFunction(() => window.trainee.stats.closeCode !== null, null, { timeout: 5000 }).catch(() => {});
@@ -220,10 +137,10 @@ async function main() {
   check('slot-free-after-close', next.opened, JSON.stringify(next));
   check('page-reports-no-errors', errors.length === 0, errors.join('; '));
   await browser.close();
-  const summary = { kind: 'trainee_test', passed: results.every((r) => r.ok), results, latency: bench,
+  const summary = { kind: 'trainee_test', passed: results.every((r) => r.ok), results,
     view_fps: Math.round(fps * 10) / 10, pixels_before: before, pixels_after: after };
   if (args.out) fs.writeFileSync(path.join(args.out, 'summary.json'), JSON.stringify(summary, null, 1));
-  console.log(JSON.stringify(bench ?? summary));
+  console.log(JSON.stringify(summary));
   process.exit(summary.passed ? 0 : 1);
 }
 
