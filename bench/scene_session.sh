@@ -62,6 +62,12 @@ print(json.dumps({
     "implicit": {k: srv.get(k, 0) for k in ("out_of_time_steps", "over_budget_steps", "max_residual_out_of_time",
                                             "recovered_steps", "factor_corrections", "pcg_iterations",
                                             "factorizations")},
+    # Where the frames went (server/frame_profile.h): each stage's mean and
+    # largest time, the overrunning frames it led, and the slowest frame.
+    "stages_ms": {e["stage"]: {"mean": round(e.get("mean_ms", 0), 3), "max": round(e.get("max_ms", 0), 1),
+                               "overruns_led": e.get("overruns_led", 0)}
+                  for e in srv.get("frame_stages", []) if e.get("max_ms", 0) >= 0.05},
+    "slowest_frame": (srv.get("slowest_frames") or [None])[0],
     "loadavg_1min": float(open("/proc/loadavg").read().split()[0]),
 }))
 sys.exit(0 if met else 1)
