@@ -155,9 +155,16 @@ void ObserverServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<htt
                            return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '-' || c == '_';
                          });
       if (!valid) {
+        // Refused with a reply that names the parameter; the connection
+        // closes once it is written.
         Count([](ObserverServerStats& st) { ++st.refused_channel; });
-        beast::error_code ec;
-        stream.socket().close(ec);
+        auto reply = MakeReply(req, http::status::bad_request,
+                               "session: must be 1 to 50 characters of A-Z a-z 0-9 _ -\n", "text/plain");
+        auto conn = std::make_shared<beast::tcp_stream>(std::move(stream));
+        http::async_write(*conn, *reply, [conn, reply, hold](beast::error_code, size_t) {
+          beast::error_code ec;
+          conn->socket().shutdown(tcp::socket::shutdown_both, ec);
+        });
         return;
       }
       channel = std::move(*session);
