@@ -3,17 +3,57 @@
 #include <cstdio>
 #include <filesystem>
 #include <tuple>
+#include <vector>
 
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
 #include "common/core/log.h"
+#include "common/record/score_history.h"
 #include "common/transport/dds.h"
 #include "common/transport/stream_auth.h"
 #include "common/web/lab_bridge.h"
 #include "viewer_client/viewer_app.h"
 
 namespace cutsim::viewer {
+namespace {
+
+/// Sessions of each trainee the list shows, at most.
+constexpr size_t kTrendSessions = 20;
+
+/// The listed trainees' latest finished sessions from the lab's history.
+/// A history that cannot be read (missing, locked, corrupt, another
+/// version) is logged once per distinct error and leaves the trends empty:
+/// the lab page goes on without them.
+web::Trends ReadTrends(const std::string& path, const std::vector<web::LabSessionView>& views,
+                       std::string* last_error) {
+  web::Trends trends;
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) return trends;  // no session has finished yet; never created here
+  try {
+    const record::ScoreHistory history = record::ScoreHistory::Open(path);
+    for (const web::LabSessionView& v : views) {
+      const std::string& trainee = v.entry.status.trainee();
+      if (trainee.empty() || !record::CheckTraineeName(trainee).empty() || trends.contains(trainee)) continue;
+      const std::vector<record::SessionEntry> entries = history.ForTrainee(trainee);
+      std::vector<web::TrendPoint>& points = trends[trainee];
+      const size_t first = entries.size() > kTrendSessions ? entries.size() - kTrendSessions : 0;
+      for (size_t i = first; i < entries.size(); ++i) {
+        const record::SessionEntry& e = entries[i];
+        points.push_back({.finished_unix_s = e.finished_unix_s, .duration = e.duration,
+                          .mean_deviation = e.mean_deviation, .depth_error = e.depth_error,
+                          .peak_force = e.peak_force});
+      }
+    }
+    last_error->clear();
+  } catch (const std::exception& e) {
+    if (*last_error != e.what()) Log().warn("lab: no trends: {}", e.what());
+    *last_error = e.what();
+  }
+  return trends;
+}
+
+}  // namespace
 
 int RunLab(const ViewerOptions& o, const volatile int& stop) {
   const int64_t start_ns = MonotonicNs();
@@ -41,7 +81,14 @@ int RunLab(const ViewerOptions& o, const volatile int& stop) {
   std::fflush(stdout);
   Log().info("lab: listing every session on DDS domain {}", o.dds_domain);
   const char* reason = "signal";
+  int64_t next_trends_ns = 0;
+  std::string history_error;
   while (stop == 0) {
+    if (!o.history.empty() && MonotonicNs() >= next_trends_ns) {
+      // Sessions finish rarely: the history is read every 10 s.
+      next_trends_ns = MonotonicNs() + 10'000'000'000;
+      bridge.SetTrends(ReadTrends(o.history, bridge.Views(), &history_error));
+    }
     if (o.duration && MonotonicNs() - start_ns >= static_cast<int64_t>(*o.duration * 1e9)) {
       reason = "duration";
       break;

@@ -324,6 +324,10 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
                                "tree)")
                     ->capture_default_str(),
                 kLab);
+  modes.Declare(app.add_option("--history", options_.history,
+                               "The lab's score history (cutsim-server --history): the lab page shows each "
+                               "listed trainee's trend over their finished sessions"),
+                kLab);
   modes.Declare(app.add_option("--host-name", options_.host_names,
                                "A further name browsers may open the page at (the Host and Origin it accepts; "
                                "repeat for more)"),

@@ -38,6 +38,7 @@ struct ViewerOptions {
   std::string web_root;    ///< The page's files (web/observer).
   std::string lab;         ///< HOST:PORT of the lab page (every session on the domain); empty: none.
   std::string lab_root;    ///< The lab page's files (web/lab).
+  std::string history;     ///< The lab's score history (SQLite): trainees' trends on the lab page; empty: none.
   std::string key_file;    ///< Session key: only frames signed with it are shown; empty: $CUTSIM_SESSION_KEY, else open.
 };
 

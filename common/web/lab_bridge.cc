@@ -63,9 +63,21 @@ std::string ScoreJson(const v1::IncisionScore& s) {
       JsonNumber(s.duration()));
 }
 
+std::string TrendJson(const std::vector<TrendPoint>& points) {
+  std::string out = "[";
+  for (size_t i = 0; i < points.size(); ++i) {
+    const TrendPoint& p = points[i];
+    out += fmt::format("{}{{\"finished\":{},\"duration\":{},\"mean_deviation\":{},\"depth_error\":{},"
+                       "\"peak_force\":{}}}",
+                       i ? "," : "", p.finished_unix_s, JsonNumber(p.duration), JsonNumber(p.mean_deviation),
+                       JsonNumber(p.depth_error), JsonNumber(p.peak_force));
+  }
+  return out + "]";
+}
+
 }  // namespace
 
-std::string LabListJson(const std::vector<LabSessionView>& sessions, bool authenticated) {
+std::string LabListJson(const std::vector<LabSessionView>& sessions, bool authenticated, const Trends& trends) {
   std::string out = fmt::format("{{\"type\":\"lab\",\"authenticated\":{},\"sessions\":[", authenticated);
   bool first = true;
   for (const LabSessionView& v : sessions) {
@@ -75,13 +87,18 @@ std::string LabListJson(const std::vector<LabSessionView>& sessions, bool authen
     out += fmt::format(
         "{{\"session\":{},\"scene\":{},\"trainee\":{},\"live\":{},\"trainee_connected\":{},\"cuts\":{},"
         "\"sim_time\":{},\"wall_time\":{},\"overruns_per_s\":{},\"watched\":{},\"current\":{},"
-        "\"frame_age_ms\":{},\"frames_per_s\":{},\"bridge_gaps\":{},\"resyncs\":{},\"metrics\":{},\"score\":{}}}",
+        "\"frame_age_ms\":{},\"frames_per_s\":{},\"bridge_gaps\":{},\"resyncs\":{},\"metrics\":{},\"score\":{},"
+        "\"trend\":{}}}",
         JsonString(v.entry.session), JsonString(st.scene()), JsonString(st.trainee()), v.entry.live,
         v.entry.trainee_connected, st.cuts(), JsonNumber(st.sim_time()), JsonNumber(st.wall_time()),
         JsonNumber(v.entry.overruns_per_s), v.watched, v.current,
         v.frame_age_ms >= 0 ? JsonNumber(v.frame_age_ms) : std::string("null"), JsonNumber(v.frames_per_s),
         v.bridge_gaps, v.resyncs, v.metrics ? MetricsJson(*v.metrics) : std::string("null"),
-        st.has_score() ? ScoreJson(st.score()) : std::string("null"));
+        st.has_score() ? ScoreJson(st.score()) : std::string("null"),
+        [&] {
+          const auto it = trends.find(st.trainee());
+          return it != trends.end() && !st.trainee().empty() ? TrendJson(it->second) : std::string("[]");
+        }());
   }
   return out + "]}";
 }
@@ -187,7 +204,7 @@ std::vector<LabSessionView> LabBridge::Views() {
 }
 
 void LabBridge::SendList() {
-  auto text = std::make_shared<const std::string>(LabListJson(Views(), directory_.authenticated()));
+  auto text = std::make_shared<const std::string>(LabListJson(Views(), directory_.authenticated(), trends_));
   server_->SetJoinMessages("", {{text, false}});
   server_->Broadcast("", {{text, false}});
   ++stats_.lists_sent;

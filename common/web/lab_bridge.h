@@ -46,10 +46,27 @@ struct LabSessionView {
   std::optional<v1::SessionMetrics> metrics;  ///< As of its newest frame.
 };
 
+/// One finished session of a trainee, for the list's trend (SI units).
+struct TrendPoint {
+  int64_t finished_unix_s = 0;
+  double duration = 0;        ///< s
+  double mean_deviation = 0;  ///< m
+  double depth_error = 0;     ///< m
+  double peak_force = 0;      ///< N
+};
+
+/// Each trainee's latest finished sessions, oldest first (the lab's score
+/// history, read by the app).
+using Trends = std::map<std::string, std::vector<TrendPoint>>;
+
 /// The lab list as one JSON text: {"type":"lab","authenticated":…,
 /// "sessions":[{…}, …]}. Strings are escaped and limited to printable ASCII
 /// (anything else becomes '?'); non-finite numbers are null.
-[[nodiscard]] std::string LabListJson(const std::vector<LabSessionView>& sessions, bool authenticated);
+/// With `trends`, each session whose trainee has finished sessions carries
+/// them as "trend": [{finished, duration, mean_deviation, depth_error,
+/// peak_force}, …].
+[[nodiscard]] std::string LabListJson(const std::vector<LabSessionView>& sessions, bool authenticated,
+                                      const Trends& trends = {});
 
 /// The bridge's settings.
 struct LabBridgeOptions {
@@ -86,6 +103,8 @@ class LabBridge {
   [[nodiscard]] const LabBridgeStats& stats() const { return stats_; }
   /// The list as the page last received it (or would now).
   [[nodiscard]] std::vector<LabSessionView> Views();
+  /// The trainees' trends the list carries from now on.
+  void SetTrends(Trends trends) { trends_ = std::move(trends); }
 
  private:
   struct Watched;
@@ -97,6 +116,7 @@ class LabBridge {
   std::unique_ptr<ObserverServer> server_;
   transport::SessionDirectory directory_;
   std::map<std::string, std::unique_ptr<Watched>> watched_;
+  Trends trends_;
   int64_t next_list_ns_ = 0;
   LabBridgeStats stats_;
 };

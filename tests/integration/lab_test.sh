@@ -5,7 +5,8 @@
 # by name. Debian's chromium (web/observer/test/lab_test.mjs) checks that the
 # page lists the three live, shows each in the grid with frames arriving,
 # shows bay-1's station connected, shows bay-3 stopped once its server is
-# stopped, and opens a session's observer page from the grid. Runs in a
+# stopped and then its trainee's trend from the lab's history (the stopped
+# server appended the session), and opens a session's observer page from the grid. Runs in a
 # private loopback namespace (deploy/netns-run.sh).
 #
 #   tests/integration/lab_test.sh BIN_DIR [OUT_DIR]
@@ -37,7 +38,8 @@ trap cleanup EXIT
 
 cd "$src"
 port=18090
-"$bin/cutsim-viewer" --lab "127.0.0.1:$port" --duration 170 >"$out/lab.out" 2>"$out/lab.log" &
+"$bin/cutsim-viewer" --lab "127.0.0.1:$port" --history "$out/history.sqlite" --duration 170 \
+  >"$out/lab.out" 2>"$out/lab.log" &
 pids+=($!)
 declare -A server_pid
 trainees=(ada grace linus)

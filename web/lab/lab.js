@@ -290,6 +290,56 @@ function cellText(tag, text, cls) {
   return td;
 }
 
+const SVG_NS = 'http://www.w3.org/2000/svg';
+
+/**
+ * A sparkline of the trainee's finished sessions (oldest left): the mean
+ * deviation as a line, the peak force as dots, each scaled to its own
+ * range; the tooltip lists the values.
+ */
+function trendCell(trend) {
+  const td = document.createElement('td');
+  td.className = 'trend';
+  const points = Array.isArray(trend) ? trend.filter((p) => p && typeof p === 'object') : [];
+  if (points.length === 0) {
+    td.textContent = '–';
+    return td;
+  }
+  const width = 90;
+  const height = 22;
+  const svg = document.createElementNS(SVG_NS, 'svg');
+  svg.setAttribute('width', width);
+  svg.setAttribute('height', height);
+  const x = (i) => (points.length === 1 ? width / 2 : 3 + (i * (width - 6)) / (points.length - 1));
+  const scaled = (key) => {
+    const values = points.map((p) => num(p[key]) ?? 0);
+    const lo = Math.min(...values);
+    const hi = Math.max(...values);
+    return values.map((v) => (hi > lo ? height - 3 - ((v - lo) * (height - 6)) / (hi - lo) : height / 2));
+  };
+  const dev = scaled('mean_deviation');
+  const line = document.createElementNS(SVG_NS, 'polyline');
+  line.setAttribute('points', dev.map((y, i) => `${x(i).toFixed(1)},${y.toFixed(1)}`).join(' '));
+  line.setAttribute('fill', 'none');
+  line.setAttribute('stroke', '#8fb8ff');
+  line.setAttribute('stroke-width', '1.5');
+  svg.appendChild(line);
+  scaled('peak_force').forEach((y, i) => {
+    const dot = document.createElementNS(SVG_NS, 'circle');
+    dot.setAttribute('cx', x(i).toFixed(1));
+    dot.setAttribute('cy', y.toFixed(1));
+    dot.setAttribute('r', '1.8');
+    dot.setAttribute('fill', '#ebb91e');
+    svg.appendChild(dot);
+  });
+  td.appendChild(svg);
+  td.append(` ${points.length}`);
+  td.title = points.map((p, i) => `#${i + 1}: deviation ${fmt(p.mean_deviation, 1e3, 2, 'mm')}, depth error ` +
+    `${fmt(p.depth_error, 1e3, 2, 'mm')}, peak ${fmt(p.peak_force, 1, 2, 'N')}, ${fmt(p.duration, 1, 0, 's')}`).join('\n');
+  td.dataset.sessions = String(points.length);
+  return td;
+}
+
 function renderList() {
   const rows = document.getElementById('session-rows');
   rows.replaceChildren();
@@ -336,6 +386,7 @@ function renderList() {
     tr.appendChild(cellText('td', s.score ? fmt(s.score.depth_error, 1e3, 2, 'mm') : '–', 'num'));
     tr.appendChild(cellText('td', s.score ? fmt(s.score.coverage, 100, 0, '%') : '–', 'num'));
     tr.appendChild(cellText('td', s.metrics ? fmt(s.metrics.peak_force, 1, 2, 'N') : '–', 'num'));
+    tr.appendChild(trendCell(s.trend));
     const frames = s.live ? `${(num(s.frames_per_s) ?? 0).toFixed(0)}/s, ${s.frame_age_ms === null ? '–'
       : `${num(s.frame_age_ms).toFixed(0)} ms`}, ${(num(s.overruns_per_s) ?? 0).toFixed(1)} late/s` : '–';
     tr.appendChild(cellText('td', frames, 'num'));

@@ -17,7 +17,8 @@
 // station then),
 // stopped-session-shown (after the driver stops one server, on the
 // --stop-file it is asked to, the list shows it stopped and the others
-// live), opens-observer-view (clicking a grid cell opens that session's
+// live), trend-shown (the stopped session's trainee gets a trend from the
+// lab's history), opens-observer-view (clicking a grid cell opens that session's
 // observer page, which shows it), page-reports-no-errors.
 
 import fs from 'node:fs';
@@ -141,6 +142,19 @@ async function main() {
       if (rowClass !== 'stopped') throw new Error(`the stopped session's row is '${rowClass}'`);
       await screenshot(page, 'lab-one-stopped');
       report('stopped-session-shown', true, '', { list });
+    });
+
+    await check('trend-shown', async () => {
+      // The stopped server appended its session to the lab's history; the
+      // bridge reads it every 10 s and the list carries the trainee's trend.
+      await page.waitForFunction((n) => window.labState.sessions.some(
+        (s) => s.session === n && Array.isArray(s.trend) && s.trend.length > 0), args.stopped,
+      { timeout: LIST_LIMIT_MS });
+      await page.waitForFunction((n) => Number(document.querySelector(
+        `#session-rows tr[data-session="${n}"] td.trend`)?.dataset.sessions) > 0, args.stopped,
+      { timeout: LIST_LIMIT_MS });
+      await screenshot(page, 'lab-trend');
+      report('trend-shown', true);
     });
 
     await check('opens-observer-view', async () => {
