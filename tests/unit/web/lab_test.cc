@@ -138,6 +138,24 @@ TEST(LabListJsonTest, EscapesStringsAndWritesNonFiniteNumbersAsNull) {
   EXPECT_NE(json.find(R"("mean_deviation":0.0015)"), std::string::npos) << json;
   EXPECT_NE(json.find(R"("metrics":null)"), std::string::npos) << json;
   for (const char c : json) EXPECT_TRUE(c >= 0x20 && c < 0x7f) << "not printable ASCII: " << static_cast<int>(c);
+  EXPECT_NE(json.find(R"("trend":[])"), std::string::npos) << "no trainee, no trend: " << json;
+}
+
+TEST(LabListJsonTest, ASessionCarriesItsTraineesTrendAndNoOneElses) {
+  LabSessionView ada, bob;
+  ada.entry.session = "bay-1";
+  ada.entry.status.set_trainee("ada");
+  bob.entry.session = "bay-2";
+  bob.entry.status.set_trainee("bob");
+  const Trends trends = {{"ada", {{.finished_unix_s = 100, .duration = 30, .mean_deviation = 0.002},
+                                  {.finished_unix_s = 200, .duration = 25, .mean_deviation = 0.001}}}};
+  const std::string json = LabListJson({ada, bob}, true, trends);
+  const size_t bay2 = json.find(R"("session":"bay-2")");
+  ASSERT_NE(bay2, std::string::npos);
+  const size_t trend = json.find(R"("trend":[{"finished":100,"duration":30,"mean_deviation":0.002)");
+  EXPECT_LT(trend, bay2) << json;
+  EXPECT_NE(json.find(R"({"finished":200,)"), std::string::npos) << json;
+  EXPECT_NE(json.find(R"("trend":[])", bay2), std::string::npos) << "bob has no finished session: " << json;
 }
 
 /// A WebSocket client of the server on loopback.
