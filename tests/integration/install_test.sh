@@ -123,7 +123,8 @@ need=("$bin/cutsim-server" "$bin/cutsim-haptic" "$bin/cutsim-viewer"
       "$data/web/observer/node_modules/three/LICENSE"
       "$data/dds/cyclonedds-loopback.xml" "$data/dds/cyclonedds-unicast.xml" "$data/dds/cyclonedds-lan.xml"
       "$prefix/share/doc/cutsim/README.md" "$prefix/share/doc/cutsim/lab-guide.md"
-      "$units/cutsim-server@.service" "$units/cutsim-haptic@.service" "$units/cutsim-bridge@.service")
+      "$units/cutsim-server@.service" "$units/cutsim-haptic@.service" "$units/cutsim-bridge@.service"
+      "$units/cutsim-lab.service")
 # Every shipped scene and tool path.
 for f in "$src"/scenes/*.pbtxt "$src"/scenes/*.path "$src"/scenes/*.lcm "$src"/scenes/README.md; do
   need+=("$data/scenes/$(basename "$f")")
