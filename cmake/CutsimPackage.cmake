@@ -9,7 +9,7 @@
 #   share/cutsim/dds/                                      Cyclone DDS configurations
 #   share/doc/cutsim/                                      README, lab guide, device guide
 #   /etc/cutsim/cutsim.env                                 the lab's settings (a conffile)
-#   /lib/systemd/system/cutsim-{server,haptic,bridge}@.service
+#   /lib/systemd/system/cutsim-{server,haptic,bridge}@.service, cutsim-lab.service
 # The web folder keeps the source tree's layout, so the apps resolve the same
 # relative paths in both (common/core/install_paths.h finds share/cutsim
 # beside bin/). Under /usr the configuration and the units go to /etc and
@@ -72,7 +72,7 @@ else()
   set(CUTSIM_UNIT_CONFDIR ${CMAKE_INSTALL_PREFIX}/${CUTSIM_INSTALL_CONFDIR})
 endif()
 set(_units_out ${PROJECT_BINARY_DIR}/deploy/systemd)
-foreach(unit cutsim-server@.service cutsim-haptic@.service cutsim-bridge@.service)
+foreach(unit cutsim-server@.service cutsim-haptic@.service cutsim-bridge@.service cutsim-lab.service)
   configure_file(${PROJECT_SOURCE_DIR}/deploy/systemd/${unit}.in ${_units_out}/${unit} @ONLY)
   install(FILES ${_units_out}/${unit} DESTINATION ${CUTSIM_INSTALL_UNITDIR})
 endforeach()

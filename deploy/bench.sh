@@ -146,6 +146,10 @@ echo "== observer bridge under 1100 idle connections from one peer (page time fo
 run bridge_flood "$out/bridge_flood.log" "$bin/bridge_flood_bench" --idle 1100 --seconds 5 >"$out/bridge_flood.json"
 cat "$out/bridge_flood.json" 2>/dev/null || true
 
+echo "== lab view (8 and 32 sessions: bytes/s and frames/s per watched session, the lab bridge's CPU)"
+run lab_bench "$out/lab_bench.log" "$bin/lab_bench" --bin "$bin" --seconds "${LAB_SECONDS:-5}" >"$out/lab_bench.json"
+cat "$out/lab_bench.json" 2>/dev/null || true
+
 echo "== implicit_bench (backward Euler at organ scale: step time, Newton/PCG iterations, a cut)"
 run implicit_bench "$out/implicit.log" "$bin/implicit_bench" --cases organ,organ_soft,large --steps 10 \
   > "$out/implicit.json"

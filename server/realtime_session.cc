@@ -317,7 +317,7 @@ void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
 
 void RealtimeLoop::PublishStatus(int64_t frame_start) {
   next_status_ns_ = frame_start + 1'000'000'000;
-  if (!p_.publisher.HasReaders()) return;
+  if (!p_.publisher.HasStatusReaders()) return;
   const auto s = p_.simulation.QuickSummary();
   v1::SessionStatus status;
   status.set_session(options_.session);
@@ -331,6 +331,9 @@ void RealtimeLoop::PublishStatus(int64_t frame_start) {
   status.set_kinetic_energy(s.kinetic_energy);
   status.set_frame_overruns(counters_.overruns);
   status.set_tool_messages(counters_.tool_messages);
+  status.set_scene(std::filesystem::path(options_.scene).stem().string());
+  status.set_trainee(options_.trainee);
+  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, status.mutable_score());
   p_.publisher.PublishStatus(status);
 }
 

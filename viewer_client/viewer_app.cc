@@ -34,7 +34,8 @@
 namespace cutsim::viewer {
 namespace {
 
-volatile std::sig_atomic_t g_stop = 0;
+volatile int g_stop = 0;
+static_assert(sizeof(std::sig_atomic_t) == sizeof(int));
 void OnSignal(int) { g_stop = 1; }
 
 /// Parses "x,y,z" (metres); throws InputError naming the flag.
@@ -310,9 +311,23 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   app.add_option("--key-file", options_.key_file,
                  "Session key file (hex): only mesh frames signed with it are shown "
                  "(default $CUTSIM_SESSION_KEY; neither: an open session)");
-  // The browser page's flags act only with --serve; the rest always.
-  cli::FlagModes modes({"a viewer without --serve", "--serve"});
-  constexpr cli::ModeSet kServing = 1U << 1;
+  app.add_option("--lab", options_.lab,
+                 "Serve the lab page at HOST:PORT: every session on the DDS domain, listed and watched side by "
+                 "side (loopback unless --token-file is given)");
+  // The browser page's flags act only with --serve or --lab; the rest always.
+  cli::FlagModes modes({"a viewer without --serve", "--serve", "--lab"});
+  constexpr cli::ModeSet kServing = (1U << 1) | (1U << 2);
+  constexpr cli::ModeSet kLab = 1U << 2;
+  options_.lab_root = (DataDir() / "web" / "lab").string();
+  modes.Declare(app.add_option("--lab-root", options_.lab_root,
+                               "The lab page's files (web/lab; default: the installed data folder, else the source "
+                               "tree)")
+                    ->capture_default_str(),
+                kLab);
+  modes.Declare(app.add_option("--history", options_.history,
+                               "The lab's score history (cutsim-server --history): the lab page shows each "
+                               "listed trainee's trend over their finished sessions"),
+                kLab);
   modes.Declare(app.add_option("--host-name", options_.host_names,
                                "A further name browsers may open the page at (the Host and Origin it accepts; "
                                "repeat for more)"),
@@ -333,7 +348,11 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
     return app.exit(e);
   }
   // A flag that does nothing without --serve is refused, not ignored.
-  if (const std::optional<std::string> refusal = modes.Refusal(app, options_.serve.empty() ? 0 : 1)) {
+  if (!options_.serve.empty() && !options_.lab.empty()) {
+    ThrowInputError({.field = "--lab"}, "--serve watches one session and --lab every session: give one of them");
+  }
+  const int mode = !options_.lab.empty() ? 2 : options_.serve.empty() ? 0 : 1;
+  if (const std::optional<std::string> refusal = modes.Refusal(app, mode)) {
     std::fprintf(stderr, "%s\n", refusal->c_str());
     return 2;
   }
@@ -357,6 +376,7 @@ int ViewerApp::Run() {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   const ViewerOptions& o = options_;
+  if (!o.lab.empty()) return RunLab(o, g_stop);
   const int64_t start_ns = MonotonicNs();
   FrameSink sink(o);
   transport::DdsParticipant participant(o.dds_domain, DdsConfigUri(o.dds_config));

@@ -36,8 +36,15 @@ struct ViewerOptions {
   std::string token_file;  ///< Observers' token (required off loopback).
   std::vector<std::string> host_names;  ///< Further names browsers may open the page at (--host-name).
   std::string web_root;    ///< The page's files (web/observer).
+  std::string lab;         ///< HOST:PORT of the lab page (every session on the domain); empty: none.
+  std::string lab_root;    ///< The lab page's files (web/lab).
+  std::string history;     ///< The lab's score history (SQLite): trainees' trends on the lab page; empty: none.
   std::string key_file;    ///< Session key: only frames signed with it are shown; empty: $CUTSIM_SESSION_KEY, else open.
 };
+
+/// The lab bridge's loop (`--lab`, lab_mode.cc): serves the lab page until
+/// a signal or `--duration`; returns the exit code.
+int RunLab(const ViewerOptions& options, const volatile int& stop);
 
 class ViewerApp {
  public:

@@ -149,11 +149,6 @@ void ReleaseDomain(uint32_t id) noexcept {
   Domains().erase(it);
 }
 
-bool IsSession(const char (&key)[65], std::string_view session) {
-  const size_t n = strnlen(key, sizeof(key));
-  return std::string_view(key, n) == session;
-}
-
 }  // namespace
 
 const TopicSpec& TopicSpecFor(EnvelopeKind kind) {
@@ -300,8 +295,13 @@ bool DdsWriter::WaitForAcks(std::chrono::milliseconds timeout) const {
 // ---- DdsReader ---------------------------------------------------------------------------
 
 DdsReader::DdsReader(const DdsTopic& topic, std::string session)
-    : spec_(&topic.spec()), session_(std::move(session)) {
-  ValidateSessionName(session_);
+    : DdsReader(topic, AnySession{}) {
+  ValidateSessionName(session);
+  session_ = std::move(session);
+  any_session_ = false;
+}
+
+DdsReader::DdsReader(const DdsTopic& topic, AnySession) : spec_(&topic.spec()), any_session_(true) {
   const Qos qos(*spec_);
   reader_ = dds_create_reader(topic.participant(), topic.handle(), qos.get(), nullptr);
   CUTSIM_CHECK(reader_ > 0, fmt::format("dds_create_reader({}): {}", spec_->name,
@@ -359,7 +359,8 @@ size_t DdsReader::TakeImpl(std::chrono::nanoseconds timeout, Callback cb, void* 
         continue;
       }
       const auto* e = static_cast<const cutsim_dds_Envelope*>(samples[static_cast<size_t>(i)]);
-      if (!IsSession(e->session, session_)) {
+      const std::string_view key(e->session, strnlen(e->session, sizeof(e->session)));
+      if (any_session_ ? !IsValidSessionName(key) : key != session_) {
         ++stats_.foreign_session;
         continue;
       }
@@ -368,7 +369,7 @@ size_t DdsReader::TakeImpl(std::chrono::nanoseconds timeout, Callback cb, void* 
         continue;
       }
       const EnvelopeView view{
-          .session = session_,
+          .session = key,
           .seq = e->seq,
           .kind = spec_->kind,
           .payload = std::span<const uint8_t>(e->payload._buffer, e->payload._length),

@@ -192,19 +192,27 @@ struct DdsReaderStats {
   uint64_t errors = 0;           ///< dds_take / dds_waitset_wait failures.
 };
 
-/// Reads envelopes of one session from one topic.
+/// Selects a reader of every session (DdsReader's second constructor).
+struct AnySession {};
+
+/// Reads envelopes of one session, or of every session, from one topic.
 class DdsReader {
  public:
   /// Only envelopes whose key equals `session` are delivered. Throws
   /// `InputError` (field "--session") on an invalid session name.
   DdsReader(const DdsTopic& topic, std::string session);
+  /// Envelopes of every session whose key is a valid session name are
+  /// delivered (EnvelopeView::session names each one's); others count as
+  /// foreign. For discovering the sessions on a domain.
+  DdsReader(const DdsTopic& topic, AnySession);
   ~DdsReader();
   DdsReader(const DdsReader&) = delete;
   DdsReader& operator=(const DdsReader&) = delete;
 
   /// Waits up to `timeout` for data (WaitSet on a read condition; zero does
   /// not wait), then takes every available sample, calling `fn(const
-  /// EnvelopeView&)` for each valid one of this session. Returns how many
+  /// EnvelopeView&)` for each valid one of this session (of any session for
+  /// an AnySession reader). Returns how many
   /// were delivered. Exceptions from `fn` propagate after the samples are
   /// returned to Cyclone; nothing else throws.
   template <class Fn>
@@ -226,7 +234,8 @@ class DdsReader {
   size_t TakeImpl(std::chrono::nanoseconds timeout, Callback cb, void* ctx);
 
   const TopicSpec* spec_;
-  std::string session_;
+  std::string session_;  // empty when any_session_
+  bool any_session_ = false;
   DdsEntity reader_ = 0;
   DdsEntity read_condition_ = 0;
   DdsEntity waitset_ = 0;

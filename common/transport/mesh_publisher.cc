@@ -96,6 +96,8 @@ bool MeshStreamPublisher::HasReaders() const {
   return snapshot_writer_.matched_readers() > 0 || delta_writer_.matched_readers() > 0;
 }
 
+bool MeshStreamPublisher::HasStatusReaders() const { return status_writer_.matched_readers() > 0; }
+
 void MeshStreamPublisher::PublishFrame(const std::function<void(MeshFrame&)>& fill) {
   ++stats_.frames;
   const DdsMatch snapshot_match = snapshot_writer_.match();

@@ -67,6 +67,9 @@ class MeshStreamPublisher {
 
   /// True when a reader of the snapshot or delta topic is matched.
   [[nodiscard]] bool HasReaders() const;
+  /// True when a reader of the status topic is matched (a viewer, or a lab
+  /// bridge's session directory that watches no mesh).
+  [[nodiscard]] bool HasStatusReaders() const;
   /// This publisher's epoch (its start, CLOCK_REALTIME ns): viewers follow
   /// one epoch per session.
   [[nodiscard]] uint64_t epoch() const { return epoch_; }

@@ -59,18 +59,23 @@ std::pair<std::string, uint16_t> ParseHostPort(const std::string& text, const st
 }
 
 BrowserBridge::BrowserBridge(ObserverServerOptions options, std::string session)
-    : session_(std::move(session)), server_(std::make_unique<ObserverServer>(std::move(options))) {
+    : session_(session), server_(std::make_unique<ObserverServer>(std::move(options))), relay_(std::move(session)) {
   server_->SetJoinMessages({{BrowserFrameEncoder::Hello(session_), false}});
 }
 
 void BrowserBridge::Relay(const transport::MeshStreamSubscriber& sub) {
-  if (sub.state_version() == last_state_version_ || !sub.current()) return;
+  (void)relay_.Relay(sub, *server_, "", server_->stats().clients);
+}
+
+bool SessionRelay::Relay(const transport::MeshStreamSubscriber& sub, ObserverServer& server,
+                         const std::string& channel, int clients) {
+  if (sub.state_version() == last_state_version_ || !sub.current()) return false;
   last_state_version_ = sub.state_version();
   const transport::MeshReplica& mesh = sub.replica();
   LinkHealth link;
   link.frame_age_ms = sub.last_sample_ns() > 0 ? 1e-6 * static_cast<double>(MonotonicNs() - sub.last_sample_ns()) : 0;
   link.bridge_gaps = sub.stats().gaps;
-  link.clients = server_->stats().clients;
+  link.clients = clients;
   const auto session = BrowserFrameEncoder::Session(mesh.seq(), sub.observed(), link);
   const auto hello = BrowserFrameEncoder::Hello(session_);
   // A browser that joins gets the hello and this frame as a snapshot. Set
@@ -79,9 +84,10 @@ void BrowserBridge::Relay(const transport::MeshStreamSubscriber& sub) {
   const auto frame = encoder_.Frame(mesh);
   const bool frame_is_snapshot = !frame->empty() && static_cast<uint8_t>((*frame)[0]) == kSurfaceSnapshot;
   const auto snapshot = frame_is_snapshot ? frame : encoder_.Snapshot(mesh);
-  server_->SetJoinMessages({{hello, false}, {snapshot, true}, {session, false}});
-  server_->Broadcast({{frame, true}, {session, false}});
+  server.SetJoinMessages(channel, {{hello, false}, {snapshot, true}, {session, false}});
+  server.Broadcast(channel, {{frame, true}, {session, false}});
   ++frames_relayed_;
+  return true;
 }
 
 }  // namespace cutsim::web

@@ -30,6 +30,28 @@ namespace cutsim::web {
 /// Parses "HOST:PORT" (IPv6 as "[::1]:PORT"); throws InputError naming `field`.
 [[nodiscard]] std::pair<std::string, uint16_t> ParseHostPort(const std::string& text, const std::string& field);
 
+/// Encodes one session's frames for browsers and hands them to a server's
+/// channel: the hello, the newest frame as a snapshot and its session frame
+/// for browsers that join, each new frame and its session frame for those
+/// connected. Used by BrowserBridge (one session, channel "") and by the
+/// lab bridge (a channel per session).
+class SessionRelay {
+ public:
+  explicit SessionRelay(std::string session) : session_(std::move(session)) {}
+  /// Call after the subscriber polled: when it applied a new frame, encodes
+  /// it and queues it on `channel`. Cheap when nothing changed; true when a
+  /// frame went out.
+  bool Relay(const transport::MeshStreamSubscriber& sub, ObserverServer& server, const std::string& channel,
+             int clients);
+  [[nodiscard]] uint64_t frames_relayed() const { return frames_relayed_; }
+
+ private:
+  std::string session_;
+  BrowserFrameEncoder encoder_;
+  uint64_t last_state_version_ = 0;
+  uint64_t frames_relayed_ = 0;
+};
+
 /// Relays a MeshStreamSubscriber's frames to browsers.
 class BrowserBridge {
  public:
@@ -42,14 +64,12 @@ class BrowserBridge {
   void Relay(const transport::MeshStreamSubscriber& sub);
 
   [[nodiscard]] const ObserverServer& server() const { return *server_; }
-  [[nodiscard]] uint64_t frames_relayed() const { return frames_relayed_; }
+  [[nodiscard]] uint64_t frames_relayed() const { return relay_.frames_relayed(); }
 
  private:
   std::string session_;
   std::unique_ptr<ObserverServer> server_;
-  BrowserFrameEncoder encoder_;
-  uint64_t last_state_version_ = 0;
-  uint64_t frames_relayed_ = 0;
+  SessionRelay relay_;
 };
 
 }  // namespace cutsim::web

@@ -50,6 +50,22 @@ std::pair<std::string, std::string> SplitTarget(std::string_view target) {
   return {path, token};
 }
 
+std::optional<std::string> QueryParam(std::string_view target, std::string_view name) {
+  const size_t q = target.find('?');
+  if (q == std::string_view::npos) return std::nullopt;
+  std::string_view query = target.substr(q + 1);
+  while (!query.empty()) {
+    const size_t amp = query.find('&');
+    const std::string_view param = query.substr(0, amp);
+    if (param.size() > name.size() && param.substr(0, name.size()) == name && param[name.size()] == '=') {
+      return std::string(param.substr(name.size() + 1));
+    }
+    if (amp == std::string_view::npos) break;
+    query.remove_prefix(amp + 1);
+  }
+  return std::nullopt;
+}
+
 std::shared_ptr<boost::beast::http::response<boost::beast::http::string_body>> MakeReply(
     const boost::beast::http::request<boost::beast::http::empty_body>& req, boost::beast::http::status status,
     const std::string& body, const std::string& type) {

@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <map>
 #include <string>
 #include <string_view>
@@ -28,6 +29,10 @@ struct PageFile {
 
 /// The path of a request target, and the value of its `token` parameter.
 [[nodiscard]] std::pair<std::string, std::string> SplitTarget(std::string_view target);
+
+/// The raw value of query parameter `name` in a request target, or nullopt
+/// when the target has none (the first occurrence counts).
+[[nodiscard]] std::optional<std::string> QueryParam(std::string_view target, std::string_view name);
 
 /// A response to `req`: `body` as `type`, never cached, kept alive only when
 /// the request asks and the status is 200. Shared, to outlive its async write.

@@ -1,6 +1,7 @@
 #include "common/web/observer_server.h"
 
 #include <algorithm>
+#include <cctype>
 #include <deque>
 #include <future>
 #include <mutex>
@@ -52,7 +53,7 @@ struct ObserverServerImpl {
 
   ObserverServerOptions options;
   std::map<WsSession*, std::weak_ptr<WsSession>> sessions;  // I/O thread
-  std::vector<Outgoing> join;                               // I/O thread
+  std::map<std::string, std::vector<Outgoing>> join;        // I/O thread, by channel
   mutable std::mutex stats_mu;
   ObserverServerStats stats;
   std::unique_ptr<WebCore> core;  // last: destroyed first, with the sessions its I/O context holds
@@ -62,8 +63,10 @@ struct ObserverServerImpl {
 /// a read that only ever ends the session.
 class WsSession : public std::enable_shared_from_this<WsSession> {
  public:
-  WsSession(ObserverServerImpl& server, beast::tcp_stream&& stream, std::shared_ptr<void> hold)
-      : server_(server), ws_(std::move(stream)), hold_(std::move(hold)) {}
+  WsSession(ObserverServerImpl& server, beast::tcp_stream&& stream, std::shared_ptr<void> hold, std::string channel)
+      : server_(server), ws_(std::move(stream)), hold_(std::move(hold)), channel_(std::move(channel)) {}
+
+  [[nodiscard]] const std::string& channel() const { return channel_; }
   ~WsSession() {
     if (opened_) server_.OnWsClosed(this);
   }
@@ -104,9 +107,10 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     ws_.binary(m.binary);
     ws_.async_write(net::buffer(*m.payload), [self = shared_from_this()](beast::error_code ec, size_t n) {
       if (ec) return self->Abort();
-      self->server_.Count([n](ObserverServerStats& s) {
+      self->server_.Count([n, &self](ObserverServerStats& s) {
         ++s.messages_sent;
         s.bytes_sent += n;
+        if (self->server_.options.channels) s.channel_bytes[self->channel_] += n;
       });
       self->queued_bytes_ -= self->queue_.front().payload->size();
       self->queue_.pop_front();
@@ -137,11 +141,36 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   std::deque<Outgoing> queue_;
   size_t queued_bytes_ = 0;
   bool closing_ = false;
+  std::string channel_;
 };
 
 void ObserverServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<http::empty_body>&& req,
                                    std::shared_ptr<void> hold) {
-  std::make_shared<WsSession>(*this, std::move(stream), std::move(hold))->Run(std::move(req));
+  std::string channel;
+  if (options.channels) {
+    if (auto session = QueryParam(std::string_view(req.target().data(), req.target().size()), "session")) {
+      // The lab's channels are session names (1-50 of A-Z a-z 0-9 _ -).
+      const bool valid = !session->empty() && session->size() <= 50 &&
+                         std::all_of(session->begin(), session->end(), [](char c) {
+                           return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '-' || c == '_';
+                         });
+      if (!valid) {
+        // Refused with a reply that names the parameter; the connection
+        // closes once it is written.
+        Count([](ObserverServerStats& st) { ++st.refused_channel; });
+        auto reply = MakeReply(req, http::status::bad_request,
+                               "session: must be 1 to 50 characters of A-Z a-z 0-9 _ -\n", "text/plain");
+        auto conn = std::make_shared<beast::tcp_stream>(std::move(stream));
+        http::async_write(*conn, *reply, [conn, reply, hold](beast::error_code, size_t) {
+          beast::error_code ec;
+          conn->socket().shutdown(tcp::socket::shutdown_both, ec);
+        });
+        return;
+      }
+      channel = std::move(*session);
+    }
+  }
+  std::make_shared<WsSession>(*this, std::move(stream), std::move(hold), std::move(channel))->Run(std::move(req));
 }
 
 void ObserverServerImpl::OnWsOpen(const std::shared_ptr<WsSession>& s) {
@@ -150,7 +179,9 @@ void ObserverServerImpl::OnWsOpen(const std::shared_ptr<WsSession>& s) {
     ++st.accepted;
     st.clients = static_cast<int>(sessions.size());
   });
-  for (const Outgoing& m : join) s->Send(m);
+  if (const auto it = join.find(s->channel()); it != join.end()) {
+    for (const Outgoing& m : it->second) s->Send(m);
+  }
 }
 
 void ObserverServerImpl::OnWsClosed(WsSession* s) {
@@ -193,18 +224,24 @@ std::string ObserverServer::Url() const {
   return url;
 }
 
-void ObserverServer::Broadcast(std::vector<Outgoing> messages) {
-  net::post(impl_->core->ioc(), [this, m = std::move(messages)] {
+void ObserverServer::Broadcast(const std::string& channel, std::vector<Outgoing> messages) {
+  net::post(impl_->core->ioc(), [this, channel, m = std::move(messages)] {
     for (auto& [ptr, weak] : impl_->sessions) {
-      if (auto s = weak.lock()) {
+      if (auto s = weak.lock(); s && s->channel() == channel) {
         for (const Outgoing& o : m) s->Send(o);
       }
     }
   });
 }
 
-void ObserverServer::SetJoinMessages(std::vector<Outgoing> messages) {
-  net::post(impl_->core->ioc(), [this, m = std::move(messages)]() mutable { impl_->join = std::move(m); });
+void ObserverServer::SetJoinMessages(const std::string& channel, std::vector<Outgoing> messages) {
+  net::post(impl_->core->ioc(), [this, channel, m = std::move(messages)]() mutable {
+    if (m.empty()) {
+      impl_->join.erase(channel);
+    } else {
+      impl_->join[channel] = std::move(m);
+    }
+  });
 }
 
 ObserverServerStats ObserverServer::stats() const {

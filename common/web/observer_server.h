@@ -48,6 +48,11 @@ struct ObserverServerOptions {
   size_t max_incoming_bytes = 1024;           ///< Largest WebSocket message a client may send.
   size_t max_queued_bytes = 16u << 20;        ///< Bytes queued for one client before it is closed.
   size_t max_request_header_bytes = 8192;     ///< HTTP request header limit.
+  /// Streams by session: a WebSocket upgrade may ask for `?session=NAME`
+  /// and then receives only that channel's messages (the lab bridge);
+  /// without it, the default channel "". When false the parameter is
+  /// ignored and every client is on "" (one session's bridge).
+  bool channels = false;
 };
 
 /// Counters, read with ObserverServer::stats() (a consistent copy).
@@ -59,6 +64,9 @@ struct ObserverServerStats {
   uint64_t closed_slow = 0;           ///< Clients closed for falling behind (queue cap).
   uint64_t messages_sent = 0;         ///< WebSocket messages written.
   uint64_t bytes_sent = 0;            ///< Their payload bytes.
+  uint64_t refused_channel = 0;       ///< Upgrades refused: `session` is not a session name.
+  /// Payload bytes written per channel (only with `channels`).
+  std::map<std::string, uint64_t> channel_bytes;
 };
 
 /// One message for every browser: text (JSON) or binary.
@@ -88,10 +96,14 @@ class ObserverServer {
 
   /// Queues `messages` for every connected client, in order. Thread-safe,
   /// never blocks.
-  void Broadcast(std::vector<Outgoing> messages);
+  void Broadcast(std::vector<Outgoing> messages) { Broadcast("", std::move(messages)); }
+  /// Queues `messages` for every client on `channel` (options.channels).
+  void Broadcast(const std::string& channel, std::vector<Outgoing> messages);
   /// What a client that connects from now on receives first, before any
   /// broadcast (the latest snapshot and session frames). Thread-safe.
-  void SetJoinMessages(std::vector<Outgoing> messages);
+  void SetJoinMessages(std::vector<Outgoing> messages) { SetJoinMessages("", std::move(messages)); }
+  /// The same for clients of `channel`; an empty list forgets the channel.
+  void SetJoinMessages(const std::string& channel, std::vector<Outgoing> messages);
 
   [[nodiscard]] ObserverServerStats stats() const;
 

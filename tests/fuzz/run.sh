@@ -14,7 +14,7 @@ set -uo pipefail
 seconds="${1:-12}"
 src="$(cd "$(dirname "$0")/../.." && pwd)"
 command -v clang++ >/dev/null || { echo "fuzz: SKIP: clang++ not installed (Debian package clang)" >&2; exit 77; }
-targets=(${CUTSIM_FUZZ_TARGETS:-scene mesh surface tool_path checkpoint journal recording wire observer web_http trainee_message})
+targets=(${CUTSIM_FUZZ_TARGETS:-scene mesh surface tool_path checkpoint journal recording wire observer web_http trainee_message lab_list})
 export LSAN_OPTIONS="suppressions=$src/tests/fuzz/lsan.supp:print_suppressions=0"
 
 cd "$src"

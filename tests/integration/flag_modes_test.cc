@@ -1,5 +1,5 @@
 // The station's and the viewer's flags that act only with some devices or
-// with --serve: given elsewhere they are refused before anything starts,
+// with --serve or --lab: given elsewhere they are refused before anything starts,
 // naming the flag, the mode and where the flag acts (exit 2). The server's
 // are in server_headless_test.cc.
 #include <string>
@@ -54,6 +54,11 @@ TEST(AppFlagModesTest, ViewerPageFlagsWithoutServeAreRefused) {
                                      {{"--token-file", "t"}, "--token-file: does nothing in a viewer without --serve"},
                                      {{"--host-name", "lab"}, "--host-name: does nothing in a viewer without --serve"},
                                      {{"--web-root", "w"}, "--web-root: does nothing in a viewer without --serve"},
+                                     {{"--lab-root", "w"}, "--lab-root: does nothing in a viewer without --serve"},
+                                     {{"--serve", "127.0.0.1:0", "--lab-root", "w"},
+                                      "--lab-root: does nothing in --serve (it acts in --lab)"},
+                                     {{"--serve", "127.0.0.1:0", "--lab", "127.0.0.1:0"},
+                                      "--serve watches one session and --lab every session"},
                                  });
 }
 

@@ -115,6 +115,7 @@ need=("$bin/cutsim-server" "$bin/cutsim-haptic" "$bin/cutsim-viewer"
       "$plugins/libcutsim_device_example_spring.so" "$plugins/libcutsim_device_evdev.so"
       "$data/web/observer/index.html" "$data/web/observer/observer.js" "$data/web/observer/observer.css"
       "$data/web/trainee/index.html" "$data/web/trainee/trainee.js" "$data/web/trainee/trainee.css"
+      "$data/web/lab/index.html" "$data/web/lab/lab.js" "$data/web/lab/lab.css"
       "$data/web/common/mesh_frames.js" "$data/web/common/scalpel.js"
       "$data/web/observer/node_modules/three/build/three.module.js"
       "$data/web/observer/node_modules/three/build/three.core.js"
@@ -122,7 +123,8 @@ need=("$bin/cutsim-server" "$bin/cutsim-haptic" "$bin/cutsim-viewer"
       "$data/web/observer/node_modules/three/LICENSE"
       "$data/dds/cyclonedds-loopback.xml" "$data/dds/cyclonedds-unicast.xml" "$data/dds/cyclonedds-lan.xml"
       "$prefix/share/doc/cutsim/README.md" "$prefix/share/doc/cutsim/lab-guide.md"
-      "$units/cutsim-server@.service" "$units/cutsim-haptic@.service" "$units/cutsim-bridge@.service")
+      "$units/cutsim-server@.service" "$units/cutsim-haptic@.service" "$units/cutsim-bridge@.service"
+      "$units/cutsim-lab.service")
 # Every shipped scene and tool path.
 for f in "$src"/scenes/*.pbtxt "$src"/scenes/*.path "$src"/scenes/*.lcm "$src"/scenes/README.md; do
   need+=("$data/scenes/$(basename "$f")")

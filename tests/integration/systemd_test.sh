@@ -88,6 +88,11 @@ for u in server haptic bridge; do
     "$units/cutsim-$u@.service" > "$work/units/cutsim-$u@$session.service"
 done
 
+# The lab view's unit (no template): checked with the others.
+[ -f "$units/cutsim-lab.service" ] || { echo "systemd_test: $units/cutsim-lab.service missing" >&2; exit 1; }
+sed -e "s#$bindir/#$bin/#g" -e "s#$confdir/#$work/conf/#g" -e "s#/var/lib/cutsim/#$work/state/#g" \
+  "$units/cutsim-lab.service" > "$work/units/cutsim-lab.service"
+
 # 1. systemd's own check of the unit files, one instance of each template.
 if command -v systemd-analyze >/dev/null; then
   if ! systemd-analyze verify --man=no "$work"/units/*.service > "$work/verify.log" 2>&1 || [ -s "$work/verify.log" ]; then

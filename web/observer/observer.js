@@ -455,18 +455,19 @@ function onTextMessage(text) {
 // ---------------------------------------------------------------------------
 // Connection
 
-/** The raw `token` query parameter of the page URL, or null. */
-function rawToken() {
+/** The raw query parameter `name` of the page URL, or null. */
+function rawParam(name) {
   for (const part of window.location.search.replace(/^\?/, '').split('&')) {
-    if (part.startsWith('token=')) return part.slice('token='.length);
+    if (part.startsWith(`${name}=`)) return part.slice(name.length + 1);
   }
   return null;
 }
 
+/** The stream's URL: the token, and on a lab bridge the session to watch. */
 function socketUrl() {
   const scheme = window.location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const token = rawToken();
-  return `${scheme}//${window.location.host}/ws${token !== null ? `?token=${token}` : ''}`;
+  const params = ['token', 'session'].filter((n) => rawParam(n) !== null).map((n) => `${n}=${rawParam(n)}`);
+  return `${scheme}//${window.location.host}/ws${params.length > 0 ? `?${params.join('&')}` : ''}`;
 }
 
 let reconnectDelay = RECONNECT_MIN_MS;
