@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cstddef>
+#include <span>
+#include <vector>
 
 namespace cutsim::fem {
 
@@ -46,30 +48,40 @@ std::vector<int32_t> ColorChunks(const Model<double>& model, int32_t chunk, int3
 void SparseSystem::Build(const Model<double>& model) {
   const int32_t nn = model.num_nodes();
   const int32_t nt = model.num_tets();
-  // Neighbour lists: every node is its own neighbour (the diagonal block).
-  std::vector<std::vector<int32_t>> nbr(static_cast<size_t>(nn));
-  for (int32_t n = 0; n < nn; ++n) nbr[static_cast<size_t>(n)].push_back(n);
+  // Neighbour lists in one flat array (no list per node): every node is its
+  // own neighbour (the diagonal block) and each tet adds its 12 ordered
+  // pairs; then each node's list is sorted and made unique in place.
+  std::vector<int32_t> start(static_cast<size_t>(nn) + 1, 0);
+  for (int32_t n = 0; n < nn; ++n) start[static_cast<size_t>(n) + 1] = 1;
+  for (int32_t t = 0; t < nt; ++t) {
+    for (int i = 0; i < 4; ++i) start[static_cast<size_t>(model.tet_node(t, i)) + 1] += 3;
+  }
+  for (int32_t n = 0; n < nn; ++n) start[static_cast<size_t>(n) + 1] += start[static_cast<size_t>(n)];
+  std::vector<int32_t> flat(static_cast<size_t>(start.back()));
+  std::vector<int32_t> fill(start.begin(), start.end() - 1);
+  for (int32_t n = 0; n < nn; ++n) flat[static_cast<size_t>(fill[static_cast<size_t>(n)]++)] = n;
   for (int32_t t = 0; t < nt; ++t) {
     for (int i = 0; i < 4; ++i) {
       for (int j = 0; j < 4; ++j) {
-        if (i != j) nbr[static_cast<size_t>(model.tet_node(t, j))].push_back(model.tet_node(t, i));
+        if (i != j) flat[static_cast<size_t>(fill[static_cast<size_t>(model.tet_node(t, j))]++)] = model.tet_node(t, i);
       }
     }
   }
   block_ptr_.assign(static_cast<size_t>(nn) + 1, 0);
   for (int32_t b = 0; b < nn; ++b) {
-    auto& l = nbr[static_cast<size_t>(b)];
-    std::sort(l.begin(), l.end());
-    l.erase(std::unique(l.begin(), l.end()), l.end());
-    block_ptr_[static_cast<size_t>(b) + 1] = block_ptr_[static_cast<size_t>(b)] + static_cast<int32_t>(l.size());
+    const auto first = flat.begin() + start[static_cast<size_t>(b)];
+    const auto last = flat.begin() + start[static_cast<size_t>(b) + 1];
+    std::sort(first, last);
+    const auto end = std::unique(first, last);
+    block_ptr_[static_cast<size_t>(b) + 1] = block_ptr_[static_cast<size_t>(b)] + static_cast<int32_t>(end - first);
   }
   block_row_.resize(static_cast<size_t>(block_ptr_.back()));
   col_ptr_.assign(static_cast<size_t>(3 * nn) + 1, 0);
   row_index_.resize(9 * block_row_.size());
   diag_offset_.resize(static_cast<size_t>(nn));
   for (int32_t b = 0; b < nn; ++b) {
-    const auto& l = nbr[static_cast<size_t>(b)];
-    const int32_t deg = static_cast<int32_t>(l.size());
+    const int32_t deg = block_ptr_[static_cast<size_t>(b) + 1] - block_ptr_[static_cast<size_t>(b)];
+    const std::span<const int32_t> l(flat.data() + start[static_cast<size_t>(b)], static_cast<size_t>(deg));
     const int32_t base = 9 * block_ptr_[static_cast<size_t>(b)];
     std::copy(l.begin(), l.end(), block_row_.begin() + block_ptr_[static_cast<size_t>(b)]);
     for (int c = 0; c < 3; ++c) {
@@ -102,9 +114,9 @@ void SparseSystem::Build(const Model<double>& model) {
   for (const int32_t c : color) ++color_ptr_[static_cast<size_t>(c) + 1];
   for (int32_t c = 0; c < num_colors; ++c) color_ptr_[static_cast<size_t>(c) + 1] += color_ptr_[static_cast<size_t>(c)];
   color_chunks_.resize(color.size());
-  std::vector<int32_t> fill(color_ptr_.begin(), color_ptr_.end() - 1);
+  std::vector<int32_t> next(color_ptr_.begin(), color_ptr_.end() - 1);
   for (size_t k = 0; k < color.size(); ++k) {
-    color_chunks_[static_cast<size_t>(fill[static_cast<size_t>(color[k])]++)] = static_cast<int32_t>(k);
+    color_chunks_[static_cast<size_t>(next[static_cast<size_t>(color[k])]++)] = static_cast<int32_t>(k);
   }
 
   topology_version_ = model.topology_version();
