@@ -213,23 +213,25 @@ void Dynamics<T>::Prime(SceneFem<T>& fem, double frame_time) {
 template <typename T>
 Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const {
   if constexpr (std::is_same_v<T, double>) {
-    // Without load the stiffness is zero (ToolState): no tangent to assemble.
+    // Without load the stiffness is zero (ToolState): no tangent to assemble,
+    // and the next contact starts without a held stiffness.
+    if (!tool.Loaded()) held_tissue_.setZero();
     if (kind_ == IntegratorKind::kImplicit && tool.Loaded()) {
       const std::array<int32_t, 3>& nodes = tool.force_nodes();
       const Eigen::Vector3d& w = tool.force_weights();
       const std::array<double, 3> weights{w[0], w[1], w[2]};
       Eigen::Matrix3d tissue = implicit_->EffectiveStiffness(fem.model(), nodes, weights);
       if (tissue.isZero()) {
-        // No whole-body answer this frame (its solve hit the cap, as after
-        // a cut before the factor catches up): the last one on the same
-        // facet still holds; elsewhere the static patch around the contact.
-        if (held_nodes_ == nodes) return tool.ContactStiffness(held_tissue_);
+        // No whole-body answer this frame (the estimate was refused, as
+        // after a cut before the factor catches up): the last one holds, it
+        // was taken a few frames ago on a nearby facet; before any, the
+        // static patch around the contact.
+        if (!held_tissue_.isZero()) return tool.ContactStiffness(held_tissue_);
         return tool.ContactStiffness(fem.model(), fem.state().x.data());
       }
       // The last Jacobian holds the contact spring on the same point
       // (W·k_pen·Wᵀ): (h²WᵀA⁻¹W)⁻¹ is the tissue's stiffness plus k_pen.
       if (last_penalty_.nodes == nodes && last_penalty_.weights == weights) tissue -= last_penalty_.stiffness;
-      held_nodes_ = nodes;
       held_tissue_ = tissue;
       return tool.ContactStiffness(tissue);
     }

@@ -94,9 +94,8 @@ class Dynamics {
   mutable std::unique_ptr<fem::ImplicitIntegrator> implicit_;
   std::vector<fem::PenaltyTerm> penalties_;  // the frame's contact spring, 0 or 1
   fem::PenaltyTerm last_penalty_;            // the one in the last Jacobian (zero stiffness if none)
-  // The last whole-body tissue stiffness at the contact and its facet's
-  // nodes (held while a capped solve gives none), N/m.
-  mutable std::array<int32_t, 3> held_nodes_{-1, -1, -1};
+  // The last whole-body tissue stiffness at the contact (held while the
+  // estimate is refused), N/m.
   mutable Eigen::Matrix3d held_tissue_ = Eigen::Matrix3d::Zero();
   std::vector<double> saved_x_, saved_v_;    // the state before a recovery  // #N×3
   ImplicitCounters counters_;
