@@ -610,7 +610,7 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
     for (int c = 0; c < 3; ++c) {
       std::copy(column(compliance_r_, c), column(compliance_r_, c) + nd, rhs_.begin());
       solver_.Precondition(system_, a_values_.data(), active_.data(), rhs_.data(), column(compliance_z_, k0 + c), nt);
-      ApplyJacobian(column(compliance_z_, k0 + c), column(compliance_q_, k0 + c));
+      ApplyTissueJacobian(column(compliance_z_, k0 + c), column(compliance_q_, k0 + c));
     }
     for (int a = k0; a < k; ++a) {
       for (int b = 0; b <= a; ++b) {
@@ -670,6 +670,26 @@ void ImplicitIntegrator::ApplyJacobian(const double* p, double* q) const {
   }
   for (int32_t n = 0; n < nn; ++n) {
     if (active_[static_cast<size_t>(n)] == 0) q[3 * n] = q[3 * n + 1] = q[3 * n + 2] = 0.0;
+  }
+}
+
+void ImplicitIntegrator::ApplyTissueJacobian(const double* p, double* q) const {
+  ApplyJacobian(p, q);
+  // Less the last step's penalty springs, h²·W·k·Wᵀ (in the pattern or in
+  // extra_), on the active nodes.
+  const double h2 = last_h_ * last_h_;
+  for (const PenaltyTerm& t : last_penalties_) {
+    const Eigen::Matrix3d ks = 0.5 * (t.stiffness + t.stiffness.transpose());
+    Eigen::Vector3d point = Eigen::Vector3d::Zero();
+    for (int i = 0; i < 3; ++i) {
+      const int32_t n = t.nodes[static_cast<size_t>(i)];
+      if (n >= 0 && active_[static_cast<size_t>(n)] != 0) point += t.weights[static_cast<size_t>(i)] * Eigen::Map<const Eigen::Vector3d>(p + 3 * n);
+    }
+    const Eigen::Vector3d f = h2 * (ks * point);
+    for (int i = 0; i < 3; ++i) {
+      const int32_t n = t.nodes[static_cast<size_t>(i)];
+      if (n >= 0 && active_[static_cast<size_t>(n)] != 0) Eigen::Map<Eigen::Vector3d>(q + 3 * n) -= t.weights[static_cast<size_t>(i)] * f;
+    }
   }
 }
 

@@ -222,8 +222,9 @@ class ImplicitIntegrator {
 
   /// The model's own stiffness at a point p = Σ w_i x_i over one step of
   /// the last Step's size h, N/m: (h²·Wᵀ A⁻¹ W)⁻¹ with A the last assembled
-  /// Jacobian (A/h² = K + (C + αM)/h + M/h², which tends to the static
-  /// stiffness K for large h). K is the one assembled at the last step's
+  /// Jacobian less its penalty springs (A/h² = K + (C + αM)/h + M/h², which
+  /// tends to the static stiffness K for large h; the contact spring is
+  /// the caller's to add in series). K is the one assembled at the last step's
   /// solution: when the last step reused an older K (or assembled none),
   /// it is assembled there now and serves the next step's Newton too. Then
   /// the compliance Wᵀ A⁻¹ W is the Galerkin one on the block Krylov
@@ -325,6 +326,9 @@ class ImplicitIntegrator {
   /// q = A·p with the last Jacobian (assembled part, patch term, extra
   /// blocks), zero on inactive DOFs.  // #N×3 each
   void ApplyJacobian(const double* p, double* q) const;
+  /// The same without the last step's penalty springs: the tissue's own
+  /// M + h(C + αM) + h²K.
+  void ApplyTissueJacobian(const double* p, double* q) const;
 
   ImplicitOptions options_;
   SparseSystem system_;

@@ -91,7 +91,6 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
     const Eigen::Vector3d end_tip = tool ? tool->pose().tip : start.tip;
     const Eigen::Vector3d tool_velocity = (end_tip - start.tip) / frame_time;
     if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(end_tip, tool_velocity, state.x.data()));
-    last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
     const int64_t step_before = state.step;
     const fem::ImplicitResult result = implicit_->Step(model, state, frame_time, penalties_, deadline_ns);
     Count(result, state.step);
@@ -149,7 +148,6 @@ bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const Too
       penalties_.clear();
       const Eigen::Vector3d tip = start.tip + (static_cast<double>(i) / substeps) * (end_tip - start.tip);
       if (tool && tool->Loaded()) penalties_.push_back(tool->ContactPenalty(tip, tool_velocity, state.x.data()));
-      last_penalty_ = penalties_.empty() ? fem::PenaltyTerm{} : penalties_.front();
       const fem::ImplicitResult result = implicit_->Step(model, state, h, penalties_);
       Count(result, state.step);
       ok = result.advanced();
@@ -229,9 +227,6 @@ Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const Sc
         if (!held_tissue_.isZero()) return tool.ContactStiffness(held_tissue_);
         return tool.ContactStiffness(fem.model(), fem.state().x.data());
       }
-      // The last Jacobian holds the contact spring on the same point
-      // (W·k_pen·Wᵀ): (h²WᵀA⁻¹W)⁻¹ is the tissue's stiffness plus k_pen.
-      if (last_penalty_.nodes == nodes && last_penalty_.weights == weights) tissue -= last_penalty_.stiffness;
       held_tissue_ = tissue;
       return tool.ContactStiffness(tissue);
     }

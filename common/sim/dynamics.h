@@ -93,7 +93,6 @@ class Dynamics {
   // With kImplicit; mutable: EffectiveStiffness solves in its workspace.
   mutable std::unique_ptr<fem::ImplicitIntegrator> implicit_;
   std::vector<fem::PenaltyTerm> penalties_;  // the frame's contact spring, 0 or 1
-  fem::PenaltyTerm last_penalty_;            // the one in the last Jacobian (zero stiffness if none)
   // The last whole-body tissue stiffness at the contact (held while the
   // estimate is refused), N/m.
   mutable Eigen::Matrix3d held_tissue_ = Eigen::Matrix3d::Zero();
