@@ -427,16 +427,23 @@ double ElementMeanNodalPressure(const Model<T>& model, const T* x, int32_t t) {
   return 0.25 * sum;
 }
 
-}  // namespace
-
+/// The element's elastic Cauchy stress (the inversion remedy where it is
+/// active), without the nodal-pressure element's p̄·I.
 template <typename T>
-Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t) {
+Mat3<T> ElementElasticCauchyStress(const Model<T>& model, const T* x, int32_t t) {
   const Mat3<T> F = DeformationGradient(model, x, t);
   const T lam = model.element_lambdas()[t], mu = model.mus()[t];
   const Mat3<T> P = F.determinant() >= model.inversion_det_threshold()
                         ? StvkFirstPiola<T>(F, lam, mu)
                         : InvertibleStvkFirstPiola<T>(F, lam, mu, model.min_singular_value());
-  Mat3<T> sigma = CauchyStress<T>(F, P);
+  return CauchyStress<T>(F, P);
+}
+
+}  // namespace
+
+template <typename T>
+Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t) {
+  Mat3<T> sigma = ElementElasticCauchyStress(model, x, t);
   if (model.element() == ElementKind::kNodalPressure) {
     sigma.diagonal().array() += static_cast<T>(ElementMeanNodalPressure(model, x, t));
   }
@@ -476,12 +483,7 @@ void ComputeNodePressures(const Model<T>& model, const T* x, std::vector<double>
 
 template <typename T>
 Mat3<T> ElementCauchyStress(const Model<T>& model, const T* x, int32_t t, std::span<const double> node_pressure) {
-  const Mat3<T> F = DeformationGradient(model, x, t);
-  const T lam = model.element_lambdas()[t], mu = model.mus()[t];
-  const Mat3<T> P = F.determinant() >= model.inversion_det_threshold()
-                        ? StvkFirstPiola<T>(F, lam, mu)
-                        : InvertibleStvkFirstPiola<T>(F, lam, mu, model.min_singular_value());
-  Mat3<T> sigma = CauchyStress<T>(F, P);
+  Mat3<T> sigma = ElementElasticCauchyStress(model, x, t);
   if (model.element() == ElementKind::kNodalPressure) {
     double sum = 0;
     for (int c = 0; c < 4; ++c) sum += node_pressure[static_cast<size_t>(model.tet_node(t, c))];

@@ -602,8 +602,11 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
   const double w_norm = std::sqrt(Dot(compliance_r_, compliance_r_, 0, 0, nn, nt) +
                                   Dot(compliance_r_, compliance_r_, nd, nd, nn, nt) +
                                   Dot(compliance_r_, compliance_r_, 2 * nd, 2 * nd, nn, nt));
-  Eigen::MatrixXd vav = Eigen::MatrixXd::Zero(3 * kComplianceBlocks, 3 * kComplianceBlocks);  // VᵀAV
-  Eigen::MatrixXd vw = Eigen::MatrixXd::Zero(3 * kComplianceBlocks, 3);                       // VᵀW
+  // Fixed-capacity matrices: the frame thread allocates nothing here.
+  using Small = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 3 * kComplianceBlocks, 3 * kComplianceBlocks>;
+  using Thin = Eigen::Matrix<double, Eigen::Dynamic, 3, 0, 3 * kComplianceBlocks, 3>;
+  Small vav = Small::Zero(3 * kComplianceBlocks, 3 * kComplianceBlocks);  // VᵀAV
+  Thin vw = Thin::Zero(3 * kComplianceBlocks, 3);                          // VᵀW
   Eigen::Matrix3d compliance = Eigen::Matrix3d::Zero();
   for (int block = 0; block < kComplianceBlocks; ++block) {
     const int k0 = 3 * block, k = k0 + 3;
@@ -627,9 +630,9 @@ Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& mode
         vw(a, c) = sum;
       }
     }
-    const Eigen::LLT<Eigen::MatrixXd> llt(vav.topLeftCorner(k, k));
+    const Eigen::LLT<Small> llt(vav.topLeftCorner(k, k));
     if (llt.info() != Eigen::Success) return Eigen::Matrix3d::Zero();  // V lost rank or A is indefinite on it
-    const Eigen::MatrixXd y = llt.solve(vw.topRows(k));  // k×3
+    const Thin y = llt.solve(vw.topRows(k));  // k×3
     compliance = vw.topRows(k).transpose() * y;
     // R = W − AV·Y, column by column.
     double r2 = 0;
