@@ -117,8 +117,24 @@ struct ImplicitOptions {
   /// of the force tolerance: above it Newton goes on past the deadline
   /// (the frame overruns) rather than let an error grow from frame to frame.
   double carry_limit = 50;
+  /// How far past its deadline a step above carry_limit may go, as a
+  /// multiple of its budget (from the step's start to its deadline): there
+  /// Newton and PCG stop whatever the residual, which carries into the next
+  /// step (over_budget). A frame after a cut, whose factor lags the new
+  /// DOFs, otherwise runs PCG for as long as convergence takes. ∞: no such
+  /// bound.
+  double overrun_limit = 1.0;
   /// How the preconditioner applies the factor (single precision by default).
   FactorSolve factor_solve = FactorSolve::kFloat;
+  /// The nodal-pressure element's patch term Σ_a c_a ∇v_a∇v_aᵀ couples
+  /// every two nodes of a node's patch, beyond the pattern; the factor gets
+  /// its element-diagonal part Σ_e (Σ_{a∈e} β_a c_a/16)·∇v_e∇v_eᵀ with
+  /// β_a = n_aᵞ, n_a = (Σ_{e∋a} V_e)²/Σ_{e∋a} V_e² the effective number of
+  /// tets at node a. γ = 0 (each tet's term with itself) suits modes that
+  /// alternate from tet to tet, whose cross terms cancel, and is n_a times
+  /// too soft on a uniform dilatation; γ = 1 is exact on the dilatation and
+  /// too stiff on the alternating modes; γ = 1/2 splits the error.
+  double patch_lumping = 0.5;
   /// BDF2 instead of backward Euler: x⁺ = (4xₙ − xₙ₋₁)/3 + (2h/3)·v⁺ and
   /// v⁺ = (4vₙ − vₙ₋₁)/3 + (2h/3)·a⁺, i.e. backward Euler of step 2h/3 from
   /// the extrapolated start, on the same Newton machinery. Second order,
@@ -180,7 +196,9 @@ struct ImplicitResult {
   bool bdf2 = false;                ///< The step was BDF2 (else backward Euler).
   bool factor_requested = false;    ///< A refactorisation was asked for.
   bool factor_corrected = false;    ///< A low-rank correction of the factor was built.
-  bool over_budget = false;         ///< Went on past the deadline: the residual was above carry_limit.
+  /// Went on past the deadline, its residual above carry_limit: until it
+  /// was within, or to the overrun_limit, where it carries what is left.
+  bool over_budget = false;
   bool restarted_at_rest = false;   ///< The guess x + h·v was not finite; Newton started from v⁺ = 0.
   int32_t factor_dofs = 0;          ///< DOFs covered by the factor in use.
   /// The force residual (N) before Newton iteration k (first kHistory).
@@ -206,9 +224,9 @@ class ImplicitIntegrator {
   /// step). On kConverged, kCapped and kOutOfTime the state holds x⁺, v⁺
   /// and f (the total force at x⁺); time and step advance. A `deadline_ns`
   /// (CLOCK_MONOTONIC, 0: none) stops Newton and PCG there (kOutOfTime)
-  /// once the residual is within carry_limit: the first iteration always
-  /// runs, so a step always makes progress, and a large residual is never
-  /// carried.
+  /// once the residual is within carry_limit, and at the overrun_limit past
+  /// it whatever the residual: the first iteration always runs, so a step
+  /// always makes progress.
   ImplicitResult Step(const Model<double>& model, State<double>& state, double step_size,
                       std::span<const PenaltyTerm> penalties = {}, int64_t deadline_ns = 0);
 
@@ -227,14 +245,14 @@ class ImplicitIntegrator {
   /// the caller's to add in series). K is the one assembled at the last step's
   /// solution: when the last step reused an older K (or assembled none),
   /// it is assembled there now and serves the next step's Newton too. Then
-  /// the compliance Wᵀ A⁻¹ W is the Galerkin one on the block Krylov
-  /// space of P⁻¹W, P the preconditioner in use: with a factor as fresh as
-  /// the steps keep it, one block (three preconditioner applications and
-  /// products) reaches a Galerkin residual of 1 % (a compliance error of
-  /// about 1e-4); a staler one takes up to three blocks. Zero before the
-  /// first step, if the point has no free node, if A is not positive
-  /// definite on that space or its residual stays above 1 % (the caller
-  /// then keeps an earlier stiffness). `model` is the last Step's.
+  /// the compliance Wᵀ A⁻¹ W is the Galerkin one on the block Krylov space
+  /// of P⁻¹W, P the preconditioner in use: it grows block by block (three
+  /// preconditioner applications and products each, up to three blocks)
+  /// until the estimated relative error of the compliance, the
+  /// preconditioned norm of the Galerkin residual, is within 5 %. Zero
+  /// before the first step, if the point has no free node, if A is not
+  /// positive definite on that space or the estimate stays above 5 % (the
+  /// caller then keeps an earlier stiffness). `model` is the last Step's.
   Eigen::Matrix3d EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
                                      std::span<const double> weights);
 
@@ -318,9 +336,23 @@ class ImplicitIntegrator {
   /// the patch term.
   void VolumetricPass(const Model<double>& model, const double* x, double tangent_scale, bool clamped,
                       const uint8_t* active, double* values);
-  /// The values to factor: a_values_, plus with the nodal-pressure element
-  /// the patch term's element-diagonal part h²·Σ_e (Σ_{a∈e} c_a/16)·∇v_e∇v_eᵀ
-  /// (positive semidefinite, on the pattern) in factor_values_.
+  /// patch_lump_ = β_a of ImplicitOptions::patch_lumping, from the rest
+  /// volumes (after a topology change).
+  void LumpPatchTerm(const Model<double>& model);
+  /// Adds scale·w_i w_j·k of every penalty term to the blocks (i, j) of
+  /// `values` that the pattern has; with `extra`, appends the others (i < j)
+  /// there.
+  void AddPenaltyBlocks(std::span<const PenaltyTerm> penalties, double scale, double* values,
+                        std::vector<ExtraBlock>* extra) const;
+  /// The values to factor, in factor_values_: the tissue's a_values_ less
+  /// the penalty springs (a contact moves every frame and a factor lives
+  /// for many: factored in, the spring of a contact that has moved on is a
+  /// rank-3 error of the preconditioner at the old point, and one at the
+  /// new point is missing; factored out, only the latter, and the tissue's
+  /// compliance at the contact comes from the factor at once), plus with the
+  /// nodal-pressure element the patch term's element-diagonal part
+  /// h²·Σ_e (Σ_{a∈e} c_a/16)·∇v_e∇v_eᵀ (positive semidefinite, on the
+  /// pattern).
   const double* FactorValues();
   [[nodiscard]] const MatrixFreeTerm* matrix_free() const { return nodal_pressure_ ? &patch_ : nullptr; }
   /// q = A·p with the last Jacobian (assembled part, patch term, extra
@@ -363,6 +395,7 @@ class ImplicitIntegrator {
   bool k_fresh_ = false;       // K was assembled during the last step
   bool last_clamped_ = false;  // the last step ended with K⁺
   std::vector<PenaltyTerm> last_penalties_;  // the last step's, for a re-formed A
+  std::vector<PenaltyTerm> jacobian_penalties_;  // those in a_values_ and extra_
   // Element signatures (a hash of nodes, Dm⁻¹ and volume per tet) at the
   // last two factor requests, by LinearSolver request count.
   struct Signature {
@@ -383,6 +416,7 @@ class ImplicitIntegrator {
   std::vector<double> patch_curvature_;      // c_a = U''(J_a)/V_a at the tangent point  // #N
   mutable std::vector<double> patch_slope_;  // product scratch  // #N
   std::vector<double> factor_values_;        // #nnz
+  std::vector<double> patch_lump_;           // β_a of the factor's patch term  // #N
   double volumetric_energy_ = 0;             // J
   double patch_scale_ = 0;                   // h² of a_values_
   PatchTerm patch_{*this};

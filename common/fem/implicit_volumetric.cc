@@ -121,16 +121,45 @@ void ImplicitIntegrator::PatchTerm::AddProduct(const double* p, double* q) const
   }
 }
 
+void ImplicitIntegrator::LumpPatchTerm(const Model<double>& model) {
+  const auto nn = static_cast<size_t>(system_.num_nodes());
+  // patch_lump_ first holds Σ_e V_e, patch_slope_ (free until the first
+  // tangent) Σ_e V_e², over each node's tets.
+  patch_lump_.assign(nn, 0.0);
+  std::fill(patch_slope_.begin(), patch_slope_.end(), 0.0);
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    const double vol = model.rest_volume(t);
+    if (!(vol > 0)) continue;
+    for (int c = 0; c < 4; ++c) {
+      const auto n = static_cast<size_t>(model.tet_node(t, c));
+      patch_lump_[n] += vol;
+      patch_slope_[n] += vol * vol;
+    }
+  }
+  const double gamma = options_.patch_lumping;
+  for (size_t n = 0; n < nn; ++n) {
+    const double sum = patch_lump_[n], sum2 = patch_slope_[n];
+    patch_lump_[n] = sum2 > 0 ? std::pow(sum * sum / sum2, gamma) : 1.0;
+  }
+  std::fill(patch_slope_.begin(), patch_slope_.end(), 0.0);
+}
+
 const double* ImplicitIntegrator::FactorValues() {
-  if (!nodal_pressure_) return a_values_.data();
   std::copy(a_values_.begin(), a_values_.end(), factor_values_.begin());
+  AddPenaltyBlocks(jacobian_penalties_, -patch_scale_, factor_values_.data(), nullptr);
+  if (!nodal_pressure_) return factor_values_.data();
   const Model<double>& model = *model_;
   const double scale = patch_scale_;
 #pragma omp parallel num_threads(NumThreads())
   ForEachTetByColor(system_, [&](int32_t t) {
     if (!(model.rest_volume(t) > 0)) return;
     const Eigen::Map<const Mat34<double>> g(volume_grad_.data() + 12 * static_cast<size_t>(t));
-    const double coef = ElementMean(model, t, patch_curvature_) / 4.0;  // Σ_{a∈e} c_a / 16
+    double coef = 0;
+    for (int c = 0; c < 4; ++c) {
+      const auto n = static_cast<size_t>(model.tet_node(t, c));
+      coef += patch_curvature_[n] * patch_lump_[n];
+    }
+    coef /= 16.0;
     ElementBlocks blocks;
     for (int a = 0; a < 4; ++a) {
       for (int b = 0; b < 4; ++b) blocks[4 * a + b] = coef * g.col(a) * g.col(b).transpose();

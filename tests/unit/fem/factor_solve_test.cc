@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include "common/fem/implicit.h"
@@ -204,8 +205,9 @@ TEST(BudgetedStep, ReportsTheResidualItCarries) {
   EXPECT_EQ(next.status, ImplicitStatus::kConverged);
 }
 
-// A late step never carries more than carry_limit × the tolerance: it goes
-// on past the deadline (over_budget) until its residual is within it.
+// Without an overrun limit a late step never carries more than
+// carry_limit × the tolerance: it goes on past the deadline (over_budget)
+// until its residual is within it.
 TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
   Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
   State<double> state(model);
@@ -213,6 +215,7 @@ TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
   options.asynchronous_factorization = false;
   options.relative_force_tolerance = 1e-9;
   options.carry_limit = 1e3;
+  options.overrun_limit = std::numeric_limits<double>::infinity();
   options.tangent_reuse_contraction = 0;  // plain Newton: one PCG solve does not converge it
   ImplicitIntegrator integ(options);
   const ImplicitResult r = integ.Step(model, state, 0.01, {}, 1);
@@ -220,6 +223,31 @@ TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
   EXPECT_GT(r.newton_iterations, 1);
   EXPECT_LE(r.residual, options.carry_limit * r.tolerance);
   EXPECT_GT(r.residual_history[1], options.carry_limit * r.tolerance);  // it was late and above the limit
+}
+
+// With an overrun limit the same late step stops there whatever its
+// residual: it reports over_budget and kOutOfTime with the residual it
+// carries, above the carry limit, and the next steps take it down.
+TEST(BudgetedStep, StopsAtItsOverrunLimitAndCarriesTheRest) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
+  State<double> state(model);
+  ImplicitOptions options;
+  options.asynchronous_factorization = false;
+  options.relative_force_tolerance = 1e-9;
+  options.carry_limit = 1e3;
+  options.overrun_limit = 1.0;  // the deadline has passed: so has the limit
+  options.tangent_reuse_contraction = 0;
+  ImplicitIntegrator integ(options);
+  const ImplicitResult r = integ.Step(model, state, 0.01, {}, 1);
+  EXPECT_TRUE(r.over_budget);
+  EXPECT_EQ(r.status, ImplicitStatus::kOutOfTime);
+  EXPECT_EQ(r.newton_iterations, 1);
+  EXPECT_GT(r.residual, options.carry_limit * r.tolerance);
+  EXPECT_LT(r.residual, r.residual_history[0]);
+  EXPECT_NEAR(state.time, 0.01, 1e-15);
+  bool converged = false;
+  for (int k = 0; k < 5 && !converged; ++k) converged = integ.Step(model, state, 0.01).ok();
+  EXPECT_TRUE(converged);
 }
 
 // A velocity that, held over the step, would fold the body through its
