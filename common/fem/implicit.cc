@@ -583,6 +583,11 @@ ImplicitResult ImplicitIntegrator::Step(const Model<double>& model, State<double
   return result;
 }
 
+bool ImplicitIntegrator::FactorIsCurrent() {
+  solver_.Acquire();
+  return solver_.has_factor() && solver_.factor_pattern_id() == system_.pattern_id();
+}
+
 Eigen::Matrix3d ImplicitIntegrator::EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
                                                        std::span<const double> weights) {
   if (!(last_h_ > 0) || system_.Stale(model)) return Eigen::Matrix3d::Zero();

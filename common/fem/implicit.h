@@ -253,6 +253,11 @@ class ImplicitIntegrator {
   /// before the first step, if the point has no free node, if A is not
   /// positive definite on that space or the estimate stays above 5 % (the
   /// caller then keeps an earlier stiffness). `model` is the last Step's.
+  /// Whether the newest finished factor is of the current pattern. False
+  /// while it lags a cut: then the preconditioner is corrected for the cut
+  /// (several times costlier to apply) or covers only the old DOFs, and an
+  /// EffectiveStiffness costs more and is more often refused.
+  bool FactorIsCurrent();
   Eigen::Matrix3d EffectiveStiffness(const Model<double>& model, std::span<const int32_t> nodes,
                                      std::span<const double> weights);
 

@@ -215,6 +215,10 @@ Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const Sc
     // and the next contact starts without a held stiffness.
     if (!tool.Loaded()) held_tissue_.setZero();
     if (kind_ == IntegratorKind::kImplicit && tool.Loaded()) {
+      // While the factor lags a cut the last stiffness holds: it was taken
+      // a few frames ago on a nearby facet, and the estimate would cost
+      // several times its usual preconditioner applications.
+      if (!held_tissue_.isZero() && !implicit_->FactorIsCurrent()) return tool.ContactStiffness(held_tissue_);
       const std::array<int32_t, 3>& nodes = tool.force_nodes();
       const Eigen::Vector3d& w = tool.force_weights();
       const std::array<double, 3> weights{w[0], w[1], w[2]};

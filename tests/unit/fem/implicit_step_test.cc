@@ -373,6 +373,34 @@ TEST(ImplicitStep, EffectiveStiffnessFromAStaleFactorPredictsTheResponse) {
   }
 }
 
+// While the factor lags a cut (its worker is slowed down here) it is not
+// current, and the effective stiffness, from the corrected factor, still
+// predicts the static response or is refused; once the factor of the new
+// pattern lands it is current again.
+TEST(ImplicitStep, FactorIsCurrentOnceTheFactorOfACutLands) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true, 5.0, 20.0, 8);
+  const int32_t tip = TipNode(model);
+  State<double> state(model);
+  ImplicitOptions o = Tight(1e-9);
+  o.asynchronous_factorization = true;
+  ImplicitIntegrator integ(o);
+  for (int step = 0; step < 3; ++step) ASSERT_TRUE(integ.Step(model, state, 0.01).ok());
+  integ.mutable_linear_solver().WaitForFactor();
+  EXPECT_TRUE(integ.FactorIsCurrent());
+  integ.mutable_linear_solver().set_worker_delay_for_testing(0.5);
+  SplitMiddleNode(model, state);
+  ASSERT_TRUE(integ.Step(model, state, 0.01).advanced());
+  EXPECT_FALSE(integ.FactorIsCurrent());
+  const int32_t nodes[1] = {tip};
+  const double weights[1] = {1.0};
+  const Eigen::Matrix3d k_lagging = integ.EffectiveStiffness(model, nodes, weights);
+  integ.mutable_linear_solver().WaitForFactor();
+  EXPECT_TRUE(integ.FactorIsCurrent());
+  const Eigen::Matrix3d k_current = integ.EffectiveStiffness(model, nodes, weights);
+  ASSERT_FALSE(k_current.isZero());
+  if (!k_lagging.isZero()) EXPECT_LT((k_lagging - k_current).norm(), 0.1 * k_current.norm());
+}
+
 // BDF2 converges at second order in h, backward Euler at first: halving h
 // divides the error at a fixed time by about 4 and 2 respectively.
 TEST(ImplicitStep, Bdf2IsSecondOrderAndBackwardEulerFirst) {
