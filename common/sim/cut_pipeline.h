@@ -92,6 +92,9 @@ class CutPipeline {
   [[nodiscard]] const std::vector<CutStepTiming>& timings() const { return cut_timings_; }
   [[nodiscard]] uint64_t cuts() const { return cuts_; }
   void set_cuts(uint64_t cuts) { cuts_ = cuts; }
+  /// The cut test's anchor across frames (Simulation::Memo copies it).
+  [[nodiscard]] const cutting::CutAttemptTracker& tracker() const { return tracker_; }
+  void set_tracker(const cutting::CutAttemptTracker& tracker) { tracker_ = tracker; }
   /// Cut counters and time into a summary; cut fields into a tool report.
   void AddToSummary(SimulationSummary& s) const;
   void AddToReport(ToolReport& r) const;

@@ -204,6 +204,37 @@ class Engine final : public Simulation {
     if (scorer_) scorer_->Restore(series.cut_points);
   }
 
+  /// What Memo() copies: see SimulationMemo.
+  struct EngineMemo final : SimulationMemo {
+    EngineMemo(const fem::State<T>& s, const std::optional<ToolState<T>>& t,
+               std::optional<cutting::CutAttemptTracker> c, const RunCounters& r, const SessionMeter<T>& m)
+        : state(s), tool(t), tracker(std::move(c)), run(r), meter(m) {}
+    fem::State<T> state;
+    std::optional<ToolState<T>> tool;
+    std::optional<cutting::CutAttemptTracker> tracker;
+    RunCounters run;
+    SessionMeter<T> meter;
+  };
+
+  std::unique_ptr<const SimulationMemo> Memo() const override {
+    return std::make_unique<EngineMemo>(
+        fem_.state(), tool_, cuts_ ? std::optional<cutting::CutAttemptTracker>(cuts_->tracker()) : std::nullopt, run_,
+        meter_);
+  }
+
+  void RestoreMemo(const SimulationMemo& memo) override {
+    const auto* m = dynamic_cast<const EngineMemo*>(&memo);
+    if (m == nullptr || m->state.x.size() != fem_.state().x.size() || m->tool.has_value() != tool_.has_value() ||
+        m->tracker.has_value() != cuts_.has_value()) {
+      ThrowInputError({.field = "memo"}, "the memo belongs to another simulation");
+    }
+    fem_.state() = m->state;
+    if (tool_) tool_ = m->tool;
+    if (cuts_) cuts_->set_tracker(*m->tracker);
+    run_ = m->run;
+    meter_ = m->meter;
+  }
+
   std::span<const cutting::TopologyEvent> TopologyEvents() const override {
     return cuts_ ? std::span<const cutting::TopologyEvent>(cuts_->events()) : std::span<const cutting::TopologyEvent>();
   }
