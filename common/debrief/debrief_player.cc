@@ -6,6 +6,7 @@
 
 #include <fmt/format.h>
 
+#include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/log.h"
 #include "cutsim/v1/checkpoint.pb.h"
@@ -42,6 +43,7 @@ DebriefPlayer::DebriefPlayer(SimulationFactory make, std::vector<PlayerFrame> fr
   end_time_.resize(frames_.size() + 1, 0.0);
   for (size_t i = 0; i < frames_.size(); ++i) end_time_[i + 1] = end_time_[i] + frames_[i].frame_time;
   timeline_.duration = end_time_.back();
+  if (options_.checkpoint_bytes == 0) ThrowInputError({.field = "checkpoint_bytes"}, "must be positive");
   const double widest = timeline_.duration / static_cast<double>(kMaxCheckpoints - 1);
   if (options_.checkpoint_every < widest) {
     Log().info("debrief: {:.3g} s of recording: checkpoints every {:.3g} s instead of {:.3g} s (at most {})",
@@ -81,6 +83,7 @@ void DebriefPlayer::Prepass(const PrepassObserver& observer) {
     }
     if (end_time_[i + 1] >= next_checkpoint - kTimeSlack && i + 1 < frames_.size()) {
       checkpoints_.push_back({.frame = i + 1, .body = sim_->CheckpointState(), .memo = sim_->Memo()});
+      if (checkpoints_.size() == 2) SpaceCheckpoints(checkpoints_.back().body);
       while (next_checkpoint <= end_time_[i + 1] + kTimeSlack) next_checkpoint += options_.checkpoint_every;
     }
     if (observer && !observer(i, *sim_)) {
@@ -92,6 +95,20 @@ void DebriefPlayer::Prepass(const PrepassObserver& observer) {
   }
   frame_force.resize(frames_.size());
   BuildTimeline(frame_force);
+}
+
+void DebriefPlayer::SpaceCheckpoints(const v1::CheckpointBody& first) {
+  // The memo holds the FEM state's vectors (positions, velocities, forces,
+  // scratch): several times the body's positions and velocities.
+  const double each = 8.0 * static_cast<double>(sizeof(double)) *
+                      static_cast<double>(first.positions_size() + first.velocities_size());
+  const double fit = std::max(2.0, static_cast<double>(options_.checkpoint_bytes) / std::max(each, 1.0));
+  const double every = timeline_.duration / std::min(fit, static_cast<double>(kMaxCheckpoints - 1));
+  if (every > options_.checkpoint_every) {
+    Log().info("debrief: checkpoints every {:.3g} s instead of {:.3g} s ({:.3g} MB each, {:.3g} GB at most)", every,
+               options_.checkpoint_every, 1e-6 * each, 1e-9 * static_cast<double>(options_.checkpoint_bytes));
+    options_.checkpoint_every = every;
+  }
 }
 
 void DebriefPlayer::BuildTimeline(const std::vector<double>& frame_force) {
@@ -146,12 +163,15 @@ SeekReport DebriefPlayer::Seek(double t) {
   // Stepping on from here is cheaper than a restore when the target is
   // ahead and no farther than from the checkpoint (same frames, same state).
   if (target >= frame_ && target - frame_ <= target - from.frame) {
+    const Stopwatch watch;
     while (frame_ < target) {
       StepFrame();
       ++report.frames_stepped;
     }
+    report.step_s = watch.ElapsedSeconds();
     return report;
   }
+  const Stopwatch watch;
   std::unique_ptr<sim::Simulation> fresh = make_();
   if (from.memo) {
     fresh->RestoreCheckpointState(from.body, "debrief checkpoint");
@@ -159,10 +179,12 @@ SeekReport DebriefPlayer::Seek(double t) {
   }
   report.restored = true;
   report.restore_from = end_time_[from.frame];
+  report.restore_s = watch.ElapsedSeconds();
   for (size_t i = from.frame; i < target; ++i) {
     Apply(i, *fresh);
     ++report.frames_stepped;
   }
+  report.step_s = watch.ElapsedSeconds() - report.restore_s;
   sim_ = std::move(fresh);
   frame_ = target;
   return report;

@@ -28,6 +28,10 @@
 
 #include "common/sim/simulation.h"
 
+namespace cutsim::v1 {
+class CheckpointBody;
+}  // namespace cutsim::v1
+
 namespace cutsim::debrief {
 
 /// One recorded frame: what the live session did before and in it.
@@ -40,7 +44,10 @@ struct PlayerFrame {
 struct PlayerOptions {
   /// Recorded seconds between the pre-pass's checkpoints: a seek simulates
   /// at most this much.
-  double checkpoint_every = 1.0;
+  double checkpoint_every = 0.25;
+  /// Memory the checkpoints may take, bytes (each is estimated at eight
+  /// times its body's positions and velocities); beyond it they space out.
+  size_t checkpoint_bytes = size_t{1} << 30;
   /// Samples of the force in the timeline (each the largest |f| of its span).
   int timeline_samples = 600;
 };
@@ -63,6 +70,8 @@ struct SeekReport {
   bool restored = false;     ///< from a checkpoint (else it stepped on from the current frame)
   double restore_from = 0;   ///< s, the checkpoint's time when restored
   size_t frames_stepped = 0; ///< frames simulated to reach the target
+  double restore_s = 0;      ///< wall time making the fresh simulation and restoring it, s
+  double step_s = 0;         ///< wall time stepping to the target, s
 };
 
 /// Makes a fresh Simulation of the recorded scene (settled, at time 0).
@@ -119,6 +128,8 @@ class DebriefPlayer {
   void Apply(size_t index, sim::Simulation& simulation) const;
   [[nodiscard]] size_t FrameAt(double t) const;
   void BuildTimeline(const std::vector<double>& frame_force);
+  /// Widens the period when the checkpoints would exceed their memory.
+  void SpaceCheckpoints(const v1::CheckpointBody& first);
 
   SimulationFactory make_;
   std::vector<PlayerFrame> frames_;
