@@ -207,19 +207,22 @@ class Engine final : public Simulation {
   /// What Memo() copies: see SimulationMemo.
   struct EngineMemo final : SimulationMemo {
     EngineMemo(const fem::State<T>& s, const std::optional<ToolState<T>>& t,
-               std::optional<cutting::CutAttemptTracker> c, const RunCounters& r, const SessionMeter<T>& m)
-        : state(s), tool(t), tracker(std::move(c)), run(r), meter(m) {}
+               std::optional<typename CutPipeline<T>::AttemptState> c, const RunCounters& r, const SessionMeter<T>& m,
+               const SurfaceTracker& f, const std::optional<IncisionScorer>& i)
+        : state(s), tool(t), tracker(std::move(c)), run(r), meter(m), surface(f), scorer(i) {}
     fem::State<T> state;
     std::optional<ToolState<T>> tool;
-    std::optional<cutting::CutAttemptTracker> tracker;
+    std::optional<typename CutPipeline<T>::AttemptState> tracker;
     RunCounters run;
     SessionMeter<T> meter;
+    SurfaceTracker surface;  // its BVH as refit frame by frame, not rebuilt: contact queries tie-break alike
+    std::optional<IncisionScorer> scorer;
   };
 
   std::unique_ptr<const SimulationMemo> Memo() const override {
     return std::make_unique<EngineMemo>(
-        fem_.state(), tool_, cuts_ ? std::optional<cutting::CutAttemptTracker>(cuts_->tracker()) : std::nullopt, run_,
-        meter_);
+        fem_.state(), tool_, cuts_ ? std::optional<typename CutPipeline<T>::AttemptState>(cuts_->attempt_state()) : std::nullopt, run_,
+        meter_, surface_, scorer_);
   }
 
   void RestoreMemo(const SimulationMemo& memo) override {
@@ -230,9 +233,11 @@ class Engine final : public Simulation {
     }
     fem_.state() = m->state;
     if (tool_) tool_ = m->tool;
-    if (cuts_) cuts_->set_tracker(*m->tracker);
+    if (cuts_) cuts_->set_attempt_state(*m->tracker);
     run_ = m->run;
     meter_ = m->meter;
+    surface_ = m->surface;
+    scorer_ = m->scorer;
   }
 
   std::span<const cutting::TopologyEvent> TopologyEvents() const override {

@@ -38,8 +38,10 @@ struct NamedEvent {
 
 /// What a checkpoint body leaves out, copied exactly in memory
 /// (Simulation::Memo): the integrator's held and cached step state, the
-/// tool's contact and grip, the cut test's anchor, the counters and the
-/// measures' running state. Opaque; only the Simulation that made it reads it.
+/// tool's contact and grip, the cut test's anchor and the tip when it was
+/// set, the surface as tracked (its BVH refit frame by frame), the
+/// counters, the measures' and the score's running state. Opaque; only the
+/// Simulation that made it reads it.
 class SimulationMemo {
  public:
   virtual ~SimulationMemo() = default;

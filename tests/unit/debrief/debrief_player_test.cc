@@ -78,6 +78,20 @@ TEST(DebriefPlayerTest, SeekThenPlayEqualsUninterruptedPlay) {
   }
 }
 
+TEST(DebriefPlayerTest, PlayAcrossTheCutAfterARestoreEqualsThePrepass) {
+  // The cut step depends on state a checkpoint body leaves out (the cut
+  // test's anchor, the blade's grip): restored before the cut, the replay
+  // must cut on the same frame and the same way.
+  Fixture& f = Shared();
+  DebriefPlayer& p = f.player;
+  const double cut = p.timeline().step_t.front();
+  p.Seek(3.2);
+  const SeekReport r = p.Seek(cut - 0.1);
+  ASSERT_TRUE(r.restored);
+  EXPECT_LT(r.restore_from, cut);
+  while (p.StepFrame()) ASSERT_EQ(StateHash(p.simulation()), f.HashAt(p.frame())) << "frame " << p.frame();
+}
+
 TEST(DebriefPlayerTest, PlayFromTheStartEqualsThePrepass) {
   Fixture& f = Shared();
   DebriefPlayer& p = f.player;
