@@ -58,9 +58,9 @@ export class Debrief {
     this.clock = el('span', { id: 'debrief-clock' }, '–');
     bar.append(this.title);
     if (this.instructor) {
-      this.prev = el('button', { id: 'debrief-prev', title: 'previous cut step' }, '⏮ cut');
-      this.play = el('button', { id: 'debrief-play', title: 'play / pause' }, '⏸');
-      this.next = el('button', { id: 'debrief-next', title: 'next cut step' }, 'cut ⏭');
+      this.prev = el('button', { id: 'debrief-prev', title: 'previous cut step' }, '◀ cut');
+      this.play = el('button', { id: 'debrief-play', title: 'play / pause' }, '■ pause');
+      this.next = el('button', { id: 'debrief-next', title: 'next cut step' }, 'cut ▶');
       this.speed = el('select', { id: 'debrief-speed', title: 'speed × real time' });
       for (const s of SPEEDS) this.speed.append(el('option', { value: String(s) }, `${s}×`));
       this.speed.value = '1';
@@ -151,7 +151,7 @@ export class Debrief {
     this.clock.textContent = `${this.state.position.toFixed(2)} / ${this.state.duration.toFixed(2)} s` +
       `${this.state.paused ? ' · paused' : ''} · ${this.state.speed}×`;
     if (this.instructor) {
-      this.play.textContent = this.state.paused ? '▶' : '⏸';
+      this.play.textContent = this.state.paused ? '▶ play' : '■ pause';
       if (document.activeElement !== this.speed) this.speed.value = String(this.state.speed);
     }
     this.draw();
