@@ -421,8 +421,8 @@ int ServerApp::RunReplay() {
     Log().error("replay of {} does NOT match the recording: {}", options_.replay, r.mismatch);
     return 4;
   }
-  Log().info("replay of {} matches: {} frames, {} cut frames, final mesh hash {:016x}", options_.replay,
-             r.frames, r.cut_frames, r.mesh_hash);
+  Log().info("replay of {} matches: {} frames, {} cut frames, {} recorded frame hashes equal, final mesh hash {:016x}",
+             options_.replay, r.frames, r.cut_frames, r.hashed_frames, r.mesh_hash);
   if (r.report.status() == sim::kStatusUnconverged) {
     Log().error("the re-run did not converge: {}", r.report.diagnosis());
     return kExitUnconverged;
