@@ -412,7 +412,8 @@ int ServerApp::RunDebrief() {
         return !g_stop;
       });
   if (g_stop) return 0;
-  if (recording.end && mismatch.empty() && RecordingHash(recording, player.simulation()) != recording.end->mesh_hash()) {
+  if (recording.end && mismatch.empty() &&
+      RecordingHash(recording, player.simulation()) != recording.end->mesh_hash()) {
     mismatch = "the final mesh hash differs from the recorded one";
   }
   if (!mismatch.empty()) {

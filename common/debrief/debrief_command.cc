@@ -97,7 +97,9 @@ CommandParse ParseDebriefCommand(std::string_view line) {
   DebriefCommand command{.action = known->action};
   if (known->argument) {
     const auto value = ParseNumber(words[1]);
-    if (!value) return Refuse(known->argument, fmt::format("'{}' is not a finite decimal number", words[1].substr(0, 24)));
+    if (!value) {
+      return Refuse(known->argument, fmt::format("'{}' is not a finite decimal number", words[1].substr(0, 24)));
+    }
     if (command.action == DebriefAction::kSeek) {
       if (*value < 0.0 || *value > kMaxSeekSeconds) {
         return Refuse("time", fmt::format("{:g} s is outside [0, {:g}] s", *value, kMaxSeekSeconds));

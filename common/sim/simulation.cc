@@ -220,9 +220,10 @@ class Engine final : public Simulation {
   };
 
   std::unique_ptr<const SimulationMemo> Memo() const override {
-    return std::make_unique<EngineMemo>(
-        fem_.state(), tool_, cuts_ ? std::optional<typename CutPipeline<T>::AttemptState>(cuts_->attempt_state()) : std::nullopt, run_,
-        meter_, surface_, scorer_);
+    using Attempt = typename CutPipeline<T>::AttemptState;
+    return std::make_unique<EngineMemo>(fem_.state(), tool_,
+                                        cuts_ ? std::optional<Attempt>(cuts_->attempt_state()) : std::nullopt, run_,
+                                        meter_, surface_, scorer_);
   }
 
   void RestoreMemo(const SimulationMemo& memo) override {

@@ -160,15 +160,16 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       reply = R"({"type":"control","ok":false,"field":"command","error":"commands are text frames"})";
     } else if (bucket_ < 1.0) {
       server_.Count([](ObserverServerStats& s) { ++s.control_rate_limited; });
-      reply = fmt::format(R"({{"type":"control","ok":false,"field":"rate","error":"more than {:g} commands a second"}})",
-                          rate);
+      reply = fmt::format(
+          R"({{"type":"control","ok":false,"field":"rate","error":"more than {:g} commands a second"}})", rate);
     } else {
       bucket_ -= 1.0;
       server_.Count([](ObserverServerStats& s) { ++s.control_messages; });
       const auto data = read_buffer_.cdata();
       const std::string_view text(static_cast<const char*>(data.data()), data.size());
-      reply = server_.options.on_control ? server_.options.on_control(text)
-                                         : R"({"type":"control","ok":false,"field":"command","error":"no control here"})";
+      reply = server_.options.on_control
+                  ? server_.options.on_control(text)
+                  : std::string(R"({"type":"control","ok":false,"field":"command","error":"no control here"})");
     }
     read_buffer_.consume(read_buffer_.size());
     Send(Outgoing{.payload = std::make_shared<const std::string>(std::move(reply)), .binary = false});
