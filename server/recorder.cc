@@ -139,6 +139,7 @@ void SessionRecorder::Frame(double frame_time, const std::optional<sim::ToolPose
     frame_msg_.set_topology_hash(TopologyDigest(simulation, &view_));
     last_version_ = version;
   }
+  if (frames_ % kRecordHashEveryFrames == 0) frame_msg_.set_mesh_hash(FinalMeshHash(simulation, kRecordQuantum, &view_));
   try {
     Write(frame_channel_, frame_msg_);
     // Through to the kernel each frame: a full disk shows at once, and a
@@ -218,37 +219,44 @@ std::filesystem::path ReplayScene(const v1::RecordHeader& header, const std::fil
   return scene;
 }
 
+/// One RecordFrame event, checked: frame times within the scene limits (so
+/// a hostile time cannot make one frame run forever), a finite tool pose,
+/// frames numbered in order after `frames_so_far`. Throws naming the file
+/// and event.
+v1::RecordFrame ParseFrame(const transport::LcmLogEvent& e, const std::filesystem::path& path,
+                           uint64_t frames_so_far) {
+  auto f = Parse<v1::RecordFrame>(e, path);
+  if (!(f.frame_time() >= sim::kMinFrameDt && f.frame_time() <= sim::kMaxFrameDt)) {
+    ThrowInputError({.file = path.string(), .field = EventField(e, "RecordFrame.frame_time")},
+                    fmt::format("frame {}: {:g} s is outside [{:g}, {:g}] s", f.frame(), f.frame_time(),
+                                sim::kMinFrameDt, sim::kMaxFrameDt));
+  }
+  if (f.has_tool() && !(std::isfinite(f.tip().x()) && std::isfinite(f.tip().y()) && std::isfinite(f.tip().z()) &&
+                        std::isfinite(f.blade_dir().x()) && std::isfinite(f.blade_dir().y()) &&
+                        std::isfinite(f.blade_dir().z()))) {
+    ThrowInputError({.file = path.string(), .field = EventField(e, "RecordFrame.tip/blade_dir")},
+                    fmt::format("frame {}: the tool pose is NaN or infinite", f.frame()));
+  }
+  if (f.frame() != frames_so_far + 1) {
+    ThrowInputError({.file = path.string(), .field = EventField(e, "RecordFrame.frame")},
+                    fmt::format("frame {} follows frame {}: the recording is incomplete", f.frame(), frames_so_far));
+  }
+  return f;
+}
+
 /// Feeds a recording's frames to a simulation and compares its cut
 /// decisions and final mesh with the recorded ones. The first difference is
 /// the replay's mismatch; a malformed recording throws naming the file and
 /// event.
 class Replayer {
  public:
-  Replayer(const std::filesystem::path& path, sim::Simulation& simulation)
-      : path_(path), simulation_(simulation), last_version_(simulation.topology_version()) {}
+  Replayer(const std::filesystem::path& path, sim::Simulation& simulation, double quantum)
+      : path_(path), simulation_(simulation), quantum_(quantum), last_version_(simulation.topology_version()) {}
 
   /// Replays one RecordFrame event; false when the replay must stop.
   bool Frame(const transport::LcmLogEvent& e) {
     if (ended_) ThrowInputError({.file = path_.string(), .field = EventField(e)}, "frame after the end event");
-    const auto f = Parse<v1::RecordFrame>(e, path_);
-    // Frame times are the physics frame: positive, finite and within the
-    // scene limits, so a hostile time cannot make one frame run forever.
-    if (!(f.frame_time() >= sim::kMinFrameDt && f.frame_time() <= sim::kMaxFrameDt)) {
-      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.frame_time")},
-                      fmt::format("frame {}: {:g} s is outside [{:g}, {:g}] s", f.frame(), f.frame_time(),
-                                  sim::kMinFrameDt, sim::kMaxFrameDt));
-    }
-    if (f.has_tool() && !(std::isfinite(f.tip().x()) && std::isfinite(f.tip().y()) && std::isfinite(f.tip().z()) &&
-                          std::isfinite(f.blade_dir().x()) && std::isfinite(f.blade_dir().y()) &&
-                          std::isfinite(f.blade_dir().z()))) {
-      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.tip/blade_dir")},
-                      fmt::format("frame {}: the tool pose is NaN or infinite", f.frame()));
-    }
-    if (f.frame() != result_.frames + 1) {
-      ThrowInputError({.file = path_.string(), .field = EventField(e, "RecordFrame.frame")},
-                      fmt::format("frame {} follows frame {}: the recording is incomplete", f.frame(),
-                                  result_.frames));
-    }
+    const auto f = ParseFrame(e, path_, result_.frames);
     if (f.has_tool()) {
       simulation_.SetToolPose({{f.tip().x(), f.tip().y(), f.tip().z()},
                                {f.blade_dir().x(), f.blade_dir().y(), f.blade_dir().z()}});
@@ -258,7 +266,17 @@ class Replayer {
       return false;
     }
     ++result_.frames;
-    return SameTopology(f);
+    if (!SameTopology(f)) return false;
+    // The state at the recorded frames that carry its hash.
+    if (f.mesh_hash() != 0) {
+      const uint64_t hash = FinalMeshHash(simulation_, quantum_, &view_);
+      if (hash != f.mesh_hash()) {
+        Fail(fmt::format("frame {}: mesh hash {:016x}, recorded {:016x}", f.frame(), hash, f.mesh_hash()));
+        return false;
+      }
+      ++result_.hashed_frames;
+    }
+    return true;
   }
 
   /// Takes the RecordEnd event: the recorded frame count and final hash.
@@ -358,6 +376,7 @@ class Replayer {
 
   const std::filesystem::path& path_;
   sim::Simulation& simulation_;
+  double quantum_;
   ReplayResult result_;
   sim::MeshView view_;  // reused for digests
   uint64_t last_version_;
@@ -373,7 +392,8 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
   const sim::LoadedScene loaded = sim::LoadScene(scene);
   auto simulation = sim::Simulation::Create(
       loaded, {.threads = header.threads(), .precision = header.precision()});
-  Replayer replayer(path, *simulation);
+  const double quantum = header.quantum() > 0 ? header.quantum() : kRecordQuantum;
+  Replayer replayer(path, *simulation, quantum);
   while (auto e = reader.Next()) {
     if (g_stop) {
       replayer.Fail(fmt::format("interrupted after {} frames", replayer.frames()));
@@ -390,10 +410,45 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
     ThrowInputError({.file = path.string(), .field = "RecordEnd"},
                     "the recording has no end event (the server did not finish it)");
   }
-  ReplayResult result = replayer.Finish(header.quantum() > 0 ? header.quantum() : kRecordQuantum);
+  ReplayResult result = replayer.Finish(quantum);
   result.session = header.session();
   result.scene = scene.string();
   return result;
+}
+
+Recording ReadRecording(const std::filesystem::path& path, const std::string& scene_override) {
+  transport::LcmLogReader reader(path);
+  Recording r;
+  r.header = ReadHeader(reader, path);
+  r.scene = ReplayScene(r.header, path, scene_override);
+  while (auto e = reader.Next()) {
+    if (EndsWith(e->channel, "_REC_FRAME")) {
+      if (r.end) ThrowInputError({.file = path.string(), .field = EventField(*e)}, "frame after the end event");
+      if (r.frames.size() >= kMaxDebriefFrames) {
+        ThrowInputError({.file = path.string(), .field = EventField(*e)},
+                        fmt::format("more than {} frames: too long for a debrief", kMaxDebriefFrames));
+      }
+      const v1::RecordFrame f = ParseFrame(*e, path, r.frames.size());
+      debrief::PlayerFrame frame{.frame_time = f.frame_time(), .tool = std::nullopt,
+                                 .topology_version = f.topology_version()};
+      if (f.has_tool()) {
+        frame.tool = sim::ToolPose{{f.tip().x(), f.tip().y(), f.tip().z()},
+                                   {f.blade_dir().x(), f.blade_dir().y(), f.blade_dir().z()}};
+      }
+      r.frames.push_back(frame);
+      r.mesh_hashes.push_back(f.mesh_hash());
+    } else if (EndsWith(e->channel, "_REC_END")) {
+      r.end = Parse<v1::RecordEnd>(*e, path);
+    }
+  }
+  if (r.frames.empty()) ThrowInputError({.file = path.string(), .field = "RecordFrame"}, "the recording has no frames");
+  return r;
+}
+
+uint64_t RecordingHash(const Recording& recording, const sim::Simulation& simulation) {
+  sim::MeshView view;
+  return FinalMeshHash(simulation, recording.header.quantum() > 0 ? recording.header.quantum() : kRecordQuantum,
+                       &view);
 }
 
 }  // namespace cutsim::server

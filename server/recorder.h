@@ -38,6 +38,7 @@
 #include <optional>
 #include <string>
 
+#include "common/debrief/debrief_player.h"
 #include "common/sim/simulation.h"
 #include "common/transport/lcm_log.h"
 #include "common/transport/mesh_stream.h"
@@ -48,6 +49,9 @@ namespace cutsim::server {
 
 /// Quantum of the recorded final mesh hash, m.
 inline constexpr double kRecordQuantum = 1e-5;
+/// Every this many frames a recording carries the state's hash
+/// (RecordFrame.mesh_hash).
+inline constexpr uint64_t kRecordHashEveryFrames = 20;
 
 /// "portable" or "native-fma": the floating-point class of this build.
 [[nodiscard]] const char* BuildClass();
@@ -101,6 +105,7 @@ struct ReplayResult {
   std::string mismatch;         ///< First difference, e.g. "frame 212: topology version 3, recorded 2".
   uint64_t frames = 0;
   uint64_t cut_frames = 0;      ///< Frames whose topology changed.
+  uint64_t hashed_frames = 0;   ///< Frames whose recorded mesh hash the re-run matched.
   uint64_t topology_version = 0;
   uint64_t cuts = 0;
   uint64_t mesh_hash = 0;
@@ -118,5 +123,26 @@ struct ReplayResult {
 /// `InputError` naming the file for a missing or malformed recording.
 [[nodiscard]] ReplayResult ReplayRecording(const std::filesystem::path& path,
                                            const std::string& scene_override);
+
+/// A recording read whole, for a debrief (`--replay FILE --live`).
+struct Recording {
+  v1::RecordHeader header;
+  std::filesystem::path scene;                ///< the scene replayed (see ReplayRecording)
+  std::vector<debrief::PlayerFrame> frames;   ///< every frame, checked as a replay checks them
+  std::optional<v1::RecordEnd> end;           ///< absent when the server did not finish it
+  std::vector<uint64_t> mesh_hashes;          ///< #frames: the live state's hash after each, 0 = not recorded
+};
+
+/// Most frames a debrief reads (about 5.8 h at 200 frames/s).
+inline constexpr size_t kMaxDebriefFrames = size_t{1} << 22;
+
+/// Reads `path` whole (the scene as ReplayRecording finds it). Throws
+/// `InputError` naming the file and event for a malformed recording, or one
+/// of more than kMaxDebriefFrames frames.
+[[nodiscard]] Recording ReadRecording(const std::filesystem::path& path, const std::string& scene_override);
+
+/// The hash a recording compares: `simulation`'s state at the recording's
+/// quantum (RecordFrame.mesh_hash, RecordEnd.mesh_hash).
+[[nodiscard]] uint64_t RecordingHash(const Recording& recording, const sim::Simulation& simulation);
 
 }  // namespace cutsim::server

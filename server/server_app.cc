@@ -120,12 +120,14 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
 }
 
 /// The server's modes, in the order of FlagModes' names.
-enum ServerMode : int { kRealtimeMode = 0, kHeadlessMode = 1, kReplayMode = 2 };
+enum ServerMode : int { kRealtimeMode = 0, kHeadlessMode = 1, kReplayMode = 2, kDebriefMode = 3 };
 constexpr cli::ModeSet kRealtime = 1U << kRealtimeMode;
 constexpr cli::ModeSet kHeadless = 1U << kHeadlessMode;
 constexpr cli::ModeSet kReplay = 1U << kReplayMode;
+constexpr cli::ModeSet kDebrief = 1U << kDebriefMode;  // a recording played to observers
 constexpr cli::ModeSet kRun = kRealtime | kHeadless;  // a simulation this process runs from the scene
-constexpr cli::ModeSet kAny = kRun | kReplay;
+constexpr cli::ModeSet kServe = kRealtime | kDebrief;  // a session observers watch over DDS
+constexpr cli::ModeSet kAny = kRun | kReplay | kDebrief;
 
 /// The batch-run flags: scene, duration, output, threads, logging.
 void AddRunOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
@@ -169,16 +171,16 @@ void AddRunOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
 void AddRealtimeOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
   m.Declare(app.add_option("--session", o.session,
                            "Session name (LCM channels, DDS key; the session's name in the score history)"),
-            kRun);
+            kRun | kDebrief);
   m.Declare(app.add_option("--lcm-url", o.lcm_url,
                            "LCM URL of the haptic link (ttl=0 stays on this host; ttl=1 reaches the LAN)"),
-            kRealtime);
+            kServe);
   m.Declare(app.add_option("--dds-domain", o.dds_domain, "DDS domain id for the viewers")->check(CLI::Range(0, 230)),
-            kRealtime);
+            kServe);
   m.Declare(app.add_option("--dds-config", o.dds_config,
                            "Cyclone DDS configuration file (default: $CYCLONEDDS_URI, else loopback only)")
                 ->check(CLI::ExistingFile),
-            kRealtime);
+            kServe);
   m.Declare(app.add_flag("!--no-rt", o.realtime_priority,
                          "Keep the physics and LCM threads at normal priority (default: SCHED_FIFO 60/70 when "
                          "permitted, below the haptic loop's 80); for a machine shared with normal-priority work, "
@@ -186,7 +188,7 @@ void AddRealtimeOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
             kRealtime);
   m.Declare(app.add_option("--viewer-fps", o.viewer_fps, "Mesh frames per second to viewers")
                 ->check(CLI::Range(0.1, 240.0)),
-            kRealtime);
+            kServe);
   m.Declare(app.add_option("--frame-rate", o.frame_rate,
                            "Physics frames (local models) per second; default: the scene's time_step.frame_dt")
                 ->check(CLI::Range(1.0, 10000.0)),
@@ -201,7 +203,7 @@ void AddReportOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
   m.Declare(app.add_option("--session-report", o.session_report,
                            "At the end, write the session's measures and score to this JSON file and their plot "
                            "beside it (.svg)"),
-            kAny);
+            kRun | kReplay);
   m.Declare(app.add_option("--history", o.history,
                            "At the end, append the session's score for --trainee to this SQLite file, the lab's "
                            "score history (created when absent; a bad or locked file is logged, never stops the "
@@ -219,15 +221,20 @@ void AddRecordAndAccessOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& 
             kRealtime);
   m.Declare(app.add_option("--replay", o.replay,
                            "With --headless: re-run a recording and check its cuts and final mesh hash "
-                           "(exit 4 on a mismatch)")
+                           "(exit 4 on a mismatch); with --live: play it to observers (a debrief)")
                 ->check(CLI::ExistingFile),
-            kReplay);
+            kReplay | kDebrief);
+  m.Declare(app.add_flag("--live", o.live,
+                         "With --replay: re-simulate the recording at real pace and publish it as a live session "
+                         "(viewers, browsers, the trainee page watch it); commands on standard input and from the "
+                         "instructor's page: play, pause, seek T, next, prev, speed F"),
+            kDebrief);
   m.Declare(app.add_option("--key-file", o.key_file,
                            "Session key (hex, 16-64 bytes): accept only tool messages signed with it, and sign the "
                            "event journal beside --checkpoint with it; default $CUTSIM_SESSION_KEY, else an open "
                            "session")
                 ->check(CLI::ExistingFile),
-            kRun);
+            kRun | kDebrief);
   m.Declare(app.add_option("--auth-window", o.auth_window,
                            "Seconds a signed tool message's timestamp may differ from this host's clock")
                 ->check(CLI::Range(0.001, 3600.0)),
@@ -241,9 +248,11 @@ void AddCheckpointOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
                            "--checkpoint-every s and at a clean exit (SIGINT/SIGTERM); atomic replace"),
             kRun);
   m.Declare(app.add_option("--checkpoint-every", o.checkpoint_every,
-                           "Wall seconds between checkpoints (0: only at exit)")
+                           "Wall seconds between checkpoints (0: only at exit); with --replay --live, recorded "
+                           "seconds between the debrief's checkpoints in memory (default 0.25: a seek simulates "
+                           "at most that much)")
                 ->check(CLI::NonNegativeNumber),
-            kRun);
+            kRun | kDebrief);
   m.Declare(app.add_flag("--resume", o.resume,
                          "Restore --checkpoint at start when the file exists (a corrupted or foreign file is an "
                          "error)"),
@@ -254,7 +263,11 @@ void AddCheckpointOptions(CLI::App& app, ServerOptions& o, cli::FlagModes& m) {
 const char* OptionConflict(const ServerOptions& o) {
   if (o.resume && o.checkpoint.empty()) return "--resume needs --checkpoint FILE";
   if (o.scene.empty() && o.replay.empty()) return "--scene is required (unless --headless --replay FILE)";
-  if (!o.replay.empty() && !o.headless) return "--replay needs --headless";
+  if (!o.replay.empty() && o.headless == o.live) {
+    return o.live ? "--replay takes --headless (check it) or --live (play it to observers), not both"
+                  : "--replay needs --headless (check it) or --live (play it to observers)";
+  }
+  if (o.live && o.replay.empty()) return "--live plays a recording: give --replay FILE";
   if (!o.record.empty() && o.headless) return "--record records a real-time session: drop --headless";
   if (!o.record.empty() && o.resume) {
     return "--record cannot be combined with --resume (a replay starts from the scene)";
@@ -270,7 +283,7 @@ const char* OptionConflict(const ServerOptions& o) {
 
 int ServerApp::ParseArgs(int argc, char** argv) {
   CLI::App app{"cutsim-server: owns the tissue FEM model and every cut"};
-  cli::FlagModes modes({"a real-time session", "--headless", "--headless --replay"});
+  cli::FlagModes modes({"a real-time session", "--headless", "--headless --replay", "--replay --live"});
   AddRunOptions(app, options_, modes);
   AddRealtimeOptions(app, options_, modes);
   AddRecordAndAccessOptions(app, options_, modes);
@@ -287,7 +300,17 @@ int ServerApp::ParseArgs(int argc, char** argv) {
     return 2;
   }
   // A flag that does nothing in the chosen mode is refused, not ignored.
-  const int mode = !options_.replay.empty() ? kReplayMode : options_.headless ? kHeadlessMode : kRealtimeMode;
+  const int mode = options_.live                ? kDebriefMode
+                   : !options_.replay.empty()   ? kReplayMode
+                   : options_.headless          ? kHeadlessMode
+                                                : kRealtimeMode;
+  if (options_.live) {
+    options_.debrief_checkpoint_every = app.count("--checkpoint-every") > 0 ? options_.checkpoint_every : 0.25;
+    if (!(options_.debrief_checkpoint_every > 0)) {
+      std::fprintf(stderr, "--checkpoint-every: the debrief needs a positive period (recorded seconds)\n");
+      return 2;
+    }
+  }
   if (const std::optional<std::string> refusal = modes.Refusal(app, mode)) {
     std::fprintf(stderr, "%s\n", refusal->c_str());
     return 2;
@@ -304,6 +327,7 @@ int ServerApp::Run() {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   std::signal(SIGUSR1, OnStatsSignal);
+  if (options_.live) return RunDebrief();
   if (!options_.replay.empty()) return RunReplay();
   // Outputs are checked before any work, so a bad path fails now, not after
   // an hour's session.
@@ -397,8 +421,8 @@ int ServerApp::RunReplay() {
     Log().error("replay of {} does NOT match the recording: {}", options_.replay, r.mismatch);
     return 4;
   }
-  Log().info("replay of {} matches: {} frames, {} cut frames, final mesh hash {:016x}", options_.replay,
-             r.frames, r.cut_frames, r.mesh_hash);
+  Log().info("replay of {} matches: {} frames, {} cut frames, {} recorded frame hashes equal, final mesh hash {:016x}",
+             options_.replay, r.frames, r.cut_frames, r.hashed_frames, r.mesh_hash);
   if (r.report.status() == sim::kStatusUnconverged) {
     Log().error("the re-run did not converge: {}", r.report.diagnosis());
     return kExitUnconverged;

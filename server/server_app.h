@@ -55,11 +55,17 @@ struct ServerOptions {
   // Record, replay and access control.
   std::string record;              ///< --record: LCM log of the session's inputs (real-time mode)
   std::string replay;              ///< --replay: with --headless, re-run a recording and check it
+  /// --live (with --replay): play the recording to observers at real pace,
+  /// with play, pause, seek, cut steps and speed (a debrief).
+  bool live = false;
   std::string key_file;            ///< --key-file: hex session key; "" = $CUTSIM_SESSION_KEY, else open
   double auth_window = 2.0;        ///< s, accepted |clock difference| of signed tool messages
   // Checkpoints (common/sim/checkpoint.h).
   std::string checkpoint;          ///< --checkpoint: file saved periodically and at a clean exit
   double checkpoint_every = 5.0;   ///< s of wall time between saves; 0: only at exit
+  /// With --replay --live: recorded seconds between the debrief's in-memory
+  /// checkpoints (a seek simulates at most this much); --checkpoint-every.
+  double debrief_checkpoint_every = 0.25;
   bool resume = false;             ///< --resume: restore --checkpoint at start if it exists
 };
 
@@ -109,6 +115,7 @@ class ServerApp {
   int RunHeadless();
   int RunRealtime();
   int RunReplay();
+  int RunDebrief();
 
   ServerOptions options_;
 };

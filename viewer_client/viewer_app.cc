@@ -19,12 +19,14 @@
 #include "common/core/error.h"
 #include "common/core/install_paths.h"
 #include "common/core/log.h"
+#include "common/debrief/debrief_command.h"
 #include "common/render/camera.h"
 #include "common/render/image.h"
 #include "common/render/surface_renderer.h"
 #include "common/render/video_writer.h"
 #include "common/transport/channels.h"
 #include "common/transport/dds.h"
+#include "common/transport/debrief_control.h"
 #include "common/transport/mesh_stream.h"
 #include "common/transport/proto_vec.h"
 #include "common/transport/report_json.h"
@@ -138,6 +140,45 @@ v1::ViewerSummary SummaryReport(const ViewerOptions& o, const RunSummary& r,
     v.set_browser_bytes_sent(static_cast<double>(b.bytes_sent));
   }
   return v;
+}
+
+/// `text` as a JSON string's contents (quotes, backslashes, control characters).
+std::string JsonEscape(std::string_view text) {
+  std::string out;
+  for (const char c : text) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7e) {
+      out += fmt::format("\\u{:04x}", static_cast<unsigned char>(c));
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+/// An instructor's message: checked as the server checks a command line
+/// (common/debrief/debrief_command.h), then sent to the debrief; the reply
+/// says which field is wrong, or what went out.
+std::string ControlReply(std::string_view message, transport::DebriefControlWriter& control) {
+  const debrief::CommandParse parse = debrief::ParseDebriefCommand(message);
+  if (!parse.command) {
+    return fmt::format(R"({{"type":"control","ok":false,"field":"{}","error":"{}"}})", parse.field,
+                       JsonEscape(parse.error));
+  }
+  const std::string line = debrief::FormatDebriefCommand(*parse.command);
+  if (control.matched_readers() == 0) {
+    return fmt::format(R"j({{"type":"control","ok":false,"field":"session","error":"no debrief of this session is )j"
+                       R"j(listening (cutsim-server --replay FILE --live)","command":"{}"}})j",
+                       line);
+  }
+  if (!control.Send(line)) {
+    return fmt::format(R"({{"type":"control","ok":false,"field":"session","error":"the command could not be sent",)"
+                       R"("command":"{}"}})",
+                       line);
+  }
+  return fmt::format(R"({{"type":"control","ok":true,"command":"{}"}})", line);
 }
 
 /// Draws verified meshes and writes them out: PNG frames, a video, a frame
@@ -335,6 +376,12 @@ int ViewerApp::ParseArgs(int argc, char** argv) {
   modes.Declare(app.add_option("--token-file", options_.token_file,
                                "Observers' token (16-128 chars of A-Za-z0-9_-): browsers need ?token=… in the URL"),
                 kServing);
+  modes.Declare(app.add_option("--instructor-token-file", options_.instructor_token_file,
+                               "The instructor's token (16-128 chars of A-Za-z0-9_-, not the observers'): a page "
+                               "opened with &instructor=… steers a debrief (cutsim-server --replay FILE --live): "
+                               "play, pause, seek, cut steps, speed; other pages stay read-only")
+                    ->check(CLI::ExistingFile),
+                1U << 1);
   options_.web_root = (DataDir() / "web" / "observer").string();
   modes.Declare(app.add_option("--web-root", options_.web_root,
                                "The observer page's files (web/observer with three.js under node_modules/three; "
@@ -389,6 +436,7 @@ int ViewerApp::Run() {
                o.session, transport::kSessionKeyEnv);
   }
   transport::MeshStreamSubscriber sub(participant, o.session, key);
+  std::unique_ptr<transport::DebriefControlWriter> control;  // with --instructor-token-file
   std::unique_ptr<web::BrowserBridge> bridge;
   if (!o.serve.empty()) {
     web::ObserverServerOptions so;
@@ -396,9 +444,24 @@ int ViewerApp::Run() {
     if (!o.token_file.empty()) so.token = web::LoadObserverToken(o.token_file);
     so.host_names = o.host_names;
     so.files = web::ObserverPageFiles(o.web_root);
+    if (!o.instructor_token_file.empty()) {
+      so.instructor_token = web::LoadObserverToken(o.instructor_token_file);
+      if (so.instructor_token == so.token) {
+        ThrowInputError({.file = o.instructor_token_file, .field = "--instructor-token-file"},
+                        "the instructor's token must differ from the observers' (--token-file)");
+      }
+      control = std::make_unique<transport::DebriefControlWriter>(participant, o.session, key);
+      so.on_control = [c = control.get()](std::string_view message) { return ControlReply(message, *c); };
+    }
+    const std::string instructor = so.instructor_token;
     bridge = std::make_unique<web::BrowserBridge>(std::move(so), o.session);
     // On stdout, for scripts: the address a browser opens.
-    std::printf("observers: %s\n", bridge->server().Url().c_str());
+    const std::string url = bridge->server().Url();
+    std::printf("observers: %s\n", url.c_str());
+    if (!instructor.empty()) {
+      std::printf("instructor: %s%sinstructor=%s\n", url.c_str(), url.find('?') == std::string::npos ? "?" : "&",
+                  instructor.c_str());
+    }
     std::fflush(stdout);
   }
   // Rendering offscreen is for frames and videos; a pure bridge skips it.

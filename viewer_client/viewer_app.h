@@ -34,6 +34,9 @@ struct ViewerOptions {
   std::string log_level = "info";
   std::string serve;       ///< HOST:PORT of the browser observers' page; empty: none.
   std::string token_file;  ///< Observers' token (required off loopback).
+  /// The instructor's token (--instructor-token-file): a page opened with
+  /// `&instructor=<token>` steers a debrief; empty: every page is read-only.
+  std::string instructor_token_file;
   std::vector<std::string> host_names;  ///< Further names browsers may open the page at (--host-name).
   std::string web_root;    ///< The page's files (web/observer).
   std::string lab;         ///< HOST:PORT of the lab page (every session on the domain); empty: none.

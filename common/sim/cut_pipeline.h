@@ -92,6 +92,17 @@ class CutPipeline {
   [[nodiscard]] const std::vector<CutStepTiming>& timings() const { return cut_timings_; }
   [[nodiscard]] uint64_t cuts() const { return cuts_; }
   void set_cuts(uint64_t cuts) { cuts_ = cuts; }
+  /// The cut test's state across frames: the attempt's anchor and the tip
+  /// when it was set (Simulation::Memo copies it).
+  struct AttemptState {
+    cutting::CutAttemptTracker tracker;
+    Eigen::Vector3d anchor_tip;
+  };
+  [[nodiscard]] AttemptState attempt_state() const { return {tracker_, anchor_tip_}; }
+  void set_attempt_state(const AttemptState& s) {
+    tracker_ = s.tracker;
+    anchor_tip_ = s.anchor_tip;
+  }
   /// Cut counters and time into a summary; cut fields into a tool report.
   void AddToSummary(SimulationSummary& s) const;
   void AddToReport(ToolReport& r) const;

@@ -204,6 +204,43 @@ class Engine final : public Simulation {
     if (scorer_) scorer_->Restore(series.cut_points);
   }
 
+  /// What Memo() copies: see SimulationMemo.
+  struct EngineMemo final : SimulationMemo {
+    EngineMemo(const fem::State<T>& s, const std::optional<ToolState<T>>& t,
+               std::optional<typename CutPipeline<T>::AttemptState> c, const RunCounters& r, const SessionMeter<T>& m,
+               const SurfaceTracker& f, const std::optional<IncisionScorer>& i)
+        : state(s), tool(t), tracker(std::move(c)), run(r), meter(m), surface(f), scorer(i) {}
+    fem::State<T> state;
+    std::optional<ToolState<T>> tool;
+    std::optional<typename CutPipeline<T>::AttemptState> tracker;
+    RunCounters run;
+    SessionMeter<T> meter;
+    SurfaceTracker surface;  // its BVH as refit frame by frame, not rebuilt: contact queries tie-break alike
+    std::optional<IncisionScorer> scorer;
+  };
+
+  std::unique_ptr<const SimulationMemo> Memo() const override {
+    using Attempt = typename CutPipeline<T>::AttemptState;
+    return std::make_unique<EngineMemo>(fem_.state(), tool_,
+                                        cuts_ ? std::optional<Attempt>(cuts_->attempt_state()) : std::nullopt, run_,
+                                        meter_, surface_, scorer_);
+  }
+
+  void RestoreMemo(const SimulationMemo& memo) override {
+    const auto* m = dynamic_cast<const EngineMemo*>(&memo);
+    if (m == nullptr || m->state.x.size() != fem_.state().x.size() || m->tool.has_value() != tool_.has_value() ||
+        m->tracker.has_value() != cuts_.has_value()) {
+      ThrowInputError({.field = "memo"}, "the memo belongs to another simulation");
+    }
+    fem_.state() = m->state;
+    if (tool_) tool_ = m->tool;
+    if (cuts_) cuts_->set_attempt_state(*m->tracker);
+    run_ = m->run;
+    meter_ = m->meter;
+    surface_ = m->surface;
+    scorer_ = m->scorer;
+  }
+
   std::span<const cutting::TopologyEvent> TopologyEvents() const override {
     return cuts_ ? std::span<const cutting::TopologyEvent>(cuts_->events()) : std::span<const cutting::TopologyEvent>();
   }

@@ -36,6 +36,17 @@ struct NamedEvent {
   std::string field;
 };
 
+/// What a checkpoint body leaves out, copied exactly in memory
+/// (Simulation::Memo): the integrator's held and cached step state, the
+/// tool's contact and grip, the cut test's anchor and the tip when it was
+/// set, the surface as tracked (its BVH refit frame by frame), the
+/// counters, the measures' and the score's running state. Opaque; only the
+/// Simulation that made it reads it.
+class SimulationMemo {
+ public:
+  virtual ~SimulationMemo() = default;
+};
+
 class Simulation {
  public:
   /// Builds everything the scene describes; throws InputError on bad input.
@@ -120,6 +131,20 @@ class Simulation {
   /// count becomes at least `cuts`. On an InputError (naming `source` and
   /// the event's field) nothing has been applied.
   virtual void ApplyTopologyEvents(std::span<const NamedEvent> events, uint64_t cuts, const std::string& source) = 0;
+
+  // ---- exact restore in memory (a debrief's seek) ---------------------------
+  /// The state CheckpointState() leaves out, copied (allocates about the
+  /// size of the FEM state). With the body taken at the same moment, a
+  /// fresh Simulation restored from both continues exactly as this one
+  /// does: the explicit integrator's held step, its caches and the tool's
+  /// contact are part of it. The implicit integrator's factor is not: it is
+  /// rebuilt, so an implicit scene continues to within its tolerances.
+  [[nodiscard]] virtual std::unique_ptr<const SimulationMemo> Memo() const = 0;
+  /// After RestoreCheckpointState(body) on a fresh Simulation of the same
+  /// scene and precision: applies a Memo() taken with `body`. Throws
+  /// InputError when `memo` comes from another kind of Simulation or its
+  /// sizes differ (nothing is applied then).
+  virtual void RestoreMemo(const SimulationMemo& memo) = 0;
 };
 
 }  // namespace cutsim::sim

@@ -36,7 +36,8 @@ template <class Msg>
 constexpr size_t MaxPayloadBytes() {
   if constexpr (std::is_same_v<Msg, ::cutsim::v1::ToolState> ||
                 std::is_same_v<Msg, ::cutsim::v1::HapticModel> ||
-                std::is_same_v<Msg, ::cutsim::v1::ServerPresence>) {
+                std::is_same_v<Msg, ::cutsim::v1::ServerPresence> ||
+                std::is_same_v<Msg, ::cutsim::v1::DebriefControl>) {
     return 1400;
   } else if constexpr (std::is_same_v<Msg, ::cutsim::v1::SessionStatus>) {
     return 4 * 1024;

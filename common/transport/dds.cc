@@ -21,6 +21,7 @@ static_assert(std::is_same_v<DdsEntity, dds_entity_t>);
 static_assert(static_cast<uint32_t>(EnvelopeKind::kSnapshot) == cutsim_dds_KIND_SNAPSHOT);
 static_assert(static_cast<uint32_t>(EnvelopeKind::kDelta) == cutsim_dds_KIND_DELTA);
 static_assert(static_cast<uint32_t>(EnvelopeKind::kStatus) == cutsim_dds_KIND_STATUS);
+static_assert(static_cast<uint32_t>(EnvelopeKind::kControl) == cutsim_dds_KIND_CONTROL);
 static_assert(sizeof(cutsim_dds_Envelope::session) > kMaxSessionLength);
 
 namespace {
@@ -30,7 +31,7 @@ constexpr std::string_view kLoopbackXml =
     ;
 
 // The one table of topic names and QoS (see TopicSpec).
-constexpr std::array<TopicSpec, 3> kTopics = {{
+constexpr std::array<TopicSpec, 4> kTopics = {{
     {.name = "cutsim_snapshot",
      .kind = EnvelopeKind::kSnapshot,
      .reliable = true,
@@ -49,6 +50,12 @@ constexpr std::array<TopicSpec, 3> kTopics = {{
      .transient_local = false,
      .history_depth = 1,
      .max_blocking_ms = 0},
+    {.name = "cutsim_control",
+     .kind = EnvelopeKind::kControl,
+     .reliable = true,
+     .transient_local = false,
+     .history_depth = 16,
+     .max_blocking_ms = 10},
 }};
 
 size_t PayloadLimit(EnvelopeKind kind) {
@@ -59,6 +66,8 @@ size_t PayloadLimit(EnvelopeKind kind) {
       return MaxPayloadBytes<v1::MeshDelta>();
     case EnvelopeKind::kStatus:
       return MaxPayloadBytes<v1::SessionStatus>();
+    case EnvelopeKind::kControl:
+      return MaxPayloadBytes<v1::DebriefControl>();
   }
   return 0;
 }

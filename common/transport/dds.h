@@ -30,6 +30,7 @@ enum class EnvelopeKind : uint32_t {
   kSnapshot = 0,  ///< cutsim.v1.MeshSnapshot
   kDelta = 1,     ///< cutsim.v1.MeshDelta
   kStatus = 2,    ///< cutsim.v1.SessionStatus
+  kControl = 3,   ///< cutsim.v1.DebriefControl (bridge → server)
 };
 
 /// Domain string of the signed trailer (stream_auth.h) of each observer
@@ -42,6 +43,8 @@ enum class EnvelopeKind : uint32_t {
       return "cutsim.v1.MeshDelta/hmac-sha256/1";
     case EnvelopeKind::kStatus:
       return "cutsim.v1.SessionStatus/hmac-sha256/1";
+    case EnvelopeKind::kControl:
+      return "cutsim.v1.DebriefControl/hmac-sha256/1";
   }
   return "";
 }
@@ -51,7 +54,9 @@ enum class EnvelopeKind : uint32_t {
 ///    so a late joiner receives the current mesh on match;
 ///  - delta: RELIABLE, VOLATILE, KEEP_LAST 64 — a viewer that still misses
 ///    one sees a sequence gap and resynchronises from the next snapshot;
-///  - status: BEST_EFFORT, VOLATILE, KEEP_LAST 1 — periodic, loss is harmless.
+///  - status: BEST_EFFORT, VOLATILE, KEEP_LAST 1 — periodic, loss is harmless;
+///  - control: RELIABLE, VOLATILE, KEEP_LAST 16 — a debrief's commands, from
+///    the browser bridge to the server.
 /// Reliable writers block at most `max_blocking_ms` when a slow reader has
 /// not acknowledged enough data, then drop the sample (Publish reports it):
 /// the physics loop never waits long for an observer.

@@ -159,6 +159,8 @@ bool MeshStreamSubscriber::Decodable(std::span<const uint8_t> payload,
     case EnvelopeKind::kStatus:
       ok = DecodeInto(payload, static_cast<v1::SessionStatus&>(msg), topic, &err);
       break;
+    case EnvelopeKind::kControl:  // not an observer topic: never read here
+      break;
   }
   if (!ok) {
     if (err.status == DecodeStatus::kTooLarge) {
@@ -191,6 +193,8 @@ void MeshStreamSubscriber::Process(EnvelopeKind kind, std::string_view session, 
       break;
     case EnvelopeKind::kStatus:
       OnStatus(body, seq);
+      break;
+    case EnvelopeKind::kControl:  // not an observer topic: never read here
       break;
   }
 }
@@ -265,11 +269,34 @@ bool ValidMetrics(const v1::SessionMetrics& m) {
   return true;
 }
 
+/// Longest list of a debrief's timeline a viewer takes (wire.proto).
+constexpr int kMaxTimelineSamples = 4096;
+
+bool FiniteList(const google::protobuf::RepeatedField<float>& list) {
+  if (list.size() > kMaxTimelineSamples) return false;
+  for (const float v : list) {
+    if (!std::isfinite(v)) return false;
+  }
+  return true;
+}
+
+/// A debrief's state: finite times and speed, short lists of finite values
+/// in pairs where they pair, a command line of at most 64 bytes.
+bool ValidDebrief(const v1::DebriefState& d) {
+  bool ok = std::isfinite(d.position()) && std::isfinite(d.duration()) && d.duration() >= 0 &&
+            std::isfinite(d.speed()) && d.speed() >= 0 && d.last_command().size() <= 64;
+  if (!d.has_timeline()) return ok;
+  const v1::DebriefTimeline& t = d.timeline();
+  return ok && std::isfinite(t.duration()) && std::isfinite(t.tolerance()) && FiniteList(t.force_t()) &&
+         FiniteList(t.force_n()) && t.force_t_size() == t.force_n_size() && FiniteList(t.cut_t()) &&
+         FiniteList(t.cut_deviation()) && t.cut_t_size() == t.cut_deviation_size() && FiniteList(t.step_t());
+}
+
 }  // namespace
 
 void MeshStreamSubscriber::TakeObserved(const v1::ObserverSession& o) {
   bool ok = o.tools_size() <= kMaxObservedTools && std::isfinite(o.sim_time()) && std::isfinite(o.wall_time()) &&
-            ValidMetrics(o.metrics());
+            ValidMetrics(o.metrics()) && (!o.has_debrief() || ValidDebrief(o.debrief()));
   for (const v1::ToolView& t : o.tools()) {
     ok = ok && FiniteVec(t.tip()) && FiniteVec(t.blade_dir()) && FiniteVec(t.force()) &&
          t.blade_length() >= 0 && t.blade_length() <= kMaxObservedBladeLength;

@@ -17,6 +17,7 @@ std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesy
       {"/index.html", web_root / "index.html"},
       {"/observer.js", web_root / "observer.js"},
       {"/observer.css", web_root / "observer.css"},
+      {"/debrief.js", web_root / "debrief.js"},
       {"/common/mesh_frames.js", web_root / ".." / "common" / "mesh_frames.js"},
       {"/common/scalpel.js", web_root / ".." / "common" / "scalpel.js"},
       {"/vendor/three.module.js", web_root / "node_modules/three/build/three.module.js"},

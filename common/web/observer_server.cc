@@ -16,6 +16,7 @@
 #include <boost/beast/websocket.hpp>
 #include <fmt/format.h>
 
+#include "common/core/clock.h"
 #include "common/core/error.h"
 #include "common/core/log.h"
 #include "common/web/http_util.h"
@@ -63,10 +64,18 @@ struct ObserverServerImpl {
 /// a read that only ever ends the session.
 class WsSession : public std::enable_shared_from_this<WsSession> {
  public:
-  WsSession(ObserverServerImpl& server, beast::tcp_stream&& stream, std::shared_ptr<void> hold, std::string channel)
-      : server_(server), ws_(std::move(stream)), hold_(std::move(hold)), channel_(std::move(channel)) {}
+  WsSession(ObserverServerImpl& server, beast::tcp_stream&& stream, std::shared_ptr<void> hold, std::string channel,
+            bool instructor)
+      : server_(server),
+        ws_(std::move(stream)),
+        hold_(std::move(hold)),
+        channel_(std::move(channel)),
+        instructor_(instructor),
+        bucket_(server.options.max_control_per_s),
+        bucket_ns_(MonotonicNs()) {}
 
   [[nodiscard]] const std::string& channel() const { return channel_; }
+  [[nodiscard]] bool instructor() const { return instructor_; }
   ~WsSession() {
     if (opened_) server_.OnWsClosed(this);
   }
@@ -120,17 +129,51 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
 
   void Read() {
     ws_.async_read(read_buffer_, [self = shared_from_this()](beast::error_code ec, size_t) {
-      // Any message, or one above the cap (Beast fails the connection with
-      // 1009 itself), ends the session: a browser has nothing to say. Other
-      // errors are a browser leaving (a close frame, a reset, end of stream).
+      // A message above the cap (Beast fails the connection with 1009
+      // itself) ends the session, and so does any message from an
+      // observer: it has nothing to say. Other errors are a browser leaving
+      // (a close frame, a reset, end of stream).
       const bool too_big = ec == websocket::error::message_too_big;
       if (ec && !too_big) return self->Abort();
-      self->server_.Count([](ObserverServerStats& s) { ++s.closed_incoming; });
+      if (!too_big && self->instructor_) return self->OnControl();
+      self->server_.Count([&self](ObserverServerStats& s) {
+        ++s.closed_incoming;
+        if (!self->instructor_) ++s.control_not_instructor;
+      });
       if (too_big) return self->Abort();
       self->closing_ = true;
-      self->ws_.async_close(websocket::close_code::policy_error,
+      self->ws_.async_close(websocket::close_reason(websocket::close_code::policy_error,
+                                                    "read-only: control needs the instructor token"),
                             [self](beast::error_code) { self->Abort(); });
     });
+  }
+
+  /// An instructor's message: within the rate cap, handed to on_control and
+  /// answered; then the next read.
+  void OnControl() {
+    const int64_t now = MonotonicNs();
+    const double rate = server_.options.max_control_per_s;
+    bucket_ = std::min(rate, bucket_ + rate * 1e-9 * static_cast<double>(now - bucket_ns_));
+    bucket_ns_ = now;
+    std::string reply;
+    if (!ws_.got_text()) {
+      reply = R"({"type":"control","ok":false,"field":"command","error":"commands are text frames"})";
+    } else if (bucket_ < 1.0) {
+      server_.Count([](ObserverServerStats& s) { ++s.control_rate_limited; });
+      reply = fmt::format(
+          R"({{"type":"control","ok":false,"field":"rate","error":"more than {:g} commands a second"}})", rate);
+    } else {
+      bucket_ -= 1.0;
+      server_.Count([](ObserverServerStats& s) { ++s.control_messages; });
+      const auto data = read_buffer_.cdata();
+      const std::string_view text(static_cast<const char*>(data.data()), data.size());
+      reply = server_.options.on_control
+                  ? server_.options.on_control(text)
+                  : std::string(R"({"type":"control","ok":false,"field":"command","error":"no control here"})");
+    }
+    read_buffer_.consume(read_buffer_.size());
+    Send(Outgoing{.payload = std::make_shared<const std::string>(std::move(reply)), .binary = false});
+    if (!closing_) Read();
   }
 
   ObserverServerImpl& server_;
@@ -142,6 +185,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   size_t queued_bytes_ = 0;
   bool closing_ = false;
   std::string channel_;
+  bool instructor_ = false;
+  double bucket_;       // instructor messages that may be sent now (token bucket)
+  int64_t bucket_ns_;   // when the bucket was last filled
 };
 
 void ObserverServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<http::empty_body>&& req,
@@ -170,14 +216,30 @@ void ObserverServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<htt
       channel = std::move(*session);
     }
   }
-  std::make_shared<WsSession>(*this, std::move(stream), std::move(hold), std::move(channel))->Run(std::move(req));
+  bool instructor = false;
+  if (auto given = QueryParam(std::string_view(req.target().data(), req.target().size()), "instructor")) {
+    instructor = !options.instructor_token.empty() && SameSecret(*given, options.instructor_token);
+    if (!instructor) {
+      Count([](ObserverServerStats& st) { ++st.refused_instructor; });
+      auto reply = MakeReply(req, http::status::forbidden, "instructor: wrong token\n", "text/plain");
+      auto conn = std::make_shared<beast::tcp_stream>(std::move(stream));
+      http::async_write(*conn, *reply, [conn, reply, hold](beast::error_code, size_t) {
+        beast::error_code ec;
+        conn->socket().shutdown(tcp::socket::shutdown_both, ec);
+      });
+      return;
+    }
+  }
+  std::make_shared<WsSession>(*this, std::move(stream), std::move(hold), std::move(channel), instructor)
+      ->Run(std::move(req));
 }
 
 void ObserverServerImpl::OnWsOpen(const std::shared_ptr<WsSession>& s) {
   sessions[s.get()] = s;
-  Count([this](ObserverServerStats& st) {
+  Count([this, &s](ObserverServerStats& st) {
     ++st.accepted;
     st.clients = static_cast<int>(sessions.size());
+    if (s->instructor()) ++st.instructors;
   });
   if (const auto it = join.find(s->channel()); it != join.end()) {
     for (const Outgoing& m : it->second) s->Send(m);
@@ -186,11 +248,17 @@ void ObserverServerImpl::OnWsOpen(const std::shared_ptr<WsSession>& s) {
 
 void ObserverServerImpl::OnWsClosed(WsSession* s) {
   sessions.erase(s);
-  Count([this](ObserverServerStats& st) { st.clients = static_cast<int>(sessions.size()); });
+  Count([this, s](ObserverServerStats& st) {
+    st.clients = static_cast<int>(sessions.size());
+    if (s->instructor()) --st.instructors;
+  });
 }
 
 ObserverServer::ObserverServer(ObserverServerOptions options) : impl_(std::make_unique<ObserverServerImpl>(std::move(options))) {
   const ObserverServerOptions& o = impl_->options;
+  if (!o.instructor_token.empty() && !o.on_control) {
+    ThrowInputError({.field = "--instructor-token-file"}, "an instructor token needs a control handler");
+  }
   if (!IsLoopbackAddress(o.address) && o.token.empty()) {
     ThrowInputError({.field = "--serve"},
                     fmt::format("{} is not a loopback address: observers from other machines need a token "

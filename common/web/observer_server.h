@@ -6,9 +6,15 @@
 /// own; the caller's thread only posts to it, so a slow browser never blocks
 /// the caller.
 ///
-/// Read-only by design: nothing a browser sends is passed on. The shared
-/// core (web_core.h) enforces the connection caps, the `Host`, `Origin`,
-/// token and key checks and the client cap; this server adds:
+/// Read-only by design: nothing an observer sends is passed on. The one
+/// exception is an instructor's page in a debrief: with `instructor_token`
+/// set, an upgrade whose `?instructor=` equals it (compared in constant
+/// time; a wrong one is refused with 403) may send text messages, each
+/// handed to `on_control` within the size cap and a rate cap, whose reply
+/// goes back to that page. A message from any other client closes it with
+/// 1008 and the reason "read-only: control needs the instructor token".
+/// The shared core (web_core.h) enforces the connection caps, the `Host`,
+/// `Origin`, token and key checks and the client cap; this server adds:
 ///  - a listening address on loopback unless a token is set; with a token,
 ///    every WebSocket upgrade must carry `?token=<token>` (the page's files
 ///    hold no session data and are served to anyone who can connect);
@@ -20,9 +26,11 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -53,6 +61,14 @@ struct ObserverServerOptions {
   /// without it, the default channel "". When false the parameter is
   /// ignored and every client is on "" (one session's bridge).
   bool channels = false;
+  /// The instructor's token (16-128 of A-Z a-z 0-9 - _), or empty: every
+  /// client is read-only.
+  std::string instructor_token;
+  /// With `instructor_token`: called on the I/O thread with each text
+  /// message an instructor's page sends; returns the reply (a JSON text
+  /// frame) for that page. What the message says is the handler's to check.
+  std::function<std::string(std::string_view message)> on_control;
+  double max_control_per_s = 20.0;  ///< Sustained instructor messages per second; above it they are refused.
 };
 
 /// Counters, read with ObserverServer::stats() (a consistent copy).
@@ -65,6 +81,11 @@ struct ObserverServerStats {
   uint64_t messages_sent = 0;         ///< WebSocket messages written.
   uint64_t bytes_sent = 0;            ///< Their payload bytes.
   uint64_t refused_channel = 0;       ///< Upgrades refused: `session` is not a session name.
+  uint64_t refused_instructor = 0;    ///< Upgrades refused: a wrong `instructor` token.
+  int instructors = 0;                ///< Instructors' pages connected now.
+  uint64_t control_messages = 0;      ///< Instructor messages handed to on_control.
+  uint64_t control_rate_limited = 0;  ///< Instructor messages refused above the rate cap.
+  uint64_t control_not_instructor = 0;  ///< Clients closed for a message without the instructor token.
   /// Payload bytes written per channel (only with `channels`).
   std::map<std::string, uint64_t> channel_bytes;
 };

@@ -213,6 +213,10 @@ TEST(ServerHeadlessTest, FlagsThatDoNothingInTheModeAreRefused) {
       {{headless, "--replay", scene, "--threads", "1"}, "--threads", "--headless --replay"},
       {{headless, "--replay", scene, "--duration", "1"}, "--duration", "--headless --replay"},
       {{headless, "--replay", scene, "--out", dir.path() + "/o.vtu"}, "--out", "--headless --replay"},
+      {{"--replay", scene, "--live", "--threads", "1"}, "--threads", "--replay --live"},
+      {{"--replay", scene, "--live", "--record", dir.path() + "/r.lcm"}, "--record", "--replay --live"},
+      {{"--replay", scene, "--live", "--session-report", dir.path() + "/r.json"}, "--session-report",
+       "--replay --live"},
   };
   for (const Case& c : cases) {
     std::vector<std::string> args = {BinPath("cutsim-server")};

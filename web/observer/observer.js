@@ -6,7 +6,8 @@
 // Wire protocol (version 1): the bridge sends text frames with JSON
 // ({"type":"hello"} once, then {"type":"session"} after each mesh frame) and
 // binary mesh frames with a 32-byte little-endian header (web/common/mesh_frames.js).
-// The page never sends anything.
+// An observer's page never sends anything; an instructor's page in a debrief
+// sends the control commands of debrief.js.
 //
 // Colours and lighting follow the C++ renderer (common/render/palette.h):
 // white ambient + diffuse light with no specular term and a total ≤ 1, applied
@@ -18,6 +19,7 @@ import * as THREE from 'three';
 import { OrbitControls } from '/vendor/OrbitControls.js';
 import { KIND_SNAPSHOT, parseMeshFrame } from '/common/mesh_frames.js';
 import { makeScalpel } from '/common/scalpel.js';
+import { Debrief } from '/debrief.js';
 
 // ---------------------------------------------------------------------------
 // Constants
@@ -208,6 +210,11 @@ function resize() {
   requestFrame(true);
 }
 window.addEventListener('resize', resize);
+
+// The debrief strip under the view (shown only when the session is a
+// recording played again); the view shrinks to make room for it.
+const debrief = new Debrief({ instructor: rawParam('instructor') !== null, onLayout: resize });
+window.cutsimDebrief = debrief;  // for the page's test and the console
 
 const Y_AXIS = new THREE.Vector3(0, 1, 0);
 
@@ -428,6 +435,7 @@ function onSessionMessage(message) {
   forceHistory.push({ t: simTime, f });
   while (forceHistory.length > 0 && forceHistory[0].t < simTime - PLOT_WINDOW_S) forceHistory.shift();
   placeTool(state.tool);
+  debrief.update(observed.debrief);
   requestFrame(true);
 }
 
@@ -448,6 +456,8 @@ function onTextMessage(text) {
     requestFrame();
   } else if (message?.type === 'session') {
     onSessionMessage(message);
+  } else if (message?.type === 'control') {
+    debrief.onReply(message);
   }
   // Other message types are for newer pages; this one ignores them.
 }
@@ -466,7 +476,8 @@ function rawParam(name) {
 /** The stream's URL: the token, and on a lab bridge the session to watch. */
 function socketUrl() {
   const scheme = window.location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const params = ['token', 'session'].filter((n) => rawParam(n) !== null).map((n) => `${n}=${rawParam(n)}`);
+  const params = ['token', 'session', 'instructor'].filter((n) => rawParam(n) !== null)
+    .map((n) => `${n}=${rawParam(n)}`);
   return `${scheme}//${window.location.host}/ws${params.length > 0 ? `?${params.join('&')}` : ''}`;
 }
 
@@ -486,6 +497,7 @@ function connect() {
   const socket = new WebSocket(socketUrl());
   socket.binaryType = 'arraybuffer';
   socket.addEventListener('open', () => {
+    debrief.setSocket(socket);
     reconnectDelay = RECONNECT_MIN_MS;
     state.lastSeq = null;  // sequence gaps are counted within one connection
     state.connectedMs = performance.now();
@@ -496,6 +508,7 @@ function connect() {
     else onTextMessage(event.data);
   });
   socket.addEventListener('close', (event) => {
+    debrief.setSocket(null);
     setConnection('closed');
     state.closeCode = event.code;
     setTimeout(connect, reconnectDelay);

@@ -205,6 +205,52 @@ TEST(ObserverServerTest, AClientThatSendsIsClosedAndTheOthersGoOn) {
   EXPECT_EQ(watcher.Read(), std::make_optional(std::make_pair(std::string("still here"), false)));
 }
 
+TEST(ObserverServerTest, OnlyTheInstructorControlsAndEveryMessageIsAnswered) {
+  TempPage page;
+  ObserverServerOptions o = Options(page);
+  o.instructor_token = "instructor-token-0123456789";
+  o.max_control_per_s = 5.0;
+  std::vector<std::string> handed;  // on the I/O thread; read after the replies arrived
+  o.on_control = [&handed](std::string_view m) {
+    handed.emplace_back(m);
+    return std::string(R"({"type":"control","ok":true})");
+  };
+  ObserverServer server(o);
+  // A wrong instructor token is refused at the upgrade.
+  Client wrong;
+  EXPECT_FALSE(wrong.Open(server.port(), "/ws?instructor=instructor-token-XXXXXXXXXX"));
+  EXPECT_TRUE(Eventually([&] { return server.stats().refused_instructor == 1; }));
+  // An observer that sends is closed with 1008 and its reason; nothing is handed on.
+  Client observer;
+  ASSERT_TRUE(observer.Open(server.port()));
+  observer.ws.text(true);
+  observer.ws.write(net::buffer(std::string("pause")));
+  EXPECT_EQ(observer.Read(), std::nullopt);
+  EXPECT_EQ(observer.ws.reason().code, websocket::close_code::policy_error);
+  EXPECT_NE(std::string(observer.ws.reason().reason.c_str()).find("instructor"), std::string::npos);
+  // The instructor's messages are handed on and answered, a binary frame is
+  // refused by field, and beyond the rate cap messages are refused.
+  Client instructor;
+  ASSERT_TRUE(instructor.Open(server.port(), "/ws?instructor=instructor-token-0123456789"));
+  ASSERT_TRUE(Eventually([&] { return server.stats().instructors == 1; }));
+  instructor.ws.text(true);
+  instructor.ws.write(net::buffer(std::string("seek 1.5")));
+  EXPECT_EQ(instructor.Read()->first, R"({"type":"control","ok":true})");
+  instructor.ws.binary(true);
+  instructor.ws.write(net::buffer(std::string("\x01\x02")));
+  EXPECT_NE(instructor.Read()->first.find(R"("field":"command")"), std::string::npos);
+  instructor.ws.text(true);
+  int refused = 0;
+  for (int i = 0; i < 10; ++i) {
+    instructor.ws.write(net::buffer(std::string("next")));
+    if (instructor.Read()->first.find(R"("field":"rate")") != std::string::npos) ++refused;
+  }
+  EXPECT_GT(refused, 0) << "10 messages at once against 5 a second";
+  EXPECT_EQ(server.stats().control_not_instructor, 1u);
+  EXPECT_EQ(handed.front(), "seek 1.5");
+  EXPECT_EQ(static_cast<int>(handed.size()), 1 + 10 - refused);
+}
+
 TEST(ObserverServerTest, AClientThatStopsReadingIsClosedNotBufferedFor) {
   TempPage page;
   ObserverServerOptions o = Options(page);
