@@ -56,6 +56,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
@@ -120,10 +121,11 @@ struct ImplicitOptions {
   /// How far past its deadline a step above carry_limit may go, as a
   /// multiple of its budget (from the step's start to its deadline): there
   /// Newton and PCG stop whatever the residual, which carries into the next
-  /// step (over_budget). A frame after a cut, whose factor lags the new
-  /// DOFs, otherwise runs PCG for as long as convergence takes. ∞: no such
-  /// bound.
-  double overrun_limit = 1.0;
+  /// step (over_budget). ∞ (the default): no such bound, the step goes on
+  /// until its residual is within carry_limit. A finite bound caps the
+  /// frame after a cut, but what it carries feeds the next frame's
+  /// residual, which can grow from frame to frame.
+  double overrun_limit = std::numeric_limits<double>::infinity();
   /// How the preconditioner applies the factor (single precision by default).
   FactorSolve factor_solve = FactorSolve::kFloat;
   /// The nodal-pressure element's patch term Σ_a c_a ∇v_a∇v_aᵀ couples

@@ -398,7 +398,9 @@ TEST(ImplicitStep, FactorIsCurrentOnceTheFactorOfACutLands) {
   EXPECT_TRUE(integ.FactorIsCurrent());
   const Eigen::Matrix3d k_current = integ.EffectiveStiffness(model, nodes, weights);
   ASSERT_FALSE(k_current.isZero());
-  if (!k_lagging.isZero()) EXPECT_LT((k_lagging - k_current).norm(), 0.1 * k_current.norm());
+  if (!k_lagging.isZero()) {
+    EXPECT_LT((k_lagging - k_current).norm(), 0.1 * k_current.norm());
+  }
 }
 
 // BDF2 converges at second order in h, backward Euler at first: halving h
