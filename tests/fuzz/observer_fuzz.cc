@@ -35,6 +35,10 @@ uint64_t SeqOf(cutsim::transport::EnvelopeKind kind, std::span<const uint8_t> pa
     }
     case EnvelopeKind::kStatus:
       return 1;
+    case EnvelopeKind::kControl: {
+      cutsim::v1::DebriefControl m;
+      return m.ParseFromArray(data, size) ? m.seq() : 0;
+    }
   }
   return 0;
 }
