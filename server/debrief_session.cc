@@ -375,13 +375,9 @@ int ServerApp::RunDebrief() {
   transport::ValidateSessionName(options_.session, "--session");
   const auto key = transport::LoadSessionKey(options_.key_file);
   transport::ServerPresence presence({.lcm_url = options_.lcm_url, .session = options_.session, .key = key});
-  if (const auto peer = presence.Claim()) {
-    Log().error("session '{}' is already served by {}: refusing to serve it twice. Give the debrief another "
-                "--session.",
-                options_.session, peer->Describe());
+  if (!ClaimSession(presence, options_.session, "Give the debrief another --session.")) {
     return transport::kExitDuplicateServer;
   }
-  presence.Start();
   const sim::LoadedScene scene = sim::LoadScene(recording.scene);
   const sim::SimulationOptions sim_options{.threads = recording.header.threads(),
                                            .precision = recording.header.precision()};

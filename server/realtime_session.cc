@@ -420,13 +420,9 @@ int ServerApp::RunRealtime() {
   // checkpoint or any output, and keep announcing this server while it runs.
   transport::ServerPresence presence(
       {.lcm_url = options_.lcm_url, .session = options_.session, .key = transport::LoadSessionKey(options_.key_file)});
-  if (const auto peer = presence.Claim()) {
-    Log().error("session '{}' is already served by {}: refusing to serve it twice. Stop that "
-                "server, or give this one another --session.",
-                options_.session, peer->Describe());
+  if (!ClaimSession(presence, options_.session, "Stop that server, or give this one another --session.")) {
     return transport::kExitDuplicateServer;
   }
-  presence.Start();
   const sim::LoadedScene scene = sim::LoadScene(options_.scene);
   const double frame_dt =
       options_.frame_rate > 0 ? 1.0 / options_.frame_rate : scene.scene.time_step().frame_dt();

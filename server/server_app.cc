@@ -525,4 +525,15 @@ int ServerApp::RunHeadless() {
   return 0;
 }
 
+
+bool ClaimSession(transport::ServerPresence& presence, const std::string& session, std::string_view advice) {
+  if (const auto peer = presence.Claim()) {
+    Log().error("session '{}' is already served by {}: refusing to serve it twice. {}", session, peer->Describe(),
+                advice);
+    return false;
+  }
+  presence.Start();
+  return true;
+}
+
 }  // namespace cutsim::server

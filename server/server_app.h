@@ -7,8 +7,10 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 
 #include "common/transport/journal_auth.h"
+#include "common/transport/server_presence.h"
 #include "common/transport/tool_auth.h"
 
 namespace cutsim::sim {
@@ -92,6 +94,11 @@ inline constexpr int kExitUnconverged = 7;
 /// the frame, the rest is for the cut step, the local model's stiffness,
 /// the viewers' frame and the pacing's margin.
 inline constexpr double kDefaultFrameBudget = 0.6;
+
+/// One server per session: when another server already serves `session`,
+/// logs that (naming it, then `advice`) and returns false; else starts
+/// announcing this one and returns true.
+bool ClaimSession(transport::ServerPresence& presence, const std::string& session, std::string_view advice);
 
 /// Runs `write`; logs and returns false if it throws.
 bool WriteOutput(const std::function<void()>& write);

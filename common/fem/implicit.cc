@@ -700,10 +700,10 @@ void ImplicitIntegrator::ApplyJacobian(const double* p, double* q) const {
 
 void ImplicitIntegrator::ApplyTissueJacobian(const double* p, double* q) const {
   ApplyJacobian(p, q);
-  // Less the last step's penalty springs, h²·W·k·Wᵀ (in the pattern or in
+  // Less the penalty springs in it, h²·W·k·Wᵀ (in the pattern or in
   // extra_), on the active nodes.
-  const double h2 = last_h_ * last_h_;
-  for (const PenaltyTerm& t : last_penalties_) {
+  const double h2 = patch_scale_;
+  for (const PenaltyTerm& t : jacobian_penalties_) {
     const Eigen::Matrix3d ks = 0.5 * (t.stiffness + t.stiffness.transpose());
     Eigen::Vector3d point = Eigen::Vector3d::Zero();
     for (int i = 0; i < 3; ++i) {

@@ -365,7 +365,7 @@ class ImplicitIntegrator {
   /// q = A·p with the last Jacobian (assembled part, patch term, extra
   /// blocks), zero on inactive DOFs.  // #N×3 each
   void ApplyJacobian(const double* p, double* q) const;
-  /// The same without the last step's penalty springs: the tissue's own
+  /// The same without the penalty springs in it: the tissue's own
   /// M + h(C + αM) + h²K.
   void ApplyTissueJacobian(const double* p, double* q) const;
 

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 #include <cstring>
 #include <limits>
 
@@ -123,25 +124,20 @@ void ImplicitIntegrator::PatchTerm::AddProduct(const double* p, double* q) const
 
 void ImplicitIntegrator::LumpPatchTerm(const Model<double>& model) {
   const auto nn = static_cast<size_t>(system_.num_nodes());
-  // patch_lump_ first holds Σ_e V_e, patch_slope_ (free until the first
-  // tangent) Σ_e V_e², over each node's tets.
-  patch_lump_.assign(nn, 0.0);
-  std::fill(patch_slope_.begin(), patch_slope_.end(), 0.0);
+  std::vector<double> sum(nn, 0.0), sum2(nn, 0.0);  // Σ_e V_e and Σ_e V_e² over each node's tets
   for (int32_t t = 0; t < model.num_tets(); ++t) {
     const double vol = model.rest_volume(t);
     if (!(vol > 0)) continue;
     for (int c = 0; c < 4; ++c) {
       const auto n = static_cast<size_t>(model.tet_node(t, c));
-      patch_lump_[n] += vol;
-      patch_slope_[n] += vol * vol;
+      sum[n] += vol;
+      sum2[n] += vol * vol;
     }
   }
-  const double gamma = options_.patch_lumping;
+  patch_lump_.assign(nn, 1.0);
   for (size_t n = 0; n < nn; ++n) {
-    const double sum = patch_lump_[n], sum2 = patch_slope_[n];
-    patch_lump_[n] = sum2 > 0 ? std::pow(sum * sum / sum2, gamma) : 1.0;
+    if (sum2[n] > 0) patch_lump_[n] = std::pow(sum[n] * sum[n] / sum2[n], options_.patch_lumping);
   }
-  std::fill(patch_slope_.begin(), patch_slope_.end(), 0.0);
 }
 
 const double* ImplicitIntegrator::FactorValues() {

@@ -208,15 +208,22 @@ TEST(BudgetedStep, ReportsTheResidualItCarries) {
 // Without an overrun limit a late step never carries more than
 // carry_limit × the tolerance: it goes on past the deadline (over_budget)
 // until its residual is within it.
-TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
-  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
-  State<double> state(model);
+/// A tight step with a carry limit of 1e3 × the tolerance and plain Newton
+/// (one PCG solve does not converge it), with the given overrun limit.
+ImplicitOptions LateStepOptions(double overrun_limit) {
   ImplicitOptions options;
   options.asynchronous_factorization = false;
   options.relative_force_tolerance = 1e-9;
   options.carry_limit = 1e3;
-  options.overrun_limit = std::numeric_limits<double>::infinity();
-  options.tangent_reuse_contraction = 0;  // plain Newton: one PCG solve does not converge it
+  options.overrun_limit = overrun_limit;
+  options.tangent_reuse_contraction = 0;
+  return options;
+}
+
+TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
+  Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
+  State<double> state(model);
+  const ImplicitOptions options = LateStepOptions(std::numeric_limits<double>::infinity());
   ImplicitIntegrator integ(options);
   const ImplicitResult r = integ.Step(model, state, 0.01, {}, 1);
   EXPECT_TRUE(r.over_budget);
@@ -231,12 +238,7 @@ TEST(BudgetedStep, NeverCarriesMoreThanItsLimit) {
 TEST(BudgetedStep, StopsAtItsOverrunLimitAndCarriesTheRest) {
   Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, true);
   State<double> state(model);
-  ImplicitOptions options;
-  options.asynchronous_factorization = false;
-  options.relative_force_tolerance = 1e-9;
-  options.carry_limit = 1e3;
-  options.overrun_limit = 1.0;  // the deadline has passed: so has the limit
-  options.tangent_reuse_contraction = 0;
+  const ImplicitOptions options = LateStepOptions(1.0);  // the deadline has passed: so has the limit
   ImplicitIntegrator integ(options);
   const ImplicitResult r = integ.Step(model, state, 0.01, {}, 1);
   EXPECT_TRUE(r.over_budget);
