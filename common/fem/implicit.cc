@@ -407,7 +407,8 @@ void ImplicitIntegrator::CorrectFactor(const Model<double>& model, ImplicitResul
     if (mark[static_cast<size_t>(n)] != 0) changed_nodes_.push_back(n);
   }
   result.factor_corrected =
-      solver_.CorrectFactor(system_, FactorValues(), changed_nodes_, options_.max_correction_rank);
+      solver_.CorrectFactor(system_, FactorValues(), changed_nodes_, options_.max_correction_rank,
+                                                   options_.correction_drift);
 }
 
 /// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.

@@ -114,6 +114,12 @@ struct ImplicitOptions {
   /// many DOFs; 0: never (the old factor covers the old DOFs, block Jacobi
   /// the new ones).
   int32_t max_correction_rank = 900;
+  /// The correction also takes every old node whose columns of A moved by
+  /// more than this fraction (‖ΔA_c‖/‖A_c‖) since the factor was asked
+  /// for, largest first, within max_correction_rank: a factor asked for at
+  /// a cut sees the tissue at the cut mid-transient, and those columns move
+  /// most in the frames after. ∞: topology changes only.
+  double correction_drift = 0.15;
   /// The most residual a step may carry past its deadline, as a multiple
   /// of the force tolerance: above it Newton goes on past the deadline
   /// (the frame overruns) rather than let an error grow from frame to frame.

@@ -8,6 +8,8 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <functional>
+#include <limits>
 #include <memory>
 #include <thread>
 
@@ -201,17 +203,73 @@ int32_t LinearSolver::correction_rank() const {
   return front_ != nullptr && correction_request_ == front_->request ? correction_.rank() : 0;
 }
 
+/// Scatters each old column of A and of A0 into one dense column to
+/// compare them whatever their patterns: O(nnz(A) + nnz(A0)).
+std::vector<int32_t> LinearSolver::WithDriftedNodes(const SparseSystem& system, const double* values,
+                                                    std::span<const int32_t> changed_nodes, int32_t max_rank,
+                                                    double drift) const {
+  std::vector<int32_t> nodes(changed_nodes.begin(), changed_nodes.end());
+  const int32_t n = system.num_dofs();
+  const int32_t n0 = front_->dofs;
+  const int32_t budget = max_rank - 3 * static_cast<int32_t>(nodes.size()) - (n - n0);
+  if (!(drift < std::numeric_limits<double>::infinity()) || budget < 3 || n0 > n) return nodes;
+  const int32_t old_nodes = n0 / 3;
+  std::vector<uint8_t> taken(static_cast<size_t>(old_nodes), 0);
+  for (const int32_t node : nodes) {
+    if (node >= 0 && node < old_nodes) taken[static_cast<size_t>(node)] = 1;
+  }
+  const Pattern& p0 = *front_->pattern;
+  const double* a0 = front_->values.data();
+  std::vector<double> column(static_cast<size_t>(n), 0.0);
+  std::vector<std::pair<double, int32_t>> drifted;  // (relative drift, node)
+  for (int32_t node = 0; node < old_nodes; ++node) {
+    if (taken[static_cast<size_t>(node)] != 0) continue;
+    double moved = 0, norm = 0;
+    for (int32_t c = 3 * node; c < 3 * node + 3; ++c) {
+      for (int32_t k = system.col_ptr()[c]; k < system.col_ptr()[c + 1]; ++k) {
+        column[static_cast<size_t>(system.row_index()[k])] = values[k];
+        norm += values[k] * values[k];
+      }
+      for (int32_t k = p0.col_ptr[static_cast<size_t>(c)]; k < p0.col_ptr[static_cast<size_t>(c) + 1]; ++k) {
+        column[static_cast<size_t>(p0.row_index[static_cast<size_t>(k)])] -= a0[k];
+      }
+      // Read back and clear both patterns' rows (a row in both is read once).
+      for (int32_t k = system.col_ptr()[c]; k < system.col_ptr()[c + 1]; ++k) {
+        double& v = column[static_cast<size_t>(system.row_index()[k])];
+        moved += v * v;
+        v = 0;
+      }
+      for (int32_t k = p0.col_ptr[static_cast<size_t>(c)]; k < p0.col_ptr[static_cast<size_t>(c) + 1]; ++k) {
+        double& v = column[static_cast<size_t>(p0.row_index[static_cast<size_t>(k)])];
+        moved += v * v;
+        v = 0;
+      }
+    }
+    if (norm > 0 && moved > drift * drift * norm) drifted.emplace_back(std::sqrt(moved / norm), node);
+  }
+  const auto take = std::min<size_t>(drifted.size(), static_cast<size_t>(budget / 3));
+  std::partial_sort(drifted.begin(), drifted.begin() + static_cast<std::ptrdiff_t>(take), drifted.end(),
+                    std::greater<>());
+  for (size_t i = 0; i < take; ++i) nodes.push_back(drifted[i].second);
+  std::sort(nodes.begin(), nodes.end());
+  return nodes;
+}
+
 bool LinearSolver::CorrectFactor(const SparseSystem& system, const double* values,
-                                 std::span<const int32_t> changed_nodes, int32_t max_rank) {
+                                 std::span<const int32_t> changed_nodes, int32_t max_rank, double drift) {
   Acquire();
   correction_.Clear();
   correction_request_ = 0;
   correction_pattern_ = -1;
+  const auto t0 = std::chrono::steady_clock::now();
   bool ok = false;
+  int32_t drifted = 0;
   if (front_ != nullptr && front_->dofs <= system.num_dofs() && !front_->single.empty() && front_->pattern) {
     const CscView a0{front_->pattern->col_ptr.data(), front_->pattern->row_index.data(), front_->values.data(),
                      front_->dofs};
-    ok = correction_.Build(front_->single, a0, system, values, changed_nodes, max_rank);
+    const std::vector<int32_t> nodes = WithDriftedNodes(system, values, changed_nodes, max_rank, drift);
+    drifted = static_cast<int32_t>(nodes.size() - changed_nodes.size());
+    ok = correction_.Build(front_->single, a0, system, values, nodes, max_rank);
   }
   std::lock_guard<std::mutex> lock(mutex_);
   if (ok) {
@@ -219,7 +277,8 @@ bool LinearSolver::CorrectFactor(const SparseSystem& system, const double* value
     correction_pattern_ = system.pattern_id();
     ++stats_.corrections;
     stats_.last_correction_rank = correction_.rank();
-    stats_.last_correction_seconds = correction_.stats().seconds;
+    stats_.last_correction_drifted_nodes = drifted;
+    stats_.last_correction_seconds = Seconds(t0);  // the drift scan and the build
   } else {
     ++stats_.corrections_refused;
   }

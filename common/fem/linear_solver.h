@@ -35,6 +35,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <limits>
 #include <mutex>
 #include <span>
 #include <thread>
@@ -94,7 +95,8 @@ struct FactorStats {
   int64_t corrections = 0;          ///< Low-rank corrections built (CorrectFactor).
   int64_t corrections_refused = 0;  ///< Corrections refused (rank cap, singular).
   int32_t last_correction_rank = 0;
-  double last_correction_seconds = 0;  ///< Wall time of the last correction's build, s.
+  int32_t last_correction_drifted_nodes = 0;  ///< Nodes the last correction took for drift alone.
+  double last_correction_seconds = 0;  ///< Wall time of the last correction (drift scan and build), s.
 };
 
 class LinearSolver {
@@ -139,8 +141,11 @@ class LinearSolver {
   /// when refused (no factor, above `max_rank` DOFs, singular); solves
   /// then fall back to the factor on the old DOFs and block Jacobi.
   /// Allocates (a topology change).
+  /// Old nodes outside `changed_nodes` whose columns moved by more than
+  /// `drift` (relative, ‖A_c − A0_c‖/‖A_c‖ over the node's three columns)
+  /// join the correction too, largest first, while the rank allows.
   bool CorrectFactor(const SparseSystem& system, const double* values, std::span<const int32_t> changed_nodes,
-                     int32_t max_rank);
+                     int32_t max_rank, double drift = std::numeric_limits<double>::infinity());
   /// Rank of the correction in use (0: none).
   [[nodiscard]] int32_t correction_rank() const;
 
@@ -178,6 +183,12 @@ class LinearSolver {
   void BuildBlockJacobi(const SparseSystem& system, const double* values, const uint8_t* active,
                         int32_t first_node, int num_threads);
   [[nodiscard]] int32_t CoveredDofs(const SparseSystem& system) const;
+  /// `changed_nodes` and the old nodes whose columns drifted by more than
+  /// `drift` since the current factor's values, ascending, within
+  /// `max_rank` DOFs with the new nodes' (front_ must be set).
+  [[nodiscard]] std::vector<int32_t> WithDriftedNodes(const SparseSystem& system, const double* values,
+                                                      std::span<const int32_t> changed_nodes, int32_t max_rank,
+                                                      double drift) const;
   void ApplyPreconditioner(const SparseSystem& system, const uint8_t* active, const double* r,
                            double* z, int num_threads);
 

@@ -164,6 +164,58 @@ TEST(FactorCorrection, RefusedAboveItsRankAndPcgStillConverges) {
   EXPECT_GT(pr.iterations, 4);
 }
 
+// Columns that moved since the factor's values (a factor asked for at a cut
+// sees the tissue there mid-transient) join the correction when they moved
+// by more than the drift threshold: the corrected factor then equals a fresh
+// factor again. Without them it does not, and PCG pays for it.
+TEST(FactorCorrection, TakesTheColumnsThatMovedSinceTheFactor) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  // Two nodes away from the cut stiffen fivefold on their diagonal blocks.
+  std::vector<int32_t> moved;
+  for (const double y : {0.0, 0.02}) {
+    const int32_t node = testing::FindNode(f.model, 0.08, y, 0.02);
+    ASSERT_FALSE(std::binary_search(f.changed.begin(), f.changed.end(), node));
+    const int32_t off = sys.diagonal_block(node);
+    const Eigen::Matrix3d block = sys.GetBlock(f.b.data(), off, node);
+    sys.AddBlock(f.b.data(), off, node, 4.0 * Eigen::Matrix3d(block.diagonal().asDiagonal()));
+    moved.push_back(node);
+  }
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  LinearSolver fresh(false);
+  fresh.Resize(sys);
+  ASSERT_TRUE(fresh.RequestFactor(sys, f.b.data()));
+  const std::vector<double> z_fresh = Precondition(fresh, sys, f.b, r);
+
+  const int32_t topology_rank = 3 * static_cast<int32_t>(f.changed.size()) + sys.num_dofs() - f.old_dofs;
+  const auto corrected = [&](double drift, int32_t max_rank, int* iterations) {
+    LinearSolver old(false);
+    old.Resize(f.before.system());
+    EXPECT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
+    old.Resize(sys);
+    EXPECT_TRUE(old.CorrectFactor(sys, f.b.data(), f.changed, max_rank, drift));
+    std::vector<double> x(r.size());
+    *iterations = old.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-8, 200, 1).iterations;
+    return std::make_pair(Precondition(old, sys, f.b, r), old.stats().last_correction_drifted_nodes);
+  };
+  int topology_only_iterations = 0, with_drift_iterations = 0, capped_iterations = 0;
+  const auto [z_topology, none] =
+      corrected(std::numeric_limits<double>::infinity(), 10000, &topology_only_iterations);
+  const auto [z_drift, drifted] = corrected(0.15, 10000, &with_drift_iterations);
+  const auto [z_capped, capped] = corrected(0.15, topology_rank + 2, &capped_iterations);
+
+  EXPECT_EQ(none, 0);
+  EXPECT_GT(testing::RelativeDifference(z_topology, z_fresh), 1e-2);
+  EXPECT_EQ(drifted, static_cast<int32_t>(moved.size())) << "the stiffened nodes and no others";
+  EXPECT_LT(testing::RelativeDifference(z_drift, z_fresh), 1e-4);
+  EXPECT_LE(with_drift_iterations, 4);
+  EXPECT_GT(topology_only_iterations, with_drift_iterations);
+  // Within the rank cap: the topology's DOFs first, no room for a drifted node.
+  EXPECT_EQ(capped, 0);
+  EXPECT_EQ(capped_iterations, topology_only_iterations);
+}
+
 // A deadline in the past stops PCG after its first iteration.
 TEST(LinearSolverDeadline, StopsAtTheDeadlineWithTheIterateSoFar) {
   Model<double> model = testing::MakeCantilever(6, 0.06, 3e4, false);
