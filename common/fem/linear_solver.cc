@@ -296,6 +296,11 @@ void LinearSolver::WorkerLoop() {
     cv_.wait(lock, [this] { return stop_ || request_pending_; });
     if (stop_) return;
     lock.unlock();
+    // One core: CHOLMOD's supernodal factorisation opens OpenMP regions of
+    // its own (num_threads(4) on its clears of L), which would put three
+    // more threads on the cores of the step's team. A host teams region's
+    // thread limit holds every region inside it to the worker's thread.
+#pragma omp teams num_teams(1) thread_limit(1)
     Factorize(*snapshot_);
     lock.lock();
     cv_.notify_all();  // WaitForFactor
@@ -382,6 +387,7 @@ void LinearSolver::Factorize(Snapshot& s) {
     stats_.failed += ok ? 0 : 1;
     stats_.shifted += ok && shifted ? 1 : 0;
     stats_.last_seconds = seconds;
+    stats_.factor_thread_limit = omp_get_thread_limit();
     stats_.total_seconds += seconds;
     if (analyze_seconds >= 0) stats_.last_analyze_seconds = analyze_seconds;
     if (ok) {

@@ -92,6 +92,9 @@ struct FactorStats {
   double last_seconds = 0;   ///< Wall time of the last factorisation, s.
   double total_seconds = 0;  ///< Summed factorisation time, s.
   double last_analyze_seconds = 0;  ///< Wall time of the last symbolic analysis, s.
+  /// OpenMP threads the last factorisation could use (omp_get_thread_limit
+  /// inside it): 1 on the worker, whose regions never take a second core.
+  int32_t factor_thread_limit = 0;
   int64_t corrections = 0;          ///< Low-rank corrections built (CorrectFactor).
   int64_t corrections_refused = 0;  ///< Corrections refused (rank cap, singular).
   int32_t last_correction_rank = 0;

@@ -364,5 +364,24 @@ TEST(AsyncFactor, SlowRefactorisationNeverBlocksAStep) {
   integ.mutable_linear_solver().WaitForFactor();
 }
 
+// The worker factors on its own thread alone: the OpenMP regions inside
+// CHOLMOD may not take the step team's core. Synchronous factors, which the
+// step waits for anyway, may use every thread.
+TEST(AsyncFactor, TheWorkerFactorsOnOneThread) {
+  Model<double> model = testing::MakeCantilever(8, 0.08, 3e4, true, 0, 0, 8);
+  ImplicitIntegrator integ;
+  const std::vector<double> a = SystemMatrix(integ, model);
+  const SparseSystem& sys = integ.system();
+  LinearSolver worker(true);
+  worker.Resize(sys);
+  ASSERT_TRUE(worker.RequestFactor(sys, a.data()));
+  worker.WaitForFactor();
+  EXPECT_EQ(worker.stats().factor_thread_limit, 1);
+  LinearSolver inline_solver(false);
+  inline_solver.Resize(sys);
+  ASSERT_TRUE(inline_solver.RequestFactor(sys, a.data()));
+  EXPECT_GT(inline_solver.stats().factor_thread_limit, 1);
+}
+
 }  // namespace
 }  // namespace cutsim::fem
