@@ -278,7 +278,7 @@ class DebriefLoop {
     o.set_wall_time(1e-9 * static_cast<double>(now - start_ns_));
     o.set_publish_unix_ns(transport::RealtimeNowNs());
     o.set_topology_version(s.topology_version());
-    sim::SessionMetricsToProto(s.Metrics(), o.mutable_metrics());
+    *o.mutable_metrics() = s.Metrics();
     v1::DebriefState* d = o.mutable_debrief();
     d->set_position(player_.position());
     d->set_duration(player_.duration());
@@ -331,7 +331,7 @@ class DebriefLoop {
     status.set_cuts(q.cuts);
     status.set_kinetic_energy(q.kinetic_energy);
     status.set_scene(scene_name_);
-    if (const auto score = player_.simulation().Score()) sim::IncisionScoreToProto(*score, status.mutable_score());
+    if (const auto score = player_.simulation().Score()) *status.mutable_score() = *score;
     publisher_.PublishStatus(status);
   }
 

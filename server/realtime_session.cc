@@ -285,7 +285,7 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
-  sim::SessionMetricsToProto(p_.simulation.Metrics(), o.mutable_metrics());
+  *o.mutable_metrics() = p_.simulation.Metrics();
   if (!p_.simulation.has_tool()) return;
   const sim::ToolReport tool = p_.simulation.Tool();
   o.set_cuts(tool.cuts);
@@ -333,7 +333,7 @@ void RealtimeLoop::PublishStatus(int64_t frame_start) {
   status.set_tool_messages(counters_.tool_messages);
   status.set_scene(std::filesystem::path(options_.scene).stem().string());
   status.set_trainee(options_.trainee);
-  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, status.mutable_score());
+  if (const auto score = p_.simulation.Score()) *status.mutable_score() = *score;
   p_.publisher.PublishStatus(status);
 }
 
@@ -357,22 +357,15 @@ void RealtimeLoop::Pace(int64_t frame_start) {
 }
 
 v1::ServerSessionStats RealtimeLoop::Stats() const {
-  const sim::SimulationSummary s = p_.simulation.Summary();
   const transport::HapticServerLinkStats link = p_.link.stats();
   const transport::MeshStreamStats mesh = p_.publisher.stats();
+  // The summary's entries first; the loop's own counts (its frames) after.
+  sim::SummaryToReport(p_.simulation.Summary(), &r);
   v1::ServerSessionStats r;
   r.set_session(options_.session);
   r.set_frames(ReportCount(counters_.frames));
-  r.set_sim_time(s.sim_time);
   r.set_frame_overruns(ReportCount(counters_.overruns));
   r.set_frame_overruns_after_first_second(ReportCount(counters_.late_overruns));
-  r.set_out_of_time_steps(ReportCount(s.implicit.out_of_time_steps));
-  r.set_over_budget_steps(ReportCount(s.implicit.over_budget_steps));
-  r.set_max_residual_out_of_time(s.implicit.max_residual_out_of_time);
-  r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
-  r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
-  r.set_pcg_iterations(ReportCount(s.implicit.pcg_iterations));
-  r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_frame_time_p50_ms(1e3 * frame_time_.Percentile(0.5));
   r.set_frame_time_p99_ms(1e3 * frame_time_.Percentile(0.99));
   r.set_frame_time_max_ms(1e3 * frame_time_.max());
@@ -394,17 +387,8 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_tool_unsigned(ReportCount(link.auth_unsigned));
   r.set_tool_forged(ReportCount(link.auth_forged));
   r.set_tool_replayed(ReportCount(link.auth_replayed));
-  r.set_cuts(ReportCount(s.cuts));
-  r.set_topology_version(ReportCount(s.topology_version));
-  r.set_components(ReportCount(s.components));
-  r.set_status(s.status);
-  r.set_diagnosis(s.diagnosis);
-  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
-  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
-  r.set_max_correction_rank(ReportCount(s.implicit.max_correction_rank));
-  r.set_max_correction_seconds(s.implicit.max_correction_seconds);
-  sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
-  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
+  *r.mutable_metrics() = p_.simulation.Metrics();
+  if (const auto score = p_.simulation.Score()) *r.mutable_score() = *score;
   FillJournalStats(p_.checkpointer, r.mutable_journal());
   transport::ToReport(link.packets, r.mutable_tool_packets());
   r.set_models_signed(p_.link.signs_models());

@@ -23,13 +23,13 @@ v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std
   r.set_diagnosis(summary.diagnosis);
   r.set_unconverged_steps(transport::ReportCount(summary.implicit.unconverged_steps));
   r.set_max_residual_unconverged(summary.implicit.max_residual_unconverged);
-  sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
+  *r.mutable_metrics() = simulation.Metrics();
   for (const sim::ForceSample& f : simulation.ForceSeries()) {
     r.add_force_t(f.t);
     r.add_force_n(f.force);
   }
   if (const std::optional<sim::IncisionScore> score = simulation.Score()) {
-    sim::IncisionScoreToProto(*score, r.mutable_score());
+    *r.mutable_score() = *score;
     for (const sim::CutPoint& c : simulation.ScoredCutPoints()) {
       r.add_cut_t(c.t);
       r.add_cut_deviation(c.deviation);
