@@ -9,7 +9,9 @@
 namespace cutsim::sim {
 
 template <typename T>
-SessionMeter<T>::SessionMeter(Options options) : options_(options) {}
+SessionMeter<T>::SessionMeter(Options options) : options_(options) {
+  metrics_.set_cutting_time(0.0);  // present from the start (an optional measure)
+}
 
 template <typename T>
 void SessionMeter<T>::AddFrame(double frame_time, const ToolReport& tool) {
@@ -18,6 +20,7 @@ void SessionMeter<T>::AddFrame(double frame_time, const ToolReport& tool) {
   last_tip_ = tool.pose.tip;
   have_tip_ = true;
   last_force_ = 0.0;
+  if (tool.cut_this_frame) metrics_.set_cutting_time(metrics_.cutting_time() + frame_time);
   if (!tool.touching) return;
   const double f = tool.force_on_tool.norm();
   last_force_ = f;

@@ -152,12 +152,18 @@ planned_incision {{
 struct Scored {
   IncisionScore score;
   std::unique_ptr<Simulation> sim;
+  double cutting_time = 0.0;  ///< s, summed here over the frames whose cut count grew
 };
 
 Scored CutBlock(double offset) {
   Scored r;
   r.sim = Simulation::Create(ParseScene(BlockScene(offset), "score-block.pbtxt", "."), {.threads = 1});
-  while (r.sim->sim_time() < 2.4 - 1e-9) EXPECT_EQ(r.sim->AdvanceFrame(), SimStatus::kOk);
+  while (r.sim->sim_time() < 2.4 - 1e-9) {
+    const uint64_t cuts = r.sim->Tool().cuts;
+    const double t = r.sim->sim_time();
+    EXPECT_EQ(r.sim->AdvanceFrame(), SimStatus::kOk);
+    if (r.sim->Tool().cuts > cuts) r.cutting_time += r.sim->sim_time() - t;
+  }
   r.score = *r.sim->Score();
   return r;
 }
@@ -185,6 +191,14 @@ TEST(IncisionScoreSession, ScriptedCutsScoreAsTheirOffsets) {
   EXPECT_EQ(on.score.peak_force(), on.sim->Metrics().peak_force());
   EXPECT_GT(on.score.contact_time(), 1.0);
   EXPECT_NEAR(on.score.duration(), 2.4, 1e-9);
+  // The blade's cutting time is the time of the frames in which a cut step
+  // ran, within the time in contact.
+  for (const Scored* s : {&on, &off}) {
+    const SessionMetrics& m = s->sim->Metrics();
+    EXPECT_GE(s->cutting_time, 0.05 - 1e-9);  // the scored cut points: more than four frames of 10 ms
+    EXPECT_NEAR(m.cutting_time(), s->cutting_time, 1e-9);
+    EXPECT_LE(m.cutting_time(), m.contact_time() + 1e-9);
+  }
 
   // A checkpoint keeps the series: a restored simulation scores the same.
   auto restored = Simulation::Create(ParseScene(BlockScene(0.0), "score-block.pbtxt", "."), {.threads = 1});
