@@ -43,7 +43,6 @@
 
 namespace cutsim::server {
 
-extern volatile std::sig_atomic_t g_stop;
 
 namespace {
 
@@ -139,7 +138,7 @@ class DebriefLoop {
     int64_t last_ns = MonotonicNs();
     int64_t next_viewer_ns = last_ns;
     int64_t next_status_ns = last_ns;
-    while (!g_stop && !StopRequested()) {
+    while (!StopRequested()) {
       for (const std::string& line : stdin_lines.Take()) Apply(line, "standard input");
       control_.Poll(std::chrono::nanoseconds(0), [this](const std::string& line) { Apply(line, "the page"); });
       const int64_t now = MonotonicNs();
@@ -405,9 +404,9 @@ int ServerApp::RunDebrief() {
           since_progress.Reset();
           Log().info("debrief: pre-pass at {:.1f} s of the recording", s.sim_time());
         }
-        return !g_stop;
+        return !StopRequested();
       });
-  if (g_stop) return 0;
+  if (StopRequested()) return 0;
   if (recording.end && mismatch.empty() &&
       RecordingHash(recording, player.simulation()) != recording.end->mesh_hash()) {
     mismatch = "the final mesh hash differs from the recorded one";

@@ -44,7 +44,6 @@
 
 namespace cutsim::server {
 
-extern volatile std::sig_atomic_t g_stop;
 extern volatile std::sig_atomic_t g_print_stats;
 
 namespace {
@@ -180,7 +179,7 @@ RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double
 
 int RealtimeLoop::Run() {
   sim::Simulation& simulation = p_.simulation;
-  while (!g_stop && !StopRequested()) {
+  while (!StopRequested()) {
     if (options_.duration && simulation.sim_time() >= *options_.duration - 1e-9) break;
     const int64_t frame_start = MonotonicNs();
     profile_.BeginFrame(frame_start);
@@ -359,9 +358,9 @@ void RealtimeLoop::Pace(int64_t frame_start) {
 v1::ServerSessionStats RealtimeLoop::Stats() const {
   const transport::HapticServerLinkStats link = p_.link.stats();
   const transport::MeshStreamStats mesh = p_.publisher.stats();
+  v1::ServerSessionStats r;
   // The summary's entries first; the loop's own counts (its frames) after.
   sim::SummaryToReport(p_.simulation.Summary(), &r);
-  v1::ServerSessionStats r;
   r.set_session(options_.session);
   r.set_frames(ReportCount(counters_.frames));
   r.set_frame_overruns(ReportCount(counters_.overruns));

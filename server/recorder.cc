@@ -12,6 +12,7 @@
 #include "common/core/error.h"
 #include "common/core/input_file.h"
 #include "common/core/log.h"
+#include "common/core/stop.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/transport/codec.h"
@@ -19,7 +20,6 @@
 #include "server/session_report.h"
 
 namespace cutsim::server {
-extern volatile std::sig_atomic_t g_stop;  // server_app.cc: SIGINT/SIGTERM
 namespace {
 
 std::string Channel(const std::string& session, const char* kind) {
@@ -390,7 +390,7 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
   const double quantum = header.quantum() > 0 ? header.quantum() : kRecordQuantum;
   Replayer replayer(path, *simulation, quantum);
   while (auto e = reader.Next()) {
-    if (g_stop) {
+    if (StopRequested()) {
       replayer.Fail(fmt::format("interrupted after {} frames", replayer.frames()));
       break;
     }
@@ -401,7 +401,7 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
     }
     // Other channels (e.g. a tool stream logged alongside) are ignored.
   }
-  if (!replayer.ended() && !replayer.failed() && !g_stop) {
+  if (!replayer.ended() && !replayer.failed() && !StopRequested()) {
     ThrowInputError({.file = path.string(), .field = "RecordEnd"},
                     "the recording has no end event (the server did not finish it)");
   }

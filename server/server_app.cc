@@ -29,15 +29,11 @@
 #include "server/session_report.h"
 
 namespace cutsim::server {
-volatile std::sig_atomic_t g_stop = 0;
 volatile std::sig_atomic_t g_print_stats = 0;
 
 namespace {
 
-void OnSignal(int) {
-  g_stop = 1;
-  RequestStop();
-}
+void OnSignal(int) { RequestStop(); }
 void OnStatsSignal(int) { g_print_stats = 1; }
 
 v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
@@ -407,7 +403,7 @@ int ServerApp::RunHeadless() {
   const bool tty = options_.progress && ::isatty(STDERR_FILENO);
   Stopwatch since_report;
   int exit_code = 0;
-  while (!g_stop) {
+  while (!StopRequested()) {
     // A remainder below 1 ns is round-off of the frame sum, not a frame: done.
     if (simulation->sim_time() >= end_time - 1e-9) break;
     if (options_.until_rest && simulation->AtRest()) break;
@@ -441,7 +437,7 @@ int ServerApp::RunHeadless() {
   // Not over a good checkpoint after a blow-up.
   if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
   outputs_ok &= FinishJournal(checkpointer);
-  if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !g_stop) {
+  if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !StopRequested()) {
     Log().warn("did not reach rest within {} s of simulated time", end_time);
   }
   if (!options_.out.empty()) {
