@@ -40,6 +40,7 @@
 #include "common/transport/stream_auth.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
+#include "server/session_report.h"
 
 namespace cutsim::server {
 
@@ -277,7 +278,6 @@ class DebriefLoop {
     o.set_wall_time(1e-9 * static_cast<double>(now - start_ns_));
     o.set_publish_unix_ns(transport::RealtimeNowNs());
     o.set_topology_version(s.topology_version());
-    *o.mutable_metrics() = s.Metrics();
     v1::DebriefState* d = o.mutable_debrief();
     d->set_position(player_.position());
     d->set_duration(player_.duration());
@@ -291,15 +291,7 @@ class DebriefLoop {
       next_timeline_ns_ = now + 1'000'000'000;
       *d->mutable_timeline() = timeline_;
     }
-    if (!s.has_tool()) return;
-    const sim::ToolReport tool = s.Tool();
-    o.set_cuts(tool.cuts);
-    v1::ToolView* view = o.add_tools();
-    transport::SetVec3(tool.pose.tip, view->mutable_tip());
-    transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
-    view->set_blade_length(tool.blade_length);
-    transport::SetVec3(tool.force_on_tool, view->mutable_force());
-    view->set_contact(tool.touching);
+    FillObservedSession(s, &o);
   }
 
   void PublishFrame(int64_t now) {

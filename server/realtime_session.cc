@@ -284,16 +284,7 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
-  *o.mutable_metrics() = p_.simulation.Metrics();
-  if (!p_.simulation.has_tool()) return;
-  const sim::ToolReport tool = p_.simulation.Tool();
-  o.set_cuts(tool.cuts);
-  v1::ToolView* view = o.add_tools();
-  transport::SetVec3(tool.pose.tip, view->mutable_tip());
-  transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
-  view->set_blade_length(tool.blade_length);
-  transport::SetVec3(tool.force_on_tool, view->mutable_force());
-  view->set_contact(tool.touching);
+  FillObservedSession(p_.simulation, &o);
 }
 
 void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {

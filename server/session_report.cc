@@ -8,9 +8,23 @@
 
 #include "common/core/input_file.h"
 #include "common/sim/metrics_proto.h"
+#include "common/transport/proto_vec.h"
 #include "common/transport/report_json.h"
 
 namespace cutsim::server {
+
+void FillObservedSession(const sim::Simulation& simulation, v1::ObserverSession* observed) {
+  *observed->mutable_metrics() = simulation.Metrics();
+  if (!simulation.has_tool()) return;
+  const sim::ToolReport tool = simulation.Tool();
+  observed->set_cuts(tool.cuts);
+  v1::ToolView* view = observed->add_tools();
+  transport::SetVec3(tool.pose.tip, view->mutable_tip());
+  transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
+  view->set_blade_length(tool.blade_length);
+  transport::SetVec3(tool.force_on_tool, view->mutable_force());
+  view->set_contact(tool.touching);
+}
 
 v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std::string& session,
                                     const std::string& scene) {
