@@ -40,10 +40,10 @@
 #include "common/transport/stream_auth.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
+#include "server/session_report.h"
 
 namespace cutsim::server {
 
-extern volatile std::sig_atomic_t g_stop;
 
 namespace {
 
@@ -139,7 +139,7 @@ class DebriefLoop {
     int64_t last_ns = MonotonicNs();
     int64_t next_viewer_ns = last_ns;
     int64_t next_status_ns = last_ns;
-    while (!g_stop && !StopRequested()) {
+    while (!StopRequested()) {
       for (const std::string& line : stdin_lines.Take()) Apply(line, "standard input");
       control_.Poll(std::chrono::nanoseconds(0), [this](const std::string& line) { Apply(line, "the page"); });
       const int64_t now = MonotonicNs();
@@ -278,7 +278,6 @@ class DebriefLoop {
     o.set_wall_time(1e-9 * static_cast<double>(now - start_ns_));
     o.set_publish_unix_ns(transport::RealtimeNowNs());
     o.set_topology_version(s.topology_version());
-    sim::SessionMetricsToProto(s.Metrics(), o.mutable_metrics());
     v1::DebriefState* d = o.mutable_debrief();
     d->set_position(player_.position());
     d->set_duration(player_.duration());
@@ -292,15 +291,7 @@ class DebriefLoop {
       next_timeline_ns_ = now + 1'000'000'000;
       *d->mutable_timeline() = timeline_;
     }
-    if (!s.has_tool()) return;
-    const sim::ToolReport tool = s.Tool();
-    o.set_cuts(tool.cuts);
-    v1::ToolView* view = o.add_tools();
-    transport::SetVec3(tool.pose.tip, view->mutable_tip());
-    transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
-    view->set_blade_length(tool.blade_length);
-    transport::SetVec3(tool.force_on_tool, view->mutable_force());
-    view->set_contact(tool.touching);
+    FillObservedSession(s, &o);
   }
 
   void PublishFrame(int64_t now) {
@@ -331,7 +322,7 @@ class DebriefLoop {
     status.set_cuts(q.cuts);
     status.set_kinetic_energy(q.kinetic_energy);
     status.set_scene(scene_name_);
-    if (const auto score = player_.simulation().Score()) sim::IncisionScoreToProto(*score, status.mutable_score());
+    if (const auto score = player_.simulation().Score()) *status.mutable_score() = *score;
     publisher_.PublishStatus(status);
   }
 
@@ -405,9 +396,9 @@ int ServerApp::RunDebrief() {
           since_progress.Reset();
           Log().info("debrief: pre-pass at {:.1f} s of the recording", s.sim_time());
         }
-        return !g_stop;
+        return !StopRequested();
       });
-  if (g_stop) return 0;
+  if (StopRequested()) return 0;
   if (recording.end && mismatch.empty() &&
       RecordingHash(recording, player.simulation()) != recording.end->mesh_hash()) {
     mismatch = "the final mesh hash differs from the recorded one";

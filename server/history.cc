@@ -15,18 +15,18 @@ record::SessionEntry MakeHistoryEntry(const sim::IncisionScore& score, const std
   e.session = session;
   e.scene = scene;
   e.finished_unix_s = finished_unix_s;
-  e.duration = score.duration;
+  e.duration = score.duration();
   e.cuts = cuts;
-  e.mean_deviation = score.mean_deviation;
-  e.max_deviation = score.max_deviation;
-  e.depth_error = score.depth_error;
-  e.coverage = score.coverage;
-  e.opened_area_outside = score.opened_area_outside;
-  e.cut_off_volume = score.cut_off_volume;
-  e.max_stress_outside = score.max_stress_outside;
-  e.peak_force = score.peak_force;
-  e.mean_force = score.mean_force;
-  e.contact_time = score.contact_time;
+  e.mean_deviation = score.mean_deviation();
+  e.max_deviation = score.max_deviation();
+  e.depth_error = score.depth_error();
+  e.coverage = score.coverage();
+  e.opened_area_outside = score.opened_area_outside();
+  e.cut_off_volume = score.cut_off_volume();
+  e.max_stress_outside = score.max_stress_outside();
+  e.peak_force = score.peak_force();
+  e.mean_force = score.mean_force();
+  e.contact_time = score.contact_time();
   return e;
 }
 

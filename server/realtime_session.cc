@@ -44,7 +44,6 @@
 
 namespace cutsim::server {
 
-extern volatile std::sig_atomic_t g_stop;
 extern volatile std::sig_atomic_t g_print_stats;
 
 namespace {
@@ -180,7 +179,7 @@ RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double
 
 int RealtimeLoop::Run() {
   sim::Simulation& simulation = p_.simulation;
-  while (!g_stop && !StopRequested()) {
+  while (!StopRequested()) {
     if (options_.duration && simulation.sim_time() >= *options_.duration - 1e-9) break;
     const int64_t frame_start = MonotonicNs();
     profile_.BeginFrame(frame_start);
@@ -285,16 +284,7 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
-  sim::SessionMetricsToProto(p_.simulation.Metrics(), o.mutable_metrics());
-  if (!p_.simulation.has_tool()) return;
-  const sim::ToolReport tool = p_.simulation.Tool();
-  o.set_cuts(tool.cuts);
-  v1::ToolView* view = o.add_tools();
-  transport::SetVec3(tool.pose.tip, view->mutable_tip());
-  transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
-  view->set_blade_length(tool.blade_length);
-  transport::SetVec3(tool.force_on_tool, view->mutable_force());
-  view->set_contact(tool.touching);
+  FillObservedSession(p_.simulation, &o);
 }
 
 void RealtimeLoop::PublishViewerFrame(int64_t frame_start) {
@@ -333,7 +323,7 @@ void RealtimeLoop::PublishStatus(int64_t frame_start) {
   status.set_tool_messages(counters_.tool_messages);
   status.set_scene(std::filesystem::path(options_.scene).stem().string());
   status.set_trainee(options_.trainee);
-  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, status.mutable_score());
+  if (const auto score = p_.simulation.Score()) *status.mutable_score() = *score;
   p_.publisher.PublishStatus(status);
 }
 
@@ -357,22 +347,15 @@ void RealtimeLoop::Pace(int64_t frame_start) {
 }
 
 v1::ServerSessionStats RealtimeLoop::Stats() const {
-  const sim::SimulationSummary s = p_.simulation.Summary();
   const transport::HapticServerLinkStats link = p_.link.stats();
   const transport::MeshStreamStats mesh = p_.publisher.stats();
   v1::ServerSessionStats r;
+  // The summary's entries first; the loop's own counts (its frames) after.
+  sim::SummaryToReport(p_.simulation.Summary(), &r);
   r.set_session(options_.session);
   r.set_frames(ReportCount(counters_.frames));
-  r.set_sim_time(s.sim_time);
   r.set_frame_overruns(ReportCount(counters_.overruns));
   r.set_frame_overruns_after_first_second(ReportCount(counters_.late_overruns));
-  r.set_out_of_time_steps(ReportCount(s.implicit.out_of_time_steps));
-  r.set_over_budget_steps(ReportCount(s.implicit.over_budget_steps));
-  r.set_max_residual_out_of_time(s.implicit.max_residual_out_of_time);
-  r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
-  r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
-  r.set_pcg_iterations(ReportCount(s.implicit.pcg_iterations));
-  r.set_factorizations(ReportCount(s.implicit.factorizations));
   r.set_frame_time_p50_ms(1e3 * frame_time_.Percentile(0.5));
   r.set_frame_time_p99_ms(1e3 * frame_time_.Percentile(0.99));
   r.set_frame_time_max_ms(1e3 * frame_time_.max());
@@ -394,17 +377,8 @@ v1::ServerSessionStats RealtimeLoop::Stats() const {
   r.set_tool_unsigned(ReportCount(link.auth_unsigned));
   r.set_tool_forged(ReportCount(link.auth_forged));
   r.set_tool_replayed(ReportCount(link.auth_replayed));
-  r.set_cuts(ReportCount(s.cuts));
-  r.set_topology_version(ReportCount(s.topology_version));
-  r.set_components(ReportCount(s.components));
-  r.set_status(s.status);
-  r.set_diagnosis(s.diagnosis);
-  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
-  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
-  r.set_max_correction_rank(ReportCount(s.implicit.max_correction_rank));
-  r.set_max_correction_seconds(s.implicit.max_correction_seconds);
-  sim::SessionMetricsToProto(p_.simulation.Metrics(), r.mutable_metrics());
-  if (const auto score = p_.simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
+  *r.mutable_metrics() = p_.simulation.Metrics();
+  if (const auto score = p_.simulation.Score()) *r.mutable_score() = *score;
   FillJournalStats(p_.checkpointer, r.mutable_journal());
   transport::ToReport(link.packets, r.mutable_tool_packets());
   r.set_models_signed(p_.link.signs_models());

@@ -12,6 +12,7 @@
 #include "common/core/error.h"
 #include "common/core/input_file.h"
 #include "common/core/log.h"
+#include "common/core/stop.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/scene_loader.h"
 #include "common/transport/codec.h"
@@ -19,7 +20,6 @@
 #include "server/session_report.h"
 
 namespace cutsim::server {
-extern volatile std::sig_atomic_t g_stop;  // server_app.cc: SIGINT/SIGTERM
 namespace {
 
 std::string Channel(const std::string& session, const char* kind) {
@@ -158,8 +158,8 @@ uint64_t SessionRecorder::Finish(const sim::Simulation& simulation) {
   end.set_cuts(simulation.has_tool() ? simulation.Tool().cuts : 0);
   end.set_mesh_hash(FinalMeshHash(simulation, kRecordQuantum, &view_));
   end.set_sim_time(simulation.sim_time());
-  sim::SessionMetricsToProto(simulation.Metrics(), end.mutable_metrics());
-  if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, end.mutable_score());
+  *end.mutable_metrics() = simulation.Metrics();
+  if (const auto score = simulation.Score()) *end.mutable_score() = *score;
   if (!error_.empty()) ThrowInputError({.file = "", .field = "--record"}, "recording incomplete: " + error_);
   Write(end_channel_, end);
   log_.Close();
@@ -287,33 +287,28 @@ class Replayer {
     if (end.frames() != result_.frames) {
       Fail(fmt::format("{} frames replayed, {} recorded", result_.frames, end.frames()));
     }
-    if (end.has_metrics()) SameMeasures("metrics", end.metrics(), ToProto(simulation_.Metrics()));
+    if (end.has_metrics()) SameMeasures("metrics", end.metrics(), simulation_.Metrics());
     if (end.has_score()) {
       const auto score = simulation_.Score();
       if (!score) {
         Fail("the recording has a score; the re-run's scene has no planned incision");
       } else {
-        v1::IncisionScore now;
-        sim::IncisionScoreToProto(*score, &now);
-        SameMeasures("score", end.score(), now);
+        SameMeasures("score", end.score(), *score);
       }
     }
   }
 
-  static v1::SessionMetrics ToProto(const sim::SessionMetrics& m) {
-    v1::SessionMetrics p;
-    sim::SessionMetricsToProto(m, &p);
-    return p;
-  }
-
   /// The re-run's measures (or score) against the recorded ones, field by
   /// field (every field is a double). The replay is deterministic on the
-  /// recording's build class, so they agree to rounding.
+  /// recording's build class, so they agree to rounding. A field with
+  /// presence (`optional`: a measure added after recordings existed) is
+  /// compared only where the recording holds it.
   void SameMeasures(const char* what, const google::protobuf::Message& recorded, const google::protobuf::Message& now) {
     const auto* descriptor = recorded.GetDescriptor();
     const auto* reflection = recorded.GetReflection();
     for (int i = 0; i < descriptor->field_count(); ++i) {
       const auto* field = descriptor->field(i);
+      if (field->has_presence() && !reflection->HasField(recorded, field)) continue;
       const double a = reflection->GetDouble(now, field);
       const double b = reflection->GetDouble(recorded, field);
       if (!(std::abs(a - b) <= 1e-12 * std::max(std::abs(a), std::abs(b)))) {
@@ -395,7 +390,7 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
   const double quantum = header.quantum() > 0 ? header.quantum() : kRecordQuantum;
   Replayer replayer(path, *simulation, quantum);
   while (auto e = reader.Next()) {
-    if (g_stop) {
+    if (StopRequested()) {
       replayer.Fail(fmt::format("interrupted after {} frames", replayer.frames()));
       break;
     }
@@ -406,7 +401,7 @@ ReplayResult ReplayRecording(const std::filesystem::path& path, const std::strin
     }
     // Other channels (e.g. a tool stream logged alongside) are ignored.
   }
-  if (!replayer.ended() && !replayer.failed() && !g_stop) {
+  if (!replayer.ended() && !replayer.failed() && !StopRequested()) {
     ThrowInputError({.file = path.string(), .field = "RecordEnd"},
                     "the recording has no end event (the server did not finish it)");
   }

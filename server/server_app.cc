@@ -29,69 +29,18 @@
 #include "server/session_report.h"
 
 namespace cutsim::server {
-volatile std::sig_atomic_t g_stop = 0;
 volatile std::sig_atomic_t g_print_stats = 0;
 
 namespace {
 
-void OnSignal(int) {
-  g_stop = 1;
-  RequestStop();
-}
+void OnSignal(int) { RequestStop(); }
 void OnStatsSignal(int) { g_print_stats = 1; }
 
 v1::HeadlessSummary HeadlessReport(const sim::Simulation& simulation) {
-  const sim::SimulationSummary s = simulation.Summary();
-  using transport::ReportCount;
   v1::HeadlessSummary r;
-  r.set_scene(s.scene);
-  r.set_precision(s.precision);
-  r.set_nodes(ReportCount(s.num_nodes));
-  r.set_tets(ReportCount(s.num_tets));
-  r.set_free_nodes(ReportCount(s.num_free_nodes));
-  r.set_threads(ReportCount(s.threads));
-  r.set_steps(ReportCount(s.steps));
-  r.set_frames(ReportCount(s.frames));
-  r.set_dt(s.dt);
-  r.set_stable_dt(s.stable_dt);
-  r.set_sim_time(s.sim_time);
-  r.set_wall_time(s.wall_time);
-  r.set_tet_steps_per_s(s.tet_steps_per_s);
-  r.set_realtime_factor(s.realtime_factor);
-  r.set_kinetic_energy(s.kinetic_energy);
-  r.set_strain_energy(s.strain_energy);
-  r.set_residual_force(s.residual_force);
-  r.set_max_displacement(s.max_displacement);
-  r.set_at_rest(s.at_rest);
-  r.set_status(s.status);
-  r.set_diagnosis(s.diagnosis);
-  r.set_cuts(ReportCount(s.cuts));
-  r.set_cut_attempts(ReportCount(s.cut_attempts));
-  r.set_cuts_rejected(ReportCount(s.cuts_rejected));
-  r.set_topology_version(ReportCount(s.topology_version));
-  r.set_components(ReportCount(s.components));
-  r.set_opened_faces(ReportCount(s.opened_faces));
-  r.set_min_rest_volume(s.min_rest_volume);
-  r.set_total_mass(s.total_mass);
-  r.set_cut_wall_time(s.cut_wall_time);
-  r.set_integrator(s.integrator);
-  r.set_newton_iterations(ReportCount(s.implicit.newton_iterations));
-  r.set_max_newton_iterations(ReportCount(s.implicit.max_newton_iterations));
-  r.set_pcg_iterations(ReportCount(s.implicit.pcg_iterations));
-  r.set_max_pcg_iterations(ReportCount(s.implicit.max_pcg_iterations));
-  r.set_unconverged_steps(ReportCount(s.implicit.unconverged_steps));
-  r.set_factorizations(ReportCount(s.implicit.factorizations));
-  r.set_tangent_assemblies(ReportCount(s.implicit.tangent_assemblies));
-  r.set_out_of_time_steps(ReportCount(s.implicit.out_of_time_steps));
-  r.set_max_residual_out_of_time(s.implicit.max_residual_out_of_time);
-  r.set_max_residual_unconverged(s.implicit.max_residual_unconverged);
-  r.set_recovered_steps(ReportCount(s.implicit.recovered_steps));
-  r.set_factor_corrections(ReportCount(s.implicit.factor_corrections));
-  r.set_over_budget_steps(ReportCount(s.implicit.over_budget_steps));
-  r.set_max_correction_rank(ReportCount(s.implicit.max_correction_rank));
-  r.set_max_correction_seconds(s.implicit.max_correction_seconds);
-  sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
-  if (const auto score = simulation.Score()) sim::IncisionScoreToProto(*score, r.mutable_score());
+  sim::SummaryToReport(simulation.Summary(), &r);
+  *r.mutable_metrics() = simulation.Metrics();
+  if (const auto score = simulation.Score()) *r.mutable_score() = *score;
   return r;
 }
 
@@ -110,7 +59,7 @@ v1::ReplayReport MakeReplayReport(const std::string& path, const ReplayResult& r
   r.set_mesh_hash(transport::HexHash(result.mesh_hash));
   r.set_recorded_mesh_hash(transport::HexHash(result.recorded_mesh_hash));
   r.set_build(BuildClass());
-  sim::SessionMetricsToProto(result.metrics, r.mutable_metrics());
+  *r.mutable_metrics() = result.metrics;
   if (result.report.has_score()) *r.mutable_score() = result.report.score();
   r.set_status(result.report.status());
   r.set_diagnosis(result.report.diagnosis());
@@ -454,7 +403,7 @@ int ServerApp::RunHeadless() {
   const bool tty = options_.progress && ::isatty(STDERR_FILENO);
   Stopwatch since_report;
   int exit_code = 0;
-  while (!g_stop) {
+  while (!StopRequested()) {
     // A remainder below 1 ns is round-off of the frame sum, not a frame: done.
     if (simulation->sim_time() >= end_time - 1e-9) break;
     if (options_.until_rest && simulation->AtRest()) break;
@@ -488,7 +437,7 @@ int ServerApp::RunHeadless() {
   // Not over a good checkpoint after a blow-up.
   if (exit_code == 0 && checkpointer.enabled() && !checkpointer.Save(*simulation)) outputs_ok = false;
   outputs_ok &= FinishJournal(checkpointer);
-  if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !g_stop) {
+  if (options_.until_rest && !simulation->AtRest() && exit_code == 0 && !StopRequested()) {
     Log().warn("did not reach rest within {} s of simulated time", end_time);
   }
   if (!options_.out.empty()) {

@@ -8,9 +8,23 @@
 
 #include "common/core/input_file.h"
 #include "common/sim/metrics_proto.h"
+#include "common/transport/proto_vec.h"
 #include "common/transport/report_json.h"
 
 namespace cutsim::server {
+
+void FillObservedSession(const sim::Simulation& simulation, v1::ObserverSession* observed) {
+  *observed->mutable_metrics() = simulation.Metrics();
+  if (!simulation.has_tool()) return;
+  const sim::ToolReport tool = simulation.Tool();
+  observed->set_cuts(tool.cuts);
+  v1::ToolView* view = observed->add_tools();
+  transport::SetVec3(tool.pose.tip, view->mutable_tip());
+  transport::SetVec3(tool.pose.blade_dir, view->mutable_blade_dir());
+  view->set_blade_length(tool.blade_length);
+  transport::SetVec3(tool.force_on_tool, view->mutable_force());
+  view->set_contact(tool.touching);
+}
 
 v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std::string& session,
                                     const std::string& scene) {
@@ -23,13 +37,13 @@ v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std
   r.set_diagnosis(summary.diagnosis);
   r.set_unconverged_steps(transport::ReportCount(summary.implicit.unconverged_steps));
   r.set_max_residual_unconverged(summary.implicit.max_residual_unconverged);
-  sim::SessionMetricsToProto(simulation.Metrics(), r.mutable_metrics());
+  *r.mutable_metrics() = simulation.Metrics();
   for (const sim::ForceSample& f : simulation.ForceSeries()) {
     r.add_force_t(f.t);
     r.add_force_n(f.force);
   }
   if (const std::optional<sim::IncisionScore> score = simulation.Score()) {
-    sim::IncisionScoreToProto(*score, r.mutable_score());
+    *r.mutable_score() = *score;
     for (const sim::CutPoint& c : simulation.ScoredCutPoints()) {
       r.add_cut_t(c.t);
       r.add_cut_deviation(c.deviation);

@@ -9,8 +9,13 @@
 
 #include "common/sim/simulation.h"
 #include "cutsim/v1/report.pb.h"
+#include "cutsim/v1/wire.pb.h"
 
 namespace cutsim::server {
+
+/// The session's measures, cut count and tool (pose, force, contact) into
+/// an observer frame, as the live session and the debrief publish them.
+void FillObservedSession(const sim::Simulation& simulation, v1::ObserverSession* observed);
 
 [[nodiscard]] v1::SessionReport MakeSessionReport(const sim::Simulation& simulation, const std::string& session,
                                                   const std::string& scene);

@@ -6,6 +6,8 @@
 
 #include <Eigen/Dense>
 
+#include "cutsim/v1/metrics.pb.h"
+
 namespace cutsim::sim {
 
 IncisionScorer::IncisionScorer(PlannedIncision plan) : plan_(std::move(plan)) {
@@ -139,15 +141,15 @@ template <typename T>
 IncisionScore IncisionScorer::Score(const T* rest, const mesh::Triangles& surface, std::span<const uint8_t> opened,
                                     const SessionMetrics& metrics, double sim_time) const {
   IncisionScore s;
-  s.cut_points = count_;
-  s.mean_deviation = count_ > 0 ? sum_deviation_ / static_cast<double>(count_) : 0.0;
-  s.max_deviation = max_deviation_;
-  s.cut_off_volume = metrics.cut_off_volume;
-  s.max_stress_outside = metrics.max_stress_outside;
-  s.peak_force = metrics.peak_force;
-  s.mean_force = metrics.mean_force;
-  s.contact_time = metrics.contact_time;
-  s.duration = sim_time;
+  s.set_cut_points(static_cast<double>(count_));
+  s.set_mean_deviation(count_ > 0 ? sum_deviation_ / static_cast<double>(count_) : 0.0);
+  s.set_max_deviation(max_deviation_);
+  s.set_cut_off_volume(metrics.cut_off_volume());
+  s.set_max_stress_outside(metrics.max_stress_outside());
+  s.set_peak_force(metrics.peak_force());
+  s.set_mean_force(metrics.mean_force());
+  s.set_contact_time(metrics.contact_time());
+  s.set_duration(sim_time);
 
   const auto at = [rest](int32_t v) {
     return Eigen::Vector3d(static_cast<double>(rest[3 * v]), static_cast<double>(rest[3 * v + 1]),
@@ -155,26 +157,30 @@ IncisionScore IncisionScorer::Score(const T* rest, const mesh::Triangles& surfac
   };
   const double tol = plan_.tolerance;
   std::vector<uint8_t> covered(in_tissue_.size(), 0);
+  double opened_area_outside = 0.0;
+  double depth_reached = 0.0;
   const auto slots = std::min(static_cast<size_t>(surface.rows()), opened.size());
   for (size_t f = 0; f < slots; ++f) {
     const auto r = static_cast<Eigen::Index>(f);
     if (!opened[f] || surface(r, 0) < 0) continue;
     const Eigen::Vector3d a = at(surface(r, 0)), b = at(surface(r, 1)), c = at(surface(r, 2));
     if (NearestOnPlan((a + b + c) / 3.0).distance > tol) {
-      s.opened_area_outside += 0.5 * (b - a).cross(c - a).norm();
+      opened_area_outside += 0.5 * (b - a).cross(c - a).norm();
       continue;
     }
     for (const Eigen::Vector3d& x : {a, b, c}) {
       const Nearest q = NearestOnPlan(x);
-      if (q.distance <= tol) s.depth_reached = std::max(s.depth_reached, (q.point - x).dot(plan_.normal));
+      if (q.distance <= tol) depth_reached = std::max(depth_reached, (q.point - x).dot(plan_.normal));
     }
     CoverCells(a, b, c, covered);
   }
-  s.depth_error = s.depth_reached - plan_.depth;
+  s.set_opened_area_outside(opened_area_outside);
+  s.set_depth_reached(depth_reached);
+  s.set_depth_error(depth_reached - plan_.depth);
 
   int64_t hit = 0;
   for (size_t k = 0; k < covered.size(); ++k) hit += covered[k] & in_tissue_[k];
-  s.coverage = cells_in_tissue_ > 0 ? static_cast<double>(hit) / static_cast<double>(cells_in_tissue_) : 0.0;
+  s.set_coverage(cells_in_tissue_ > 0 ? static_cast<double>(hit) / static_cast<double>(cells_in_tissue_) : 0.0);
   return s;
 }
 

@@ -35,6 +35,7 @@
 
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/types.h"
+#include "cutsim/v1/metrics.pb.h"
 
 namespace cutsim::sim {
 
@@ -53,21 +54,9 @@ struct CutPoint {
   double deviation = 0.0;                               ///< m, from the planned line across the surface
 };
 
-struct IncisionScore {
-  int64_t cut_points = 0;
-  double mean_deviation = 0.0;       ///< m, over the cut points
-  double max_deviation = 0.0;        ///< m
-  double depth_reached = 0.0;        ///< m, below the plan, within the band
-  double depth_error = 0.0;          ///< m, reached − planned (negative: too shallow)
-  double coverage = 0.0;             ///< fraction of the planned cut surface (in the tissue) that is opened
-  double opened_area_outside = 0.0;  ///< m², faces opened outside the band (rest area)
-  double cut_off_volume = 0.0;       ///< m³ (SessionMetrics)
-  double max_stress_outside = 0.0;   ///< Pa (SessionMetrics)
-  double peak_force = 0.0;           ///< N (SessionMetrics)
-  double mean_force = 0.0;           ///< N (SessionMetrics)
-  double contact_time = 0.0;         ///< s (SessionMetrics)
-  double duration = 0.0;             ///< s, simulated time of the session
-};
+/// The cut against the plan: the message itself (cutsim/v1/metrics.proto),
+/// which the scorer fills and the reports print.
+using IncisionScore = v1::IncisionScore;
 
 class IncisionScorer {
  public:

@@ -1,6 +1,11 @@
 #include "common/sim/metrics_proto.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <limits>
+#include <stdexcept>
+#include <variant>
 
 #include <fmt/format.h>
 
@@ -9,37 +14,21 @@
 
 namespace cutsim::sim {
 
-void SessionMetricsToProto(const SessionMetrics& m, v1::SessionMetrics* out) {
-  out->set_peak_force(m.peak_force);
-  out->set_mean_force(m.mean_force);
-  out->set_force_impulse(m.force_impulse);
-  out->set_path_length(m.path_length);
-  out->set_contact_time(m.contact_time);
-  out->set_cut_off_volume(m.cut_off_volume);
-  out->set_opened_area(m.opened_area);
-  out->set_max_stress_outside(m.max_stress_outside);
-  out->set_stress_outside(m.stress_outside);
-  out->set_stress_samples(static_cast<double>(m.stress_samples));
-}
-
 SessionMetrics SessionMetricsFromProto(const v1::SessionMetrics& p, const std::string& source) {
-  const struct {
-    const char* name;
-    double value;
-  } fields[] = {{"peak_force", p.peak_force()},
-                {"mean_force", p.mean_force()},
-                {"force_impulse", p.force_impulse()},
-                {"path_length", p.path_length()},
-                {"contact_time", p.contact_time()},
-                {"cut_off_volume", p.cut_off_volume()},
-                {"opened_area", p.opened_area()},
-                {"max_stress_outside", p.max_stress_outside()},
-                {"stress_outside", p.stress_outside()},
-                {"stress_samples", p.stress_samples()}};
-  for (const auto& f : fields) {
-    if (!std::isfinite(f.value) || f.value < 0.0) {
-      ThrowInputError({.file = source, .field = fmt::format("metrics.{}", f.name)},
-                      fmt::format("must be finite and not negative, got {}", f.value));
+  // Every measure, whatever the message holds, by its descriptor: a new
+  // field is checked without a line here.
+  const google::protobuf::Descriptor* descriptor = v1::SessionMetrics::descriptor();
+  const google::protobuf::Reflection* reflection = v1::SessionMetrics::GetReflection();
+  for (int i = 0; i < descriptor->field_count(); ++i) {
+    const google::protobuf::FieldDescriptor* f = descriptor->field(i);
+    if (f->cpp_type() != google::protobuf::FieldDescriptor::CPPTYPE_DOUBLE || f->is_repeated()) {
+      ThrowInputError({.file = source, .field = fmt::format("metrics.{}", f->name())},
+                      "the build's SessionMetrics message has a field that is not a double");
+    }
+    const double value = reflection->GetDouble(p, f);
+    if (!std::isfinite(value) || value < 0.0) {
+      ThrowInputError({.file = source, .field = fmt::format("metrics.{}", f->name())},
+                      fmt::format("must be finite and not negative, got {}", value));
     }
   }
   if (p.mean_force() > p.peak_force() * (1.0 + 1e-9)) {
@@ -50,32 +39,114 @@ SessionMetrics SessionMetricsFromProto(const v1::SessionMetrics& p, const std::s
     ThrowInputError({.file = source, .field = "metrics.stress_samples"},
                     fmt::format("must be a whole count below 9e15, got {}", p.stress_samples()));
   }
-  return {.peak_force = p.peak_force(),
-          .mean_force = p.mean_force(),
-          .force_impulse = p.force_impulse(),
-          .path_length = p.path_length(),
-          .contact_time = p.contact_time(),
-          .cut_off_volume = p.cut_off_volume(),
-          .opened_area = p.opened_area(),
-          .max_stress_outside = p.max_stress_outside(),
-          .stress_outside = p.stress_outside(),
-          .stress_samples = static_cast<int64_t>(p.stress_samples())};
+  return p;
 }
 
-void IncisionScoreToProto(const IncisionScore& s, v1::IncisionScore* out) {
-  out->set_cut_points(static_cast<double>(s.cut_points));
-  out->set_mean_deviation(s.mean_deviation);
-  out->set_max_deviation(s.max_deviation);
-  out->set_depth_reached(s.depth_reached);
-  out->set_depth_error(s.depth_error);
-  out->set_coverage(s.coverage);
-  out->set_opened_area_outside(s.opened_area_outside);
-  out->set_cut_off_volume(s.cut_off_volume);
-  out->set_max_stress_outside(s.max_stress_outside);
-  out->set_peak_force(s.peak_force);
-  out->set_mean_force(s.mean_force);
-  out->set_contact_time(s.contact_time);
-  out->set_duration(s.duration);
+namespace {
+
+/// One value of the summary, by its type in the report.
+using SummaryValue = std::variant<int64_t, double, bool, std::string>;
+
+struct SummaryField {
+  const char* name;
+  SummaryValue (*get)(const SimulationSummary&);
+};
+
+// The summary's entries, once: every report that carries one of these names
+// takes it from here.
+#define CUTSIM_SUMMARY(name, expr) \
+  {name, [](const SimulationSummary& s) -> SummaryValue { return expr; }}
+constexpr SummaryField kSummaryFields[] = {
+    CUTSIM_SUMMARY("scene", s.scene),
+    CUTSIM_SUMMARY("precision", s.precision),
+    CUTSIM_SUMMARY("nodes", int64_t{s.num_nodes}),
+    CUTSIM_SUMMARY("tets", int64_t{s.num_tets}),
+    CUTSIM_SUMMARY("free_nodes", int64_t{s.num_free_nodes}),
+    CUTSIM_SUMMARY("threads", int64_t{s.threads}),
+    CUTSIM_SUMMARY("steps", s.steps),
+    CUTSIM_SUMMARY("frames", s.frames),
+    CUTSIM_SUMMARY("dt", s.dt),
+    CUTSIM_SUMMARY("stable_dt", s.stable_dt),
+    CUTSIM_SUMMARY("sim_time", s.sim_time),
+    CUTSIM_SUMMARY("wall_time", s.wall_time),
+    CUTSIM_SUMMARY("tet_steps_per_s", s.tet_steps_per_s),
+    CUTSIM_SUMMARY("realtime_factor", s.realtime_factor),
+    CUTSIM_SUMMARY("kinetic_energy", s.kinetic_energy),
+    CUTSIM_SUMMARY("strain_energy", s.strain_energy),
+    CUTSIM_SUMMARY("residual_force", s.residual_force),
+    CUTSIM_SUMMARY("max_displacement", s.max_displacement),
+    CUTSIM_SUMMARY("at_rest", s.at_rest),
+    CUTSIM_SUMMARY("status", s.status),
+    CUTSIM_SUMMARY("diagnosis", s.diagnosis),
+    CUTSIM_SUMMARY("cuts", static_cast<int64_t>(s.cuts)),
+    CUTSIM_SUMMARY("cut_attempts", static_cast<int64_t>(s.cut_attempts)),
+    CUTSIM_SUMMARY("cuts_rejected", static_cast<int64_t>(s.cuts_rejected)),
+    CUTSIM_SUMMARY("topology_version", static_cast<int64_t>(s.topology_version)),
+    CUTSIM_SUMMARY("components", int64_t{s.components}),
+    CUTSIM_SUMMARY("opened_faces", int64_t{s.opened_faces}),
+    CUTSIM_SUMMARY("min_rest_volume", s.min_rest_volume),
+    CUTSIM_SUMMARY("total_mass", s.total_mass),
+    CUTSIM_SUMMARY("cut_wall_time", s.cut_wall_time),
+    CUTSIM_SUMMARY("integrator", s.integrator),
+    CUTSIM_SUMMARY("newton_iterations", s.implicit.newton_iterations),
+    CUTSIM_SUMMARY("max_newton_iterations", int64_t{s.implicit.max_newton_iterations}),
+    CUTSIM_SUMMARY("pcg_iterations", s.implicit.pcg_iterations),
+    CUTSIM_SUMMARY("max_pcg_iterations", int64_t{s.implicit.max_pcg_iterations}),
+    CUTSIM_SUMMARY("unconverged_steps", s.implicit.unconverged_steps),
+    CUTSIM_SUMMARY("factorizations", s.implicit.factorizations),
+    CUTSIM_SUMMARY("tangent_assemblies", s.implicit.tangent_assemblies),
+    CUTSIM_SUMMARY("out_of_time_steps", s.implicit.out_of_time_steps),
+    CUTSIM_SUMMARY("max_residual_out_of_time", s.implicit.max_residual_out_of_time),
+    CUTSIM_SUMMARY("max_residual_unconverged", s.implicit.max_residual_unconverged),
+    CUTSIM_SUMMARY("recovered_steps", s.implicit.recovered_steps),
+    CUTSIM_SUMMARY("factor_corrections", s.implicit.factor_corrections),
+    CUTSIM_SUMMARY("over_budget_steps", s.implicit.over_budget_steps),
+    CUTSIM_SUMMARY("max_correction_rank", int64_t{s.implicit.max_correction_rank}),
+    CUTSIM_SUMMARY("max_correction_seconds", s.implicit.max_correction_seconds),
+};
+#undef CUTSIM_SUMMARY
+
+/// `n` as a report count: uint32 (JSON prints it as a number, unlike 64-bit
+/// integers), saturated to [0, 2^32 − 1].
+uint32_t Count(int64_t n) {
+  return static_cast<uint32_t>(std::clamp<int64_t>(n, 0, std::numeric_limits<uint32_t>::max()));
+}
+
+}  // namespace
+
+void SummaryToReport(const SimulationSummary& summary, google::protobuf::Message* report) {
+  using google::protobuf::FieldDescriptor;
+  const google::protobuf::Descriptor* descriptor = report->GetDescriptor();
+  const google::protobuf::Reflection* reflection = report->GetReflection();
+  for (const SummaryField& entry : kSummaryFields) {
+    const FieldDescriptor* f = descriptor->FindFieldByName(entry.name);
+    if (f == nullptr) continue;
+    const SummaryValue value = entry.get(summary);
+    const auto mismatch = [&] {
+      throw std::logic_error(fmt::format("{}.{}: the summary's value does not fit the field's type",
+                                         descriptor->full_name(), f->name()));
+    };
+    if (f->is_repeated()) mismatch();
+    if (const auto* n = std::get_if<int64_t>(&value)) {
+      if (f->cpp_type() != FieldDescriptor::CPPTYPE_UINT32) mismatch();
+      reflection->SetUInt32(report, f, Count(*n));
+    } else if (const auto* d = std::get_if<double>(&value)) {
+      if (f->cpp_type() != FieldDescriptor::CPPTYPE_DOUBLE) mismatch();
+      reflection->SetDouble(report, f, *d);
+    } else if (const auto* b = std::get_if<bool>(&value)) {
+      if (f->cpp_type() != FieldDescriptor::CPPTYPE_BOOL) mismatch();
+      reflection->SetBool(report, f, *b);
+    } else {
+      if (f->cpp_type() != FieldDescriptor::CPPTYPE_STRING) mismatch();
+      reflection->SetString(report, f, std::get<std::string>(value));
+    }
+  }
+}
+
+std::vector<std::string> SummaryFieldNames() {
+  std::vector<std::string> names;
+  for (const SummaryField& entry : kSummaryFields) names.emplace_back(entry.name);
+  return names;
 }
 
 PlannedIncision PlanOf(const v1::PlannedIncision& p) {

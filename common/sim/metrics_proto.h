@@ -1,8 +1,7 @@
 #pragma once
 /// @file
-/// The session's measures (SessionMetrics, types.h) to and from their
-/// message (cutsim/v1/metrics.proto), for the observer stream, the reports
-/// and checkpoints.
+/// The session's measures checked on their way in (checkpoints), and the
+/// session report's series to and from their message.
 
 #include <span>
 #include <string>
@@ -16,14 +15,24 @@
 
 namespace cutsim::sim {
 
-void SessionMetricsToProto(const SessionMetrics& metrics, v1::SessionMetrics* out);
-
-/// Checks that every field is finite and not negative and that the mean
-/// does not exceed the peak; throws InputError naming `source` and the
-/// field otherwise.
+/// The measures a checkpoint holds, checked: every field (the message's
+/// fields are all doubles) finite and not negative, the mean force not above
+/// the peak, the sample count whole; throws InputError naming `source` and
+/// the field otherwise.
 [[nodiscard]] SessionMetrics SessionMetricsFromProto(const v1::SessionMetrics& metrics, const std::string& source);
 
-void IncisionScoreToProto(const IncisionScore& score, v1::IncisionScore* out);
+/// The run's summary into every field of `report` that bears the name of a
+/// summary entry (the headless summary, the server's session statistics):
+/// counts as uint32 (saturated), times and energies as doubles, status and
+/// names as strings; `report`'s other fields are left as they are. The
+/// summary's names are the ones SimulationSummary uses, with `nodes`,
+/// `tets`, `free_nodes` for its counts and the implicit counters at top
+/// level. Throws std::logic_error if a field of that name has another type.
+void SummaryToReport(const SimulationSummary& summary, google::protobuf::Message* report);
+
+/// The names SummaryToReport fills, for tests that hold a report message to
+/// them.
+[[nodiscard]] std::vector<std::string> SummaryFieldNames();
 
 /// The scene's planned incision as checked by the scene loader.
 [[nodiscard]] PlannedIncision PlanOf(const v1::PlannedIncision& plan);

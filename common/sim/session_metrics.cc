@@ -9,22 +9,25 @@
 namespace cutsim::sim {
 
 template <typename T>
-SessionMeter<T>::SessionMeter(Options options) : options_(options) {}
+SessionMeter<T>::SessionMeter(Options options) : options_(options) {
+  metrics_.set_cutting_time(0.0);  // present from the start (an optional measure)
+}
 
 template <typename T>
 void SessionMeter<T>::AddFrame(double frame_time, const ToolReport& tool) {
   if (!tool.present) return;
-  if (have_tip_) metrics_.path_length += (tool.pose.tip - last_tip_).norm();
+  if (have_tip_) metrics_.set_path_length(metrics_.path_length() + (tool.pose.tip - last_tip_).norm());
   last_tip_ = tool.pose.tip;
   have_tip_ = true;
   last_force_ = 0.0;
+  if (tool.cut_this_frame) metrics_.set_cutting_time(metrics_.cutting_time() + frame_time);
   if (!tool.touching) return;
   const double f = tool.force_on_tool.norm();
   last_force_ = f;
-  metrics_.peak_force = std::max(metrics_.peak_force, f);
-  metrics_.contact_time += frame_time;
-  metrics_.force_impulse += f * frame_time;
-  metrics_.mean_force = metrics_.force_impulse / metrics_.contact_time;
+  metrics_.set_peak_force(std::max(metrics_.peak_force(), f));
+  metrics_.set_contact_time(metrics_.contact_time() + frame_time);
+  metrics_.set_force_impulse(metrics_.force_impulse() + f * frame_time);
+  metrics_.set_mean_force(metrics_.force_impulse() / metrics_.contact_time());
 }
 
 template <typename T>
@@ -58,9 +61,9 @@ void SessionMeter<T>::Sample(const fem::Model<T>& model, const T* x, const Incis
         static_cast<double>(fem::VonMises<T>(fem::ElementCauchyStress(model, x, static_cast<int32_t>(i), pressure)));
     if (std::isfinite(s)) largest = std::max(largest, s);
   }
-  metrics_.stress_outside = largest;
-  metrics_.max_stress_outside = std::max(metrics_.max_stress_outside, largest);
-  ++metrics_.stress_samples;
+  metrics_.set_stress_outside(largest);
+  metrics_.set_max_stress_outside(std::max(metrics_.max_stress_outside(), largest));
+  metrics_.set_stress_samples(metrics_.stress_samples() + 1.0);
   if (series_.size() < kMaxForceSamples) series_.push_back({.t = sim_time, .force = last_force_});
 }
 
@@ -68,8 +71,8 @@ template <typename T>
 void SessionMeter<T>::UpdatePieces(const fem::Model<T>& model, const IncisionView& incision) {
   const int32_t nt = model.num_tets();
   cut_off_.assign(static_cast<size_t>(nt), 0);
-  metrics_.cut_off_volume = 0.0;
-  metrics_.opened_area = 0.0;
+  metrics_.set_cut_off_volume(0.0);
+  metrics_.set_opened_area(0.0);
   if (incision.cut == nullptr) return;
 
   // Pieces: the anchored ones hold a fixed node; with none fixed anywhere,
@@ -92,12 +95,14 @@ void SessionMeter<T>::UpdatePieces(const fem::Model<T>& model, const IncisionVie
   if (!any_fixed && count > 0) {
     anchored[static_cast<size_t>(std::max_element(volume.begin(), volume.end()) - volume.begin())] = 1;
   }
+  double cut_off_volume = 0.0;
   for (int32_t t = 0; t < nt; ++t) {
     const auto c = static_cast<size_t>(label[static_cast<size_t>(t)]);
     if (anchored[c]) continue;
     cut_off_[static_cast<size_t>(t)] = 1;
-    metrics_.cut_off_volume += static_cast<double>(model.rest_volume(t));
+    cut_off_volume += static_cast<double>(model.rest_volume(t));
   }
+  metrics_.set_cut_off_volume(cut_off_volume);
 
   if (incision.surface == nullptr) return;
   const mesh::Triangles& tri = *incision.surface;
@@ -107,11 +112,13 @@ void SessionMeter<T>::UpdatePieces(const fem::Model<T>& model, const IncisionVie
                            static_cast<double>(rest[3 * n + 2]));
   };
   const auto slots = std::min(static_cast<size_t>(tri.rows()), incision.opened.size());
+  double opened_area = 0.0;
   for (size_t s = 0; s < slots; ++s) {
     const auto r = static_cast<Eigen::Index>(s);
     if (!incision.opened[s] || tri(r, 0) < 0) continue;
-    metrics_.opened_area += 0.5 * (at(tri(r, 1)) - at(tri(r, 0))).cross(at(tri(r, 2)) - at(tri(r, 0))).norm();
+    opened_area += 0.5 * (at(tri(r, 1)) - at(tri(r, 0))).cross(at(tri(r, 2)) - at(tri(r, 0))).norm();
   }
+  metrics_.set_opened_area(opened_area);
 }
 
 template <typename T>

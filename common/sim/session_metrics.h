@@ -1,6 +1,7 @@
 #pragma once
 /// @file
-/// The session's measures for the instructor (SessionMetrics in types.h),
+/// The session's measures for the instructor (SessionMetrics, the message
+/// of cutsim/v1/metrics.proto),
 /// computed from the physics as the session runs: the frame's last stage.
 ///
 /// Per frame, from the tool's report: the force on the tool (peak, and the
@@ -30,6 +31,7 @@
 #include "common/fem/model.h"
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/types.h"
+#include "cutsim/v1/metrics.pb.h"
 
 namespace cutsim::sim {
 

@@ -170,7 +170,7 @@ class Engine final : public Simulation {
       progress.events = cuts_->events();
     }
     v1::CheckpointBody body = MakeCheckpointBody(Identity(), progress, fem_.state(), fem_.model().num_nodes());
-    SessionMetricsToProto(meter_.metrics(), body.mutable_metrics());
+    *body.mutable_metrics() = meter_.metrics();
     SeriesToProto(meter_.force_series(), ScoredCutPoints(), &body);
     return body;
   }

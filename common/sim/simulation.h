@@ -21,6 +21,7 @@
 #include "common/sim/incision_score.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/types.h"  // re-exported: the types the interface speaks
+#include "cutsim/v1/metrics.pb.h"
 
 namespace cutsim::v1 {
 class CheckpointBody;

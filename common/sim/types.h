@@ -18,6 +18,10 @@
 #include "common/mesh/mesh_frame.h"
 #include "common/mesh/tet_mesh.h"
 
+namespace cutsim::v1 {
+class SessionMetrics;
+}  // namespace cutsim::v1
+
 namespace cutsim::sim {
 
 /// Overrides a user gives on the command line (0/empty = take the scene's).
@@ -111,21 +115,11 @@ struct SimulationSummary {
 };
 
 /// Per-session measures for the instructor, from the physics
-/// (session_metrics.h). Force, travel and contact accumulate every frame;
-/// the whole-mesh measures come from samples at a fixed simulated-time
-/// period, so a replay of the same frames gives the same numbers.
-struct SessionMetrics {
-  double peak_force = 0.0;          ///< N, largest |f| on the tool in contact
-  double mean_force = 0.0;          ///< N, force_impulse / contact_time
-  double force_impulse = 0.0;       ///< N·s, ∫|f| dt over the time in contact
-  double path_length = 0.0;         ///< m, travel of the blade tip
-  double contact_time = 0.0;        ///< s (simulated), tool touching tissue
-  double cut_off_volume = 0.0;      ///< m³, rest volume of pieces separated from the anchored body
-  double opened_area = 0.0;         ///< m², rest area of the faces cuts opened (both walls)
-  double max_stress_outside = 0.0;  ///< Pa, largest von Mises outside the incision so far
-  double stress_outside = 0.0;      ///< Pa, the same at the latest sample
-  int64_t stress_samples = 0;       ///< whole-mesh samples taken
-};
+/// (session_metrics.h): the message itself (cutsim/v1/metrics.proto), which
+/// the meter writes, the reports print and the checkpoint keeps, so a new
+/// measure is one field there plus the code that computes it. Complete
+/// where "cutsim/v1/metrics.pb.h" is included.
+using SessionMetrics = v1::SessionMetrics;
 
 /// |f| on the tool at one whole-mesh sample of the session's measures (0
 /// out of contact).

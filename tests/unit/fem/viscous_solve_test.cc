@@ -121,7 +121,7 @@ TEST(FemViscousSolve, DefaultToleranceTracksConvergedSolve) {
 // Every sum in the solve gives the same bits for any thread count
 // (node_sums.h), so a run, or a replay of it, on another number of cores
 // follows the same trajectory (1 681 nodes: 7 blocks of those sums).
-TEST(FemViscousSolve, SameTrajectoryForAnyThreadCount) {
+TEST(FemViscousSolveSlow, SameTrajectoryForAnyThreadCount) {
   StepOptions o;
   o.viscous = ViscousTreatment::kImplicit;
   o.num_threads = 1;

@@ -92,14 +92,14 @@ TEST_F(CheckpointTest, RoundTripRestoresTheCutTissueAndItsFuture) {
   // The session's measures carry on from where they were.
   const SessionMetrics& m0 = original.Metrics();
   const SessionMetrics& m1 = restored->Metrics();
-  EXPECT_GT(m0.path_length, 0.0);
-  EXPECT_GT(m0.opened_area, 0.0);
-  EXPECT_EQ(m1.path_length, m0.path_length);
-  EXPECT_EQ(m1.peak_force, m0.peak_force);
-  EXPECT_EQ(m1.contact_time, m0.contact_time);
-  EXPECT_EQ(m1.opened_area, m0.opened_area);
-  EXPECT_EQ(m1.max_stress_outside, m0.max_stress_outside);
-  EXPECT_EQ(m1.stress_samples, m0.stress_samples);
+  EXPECT_GT(m0.path_length(), 0.0);
+  EXPECT_GT(m0.opened_area(), 0.0);
+  EXPECT_EQ(m1.path_length(), m0.path_length());
+  EXPECT_EQ(m1.peak_force(), m0.peak_force());
+  EXPECT_EQ(m1.contact_time(), m0.contact_time());
+  EXPECT_EQ(m1.opened_area(), m0.opened_area());
+  EXPECT_EQ(m1.max_stress_outside(), m0.max_stress_outside());
+  EXPECT_EQ(m1.stress_samples(), m0.stress_samples());
 
   // The restored tissue goes on (the tool keeps cutting). Not bit-identical
   // to the original's future: the cut tracker's anchor and the stable-step
@@ -108,8 +108,8 @@ TEST_F(CheckpointTest, RoundTripRestoresTheCutTissueAndItsFuture) {
   for (int i = 0; i < 30; ++i) ASSERT_EQ(restored->AdvanceFrame(), SimStatus::kOk);
   EXPECT_GE(restored->topology_version(), version);
   EXPECT_GE(restored->QuickSummary().cuts, original.QuickSummary().cuts);
-  EXPECT_GT(restored->Metrics().path_length, m0.path_length);
-  EXPECT_GE(restored->Metrics().max_stress_outside, m0.max_stress_outside);
+  EXPECT_GT(restored->Metrics().path_length(), m0.path_length());
+  EXPECT_GE(restored->Metrics().max_stress_outside(), m0.max_stress_outside());
 
   // A checkpoint of the restored simulation carries every event again.
   SaveCheckpoint(*restored, dir_ / "again.ckpt");

@@ -47,11 +47,11 @@ TEST(IncisionScorer, MeanAndMaxFollowTheCutPoints) {
   const mesh::Triangles none(0, 3);
   const std::vector<double> rest;
   const IncisionScore score = s.Score<double>(rest.data(), none, {}, SessionMetrics{}, 2.2);
-  EXPECT_EQ(score.cut_points, 22);
-  EXPECT_NEAR(score.mean_deviation, (21 * 0.0005 + 0.004) / 22, 1e-12);
-  EXPECT_NEAR(score.max_deviation, 0.004, 1e-12);
+  EXPECT_EQ(score.cut_points(), 22);
+  EXPECT_NEAR(score.mean_deviation(), (21 * 0.0005 + 0.004) / 22, 1e-12);
+  EXPECT_NEAR(score.max_deviation(), 0.004, 1e-12);
   // Coverage is what is opened, not where the blade touched: nothing yet.
-  EXPECT_EQ(score.coverage, 0.0);
+  EXPECT_EQ(score.coverage(), 0.0);
 }
 
 /// Walls y = `y` (rest frame) over x ∈ [x0, x1], z ∈ [z0, z1], two
@@ -81,26 +81,26 @@ IncisionScore ScoreWalls(const std::vector<Wall>& walls, const mesh::TetMesh* ti
 TEST(IncisionScorer, CoverageIsTheOpenedShareOfThePlannedCutSurface) {
   // A complete transection on the line, and the same wall opened on both
   // sides of the cut (both count once).
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}}).coverage, 1.0);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}, {0, 0.03, 0, 0.01, -0.0005}}).coverage, 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}}).coverage(), 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0, 0.01, 0.0005}, {0, 0.03, 0, 0.01, -0.0005}}).coverage(), 1.0);
   // Half the depth, half the length, a quarter.
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0.005, 0.01, 0.0005}}).coverage, 0.5);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}).coverage, 0.5);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0.005, 0.01, 0.0005}}).coverage, 0.25);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.03, 0.005, 0.01, 0.0005}}).coverage(), 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}).coverage(), 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0.005, 0.01, 0.0005}}).coverage(), 0.25);
   // Two strokes that together open the whole wall.
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.016, 0, 0.01, 0.0005}, {0.014, 0.03, 0, 0.01, 0.0005}}).coverage, 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.016, 0, 0.01, 0.0005}, {0.014, 0.03, 0, 0.01, 0.0005}}).coverage(), 1.0);
   // Off the band: nothing covered, all of it opened outside.
   const IncisionScore off = ScoreWalls({{0, 0.03, 0, 0.01, 0.003}});
-  EXPECT_EQ(off.coverage, 0.0);
-  EXPECT_NEAR(off.opened_area_outside, 0.03 * 0.01, 1e-12);
+  EXPECT_EQ(off.coverage(), 0.0);
+  EXPECT_NEAR(off.opened_area_outside(), 0.03 * 0.01, 1e-12);
 }
 
 TEST(IncisionScorer, CoverageCountsOnlyThePlannedSurfaceInTheTissue) {
   // The tissue ends halfway along the plan: cutting all of it is complete.
   const mesh::TetMesh half = mesh::MakeBox({0, -0.01, 0}, {0.015, 0.01, 0.01}, 3, 4, 2);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}, &half).coverage, 1.0);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0.005, 0.01, 0.0005}}, &half).coverage, 0.5);
-  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0, 0.01, 0.0005}}, &half).coverage, 0.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0, 0.01, 0.0005}}, &half).coverage(), 1.0);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0, 0.015, 0.005, 0.01, 0.0005}}, &half).coverage(), 0.5);
+  EXPECT_DOUBLE_EQ(ScoreWalls({{0.015, 0.03, 0, 0.01, 0.0005}}, &half).coverage(), 0.0);
 }
 
 TEST(IncisionScorer, DepthAndOpenedAreaComeFromTheOpenedFaces) {
@@ -112,9 +112,9 @@ TEST(IncisionScorer, DepthAndOpenedAreaComeFromTheOpenedFaces) {
   tri << 0, 1, 2, 3, 4, 5, -1, -1, -1;  // the last slot is dead
   const std::vector<uint8_t> opened = {1, 1, 1};
   const IncisionScore score = s.Score<double>(rest.data(), tri, opened, SessionMetrics{}, 1.0);
-  EXPECT_NEAR(score.depth_reached, 0.004, 1e-12);
-  EXPECT_NEAR(score.depth_error, -0.001, 1e-12);
-  EXPECT_NEAR(score.opened_area_outside, 0.5 * 0.002 * 0.002, 1e-15);
+  EXPECT_NEAR(score.depth_reached(), 0.004, 1e-12);
+  EXPECT_NEAR(score.depth_error(), -0.001, 1e-12);
+  EXPECT_NEAR(score.opened_area_outside(), 0.5 * 0.002 * 0.002, 1e-15);
 }
 
 // ---- scripted cuts of the block --------------------------------------------
@@ -152,12 +152,18 @@ planned_incision {{
 struct Scored {
   IncisionScore score;
   std::unique_ptr<Simulation> sim;
+  double cutting_time = 0.0;  ///< s, summed here over the frames whose cut count grew
 };
 
 Scored CutBlock(double offset) {
   Scored r;
   r.sim = Simulation::Create(ParseScene(BlockScene(offset), "score-block.pbtxt", "."), {.threads = 1});
-  while (r.sim->sim_time() < 2.4 - 1e-9) EXPECT_EQ(r.sim->AdvanceFrame(), SimStatus::kOk);
+  while (r.sim->sim_time() < 2.4 - 1e-9) {
+    const uint64_t cuts = r.sim->Tool().cuts;
+    const double t = r.sim->sim_time();
+    EXPECT_EQ(r.sim->AdvanceFrame(), SimStatus::kOk);
+    if (r.sim->Tool().cuts > cuts) r.cutting_time += r.sim->sim_time() - t;
+  }
   r.score = *r.sim->Score();
   return r;
 }
@@ -167,32 +173,40 @@ TEST(IncisionScoreSession, ScriptedCutsScoreAsTheirOffsets) {
   const Scored off = CutBlock(0.003);
   // On the line: every cut step within the mesh's half-spacing of it, the
   // full depth reached, most of the line covered, nothing opened outside.
-  EXPECT_GT(on.score.cut_points, 4);
-  EXPECT_LT(on.score.mean_deviation, 0.0005);
-  EXPECT_LT(on.score.max_deviation, 0.001);
-  EXPECT_NEAR(on.score.depth_error, 0.0, 0.001);
-  EXPECT_GT(on.score.coverage, 0.9);
-  EXPECT_EQ(on.score.opened_area_outside, 0.0);
+  EXPECT_GT(on.score.cut_points(), 4);
+  EXPECT_LT(on.score.mean_deviation(), 0.0005);
+  EXPECT_LT(on.score.max_deviation(), 0.001);
+  EXPECT_NEAR(on.score.depth_error(), 0.0, 0.001);
+  EXPECT_GT(on.score.coverage(), 0.9);
+  EXPECT_EQ(on.score.opened_area_outside(), 0.0);
   // 3 mm off: the deviation is the offset (the tissue is scored at rest, so
   // the drag of the blade does not count), the cut's walls lie outside the
   // band, and the plan is not covered.
-  EXPECT_GT(off.score.cut_points, 4);
-  EXPECT_NEAR(off.score.mean_deviation, 0.003, 0.0005);
-  EXPECT_GT(off.score.opened_area_outside, 1e-4);
-  EXPECT_EQ(off.score.coverage, 0.0);
-  EXPECT_LT(off.score.depth_reached, on.score.depth_reached);
+  EXPECT_GT(off.score.cut_points(), 4);
+  EXPECT_NEAR(off.score.mean_deviation(), 0.003, 0.0005);
+  EXPECT_GT(off.score.opened_area_outside(), 1e-4);
+  EXPECT_EQ(off.score.coverage(), 0.0);
+  EXPECT_LT(off.score.depth_reached(), on.score.depth_reached());
   // The session's measures are in the score.
-  EXPECT_EQ(on.score.peak_force, on.sim->Metrics().peak_force);
-  EXPECT_GT(on.score.contact_time, 1.0);
-  EXPECT_NEAR(on.score.duration, 2.4, 1e-9);
+  EXPECT_EQ(on.score.peak_force(), on.sim->Metrics().peak_force());
+  EXPECT_GT(on.score.contact_time(), 1.0);
+  EXPECT_NEAR(on.score.duration(), 2.4, 1e-9);
+  // The blade's cutting time is the time of the frames in which a cut step
+  // ran, within the time in contact.
+  for (const Scored* s : {&on, &off}) {
+    const SessionMetrics& m = s->sim->Metrics();
+    EXPECT_GE(s->cutting_time, 0.05 - 1e-9);  // the scored cut points: more than four frames of 10 ms
+    EXPECT_NEAR(m.cutting_time(), s->cutting_time, 1e-9);
+    EXPECT_LE(m.cutting_time(), m.contact_time() + 1e-9);
+  }
 
   // A checkpoint keeps the series: a restored simulation scores the same.
   auto restored = Simulation::Create(ParseScene(BlockScene(0.0), "score-block.pbtxt", "."), {.threads = 1});
   restored->RestoreCheckpointState(on.sim->CheckpointState(), "score.ckpt");
   const IncisionScore again = *restored->Score();
-  EXPECT_EQ(again.cut_points, on.score.cut_points);
-  EXPECT_EQ(again.mean_deviation, on.score.mean_deviation);
-  EXPECT_EQ(again.coverage, on.score.coverage);
+  EXPECT_EQ(again.cut_points(), on.score.cut_points());
+  EXPECT_EQ(again.mean_deviation(), on.score.mean_deviation());
+  EXPECT_EQ(again.coverage(), on.score.coverage());
   EXPECT_EQ(restored->ForceSeries().size(), on.sim->ForceSeries().size());
 }
 

@@ -186,7 +186,7 @@ TEST(IncrementalSurface, MatchesExtractionAfterEveryCut) {
 // threads must give what one gives, bit for bit (the FEM step's force sums
 // are thread-count independent): world and rest positions, tets, surface
 // and opened flags, and the contact found next.
-TEST(IncrementalSurface, TwoThreadsCutAsOneDoes) {
+TEST(IncrementalSurfaceSlow, TwoThreadsCutAsOneDoes) {
   auto one = sim::Simulation::Create(sim::ParseScene(SlitScene(1), "one.pbtxt", "."));
   auto two = sim::Simulation::Create(sim::ParseScene(SlitScene(2), "two.pbtxt", "."));
   sim::MeshView a, b;
@@ -221,7 +221,7 @@ TEST(IncrementalSurface, TwoThreadsCutAsOneDoes) {
 // drawn through the end of a 120-cell bar cuts off one cell column (12 of
 // 1 440 tets, 0.8 % of the mass). With one thread and with two (the flood
 // then runs beside the surface update, and the flags are set after both).
-TEST(IncrementalDebris, SimulationFlagsTheFacetsOfACutOffPiece) {
+TEST(IncrementalDebrisSlow, SimulationFlagsTheFacetsOfACutOffPiece) {
   for (const int threads : {1, 2}) {
     SCOPED_TRACE(std::to_string(threads) + " threads");
     const std::string text = BladeScene("max { x: 0.24 y: 0.004 z: 0.002 } nx: 120 ny: 2 nz: 1", 0.0021, -0.002,

@@ -76,12 +76,12 @@ TEST(PretensionTest, SeveredLigamentRetractsAndScoresAsATransection) {
   }
   const double gap = right_end - left_end;
   RecordProperty("stump_gap_mm", std::to_string(1e3 * gap));
-  std::printf("ligament: stumps %.3f mm apart, coverage %.4f\n", 1e3 * gap, sim->Score() ? sim->Score()->coverage : 0.0);
+  std::printf("ligament: stumps %.3f mm apart, coverage %.4f\n", 1e3 * gap, sim->Score() ? sim->Score()->coverage() : 0.0);
   EXPECT_GE(gap, 0.002);
   const std::optional<IncisionScore> score = sim->Score();
   ASSERT_TRUE(score.has_value());
-  RecordProperty("coverage", std::to_string(score->coverage));
-  EXPECT_GE(score->coverage, 0.9);
+  RecordProperty("coverage", std::to_string(score->coverage()));
+  EXPECT_GE(score->coverage(), 0.9);
 }
 
 TEST(PretensionTest, SkinPadLayersTakeTheirOwnMaterials) {
@@ -137,9 +137,9 @@ TEST(PretensionTest, SkinPadIncisionGapes) {
   EXPECT_EQ(sim->Summary().components, 1) << "an incision, not a transection";
   const std::optional<IncisionScore> score = sim->Score();
   ASSERT_TRUE(score.has_value());
-  RecordProperty("coverage", std::to_string(score->coverage));
-  EXPECT_GE(score->coverage, 0.9);
-  EXPECT_LE(score->mean_deviation, 0.0015);
+  RecordProperty("coverage", std::to_string(score->coverage()));
+  EXPECT_GE(score->coverage(), 0.9);
+  EXPECT_LE(score->mean_deviation(), 0.0015);
 
   // Drawn from above (OSMesa), the wound's walls show in the cut colour and
   // the scalpel stands over the pad.

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <span>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -21,6 +22,7 @@
 #include "common/mesh/generators.h"
 #include "common/sim/metrics_proto.h"
 #include "common/sim/session_metrics.h"
+#include "cutsim/v1/report.pb.h"
 
 namespace cutsim::sim {
 namespace {
@@ -56,21 +58,21 @@ TEST(SessionMeter, ToolMeasuresAreTheSumsOverFrames) {
     }
   }
   const SessionMetrics& m = meter.metrics();
-  EXPECT_NEAR(m.path_length, path, 1e-12);
-  EXPECT_NEAR(m.contact_time, contact, 1e-12);
-  EXPECT_NEAR(m.force_impulse, impulse, 1e-12);
-  EXPECT_DOUBLE_EQ(m.peak_force, peak);
-  EXPECT_NEAR(m.mean_force, impulse / contact, 1e-12);
-  EXPECT_LE(m.mean_force, m.peak_force);
-  EXPECT_GT(m.path_length, 0.05);  // not vacuous: the helix is 6 cm long
+  EXPECT_NEAR(m.path_length(), path, 1e-12);
+  EXPECT_NEAR(m.contact_time(), contact, 1e-12);
+  EXPECT_NEAR(m.force_impulse(), impulse, 1e-12);
+  EXPECT_DOUBLE_EQ(m.peak_force(), peak);
+  EXPECT_NEAR(m.mean_force(), impulse / contact, 1e-12);
+  EXPECT_LE(m.mean_force(), m.peak_force());
+  EXPECT_GT(m.path_length(), 0.05);  // not vacuous: the helix is 6 cm long
 }
 
 TEST(SessionMeter, NoToolMeasuresNothing) {
   Meter meter({});
   ToolReport none;  // present = false
   for (int i = 0; i < 10; ++i) meter.AddFrame(0.01, none);
-  EXPECT_EQ(meter.metrics().path_length, 0.0);
-  EXPECT_EQ(meter.metrics().contact_time, 0.0);
+  EXPECT_EQ(meter.metrics().path_length(), 0.0);
+  EXPECT_EQ(meter.metrics().contact_time(), 0.0);
 }
 
 TEST(SessionMeter, SamplesOncePerPeriodWhateverTheFrameTime) {
@@ -91,7 +93,7 @@ TEST(SessionMeter, SamplesOncePerPeriodWhateverTheFrameTime) {
     }
     // One per period boundary crossed, plus the first frame's.
     EXPECT_NEAR(samples, 20, 1) << "dt " << dt;
-    EXPECT_EQ(meter.metrics().stress_samples, samples);
+    EXPECT_EQ(meter.metrics().stress_samples(), samples);
   }
 }
 
@@ -120,8 +122,8 @@ TEST(SessionMeter, HomogeneousStretchGivesTheAnalyticStress) {
   Meter meter({});
   meter.Sample(model, state.x.data(), {}, 0.0);
   const double expected = AnalyticVonMises(F, mat.lambda, mat.mu);
-  EXPECT_NEAR(meter.metrics().stress_outside, expected, 1e-9 * expected);
-  EXPECT_EQ(meter.metrics().max_stress_outside, meter.metrics().stress_outside);
+  EXPECT_NEAR(meter.metrics().stress_outside(), expected, 1e-9 * expected);
+  EXPECT_EQ(meter.metrics().max_stress_outside(), meter.metrics().stress_outside());
   EXPECT_GT(expected, 100.0);  // not vacuous
 }
 
@@ -165,24 +167,24 @@ TEST(SessionMeter, IncisionExcludesTheTetsOnItsNodes) {
 
   Meter plain({});
   plain.Sample(p.model, p.state.x.data(), {}, 0.0);
-  EXPECT_DOUBLE_EQ(plain.metrics().stress_outside, global);
+  EXPECT_DOUBLE_EQ(plain.metrics().stress_outside(), global);
 
   Meter contact({.incision_rings = 0});
   IncisionView at_blade;
   at_blade.contact_nodes = {p.node, -1, -1};
   contact.Sample(p.model, p.state.x.data(), at_blade, 0.0);
-  EXPECT_DOUBLE_EQ(contact.metrics().stress_outside, away);
+  EXPECT_DOUBLE_EQ(contact.metrics().stress_outside(), away);
 
   Meter wall({.incision_rings = 0});
   std::vector<uint8_t> walls(static_cast<size_t>(p.model.num_nodes()), 0);
   walls[static_cast<size_t>(p.node)] = 1;
   wall.Sample(p.model, p.state.x.data(), {.wall_nodes = walls}, 0.0);
-  EXPECT_DOUBLE_EQ(wall.metrics().stress_outside, away);
+  EXPECT_DOUBLE_EQ(wall.metrics().stress_outside(), away);
 
   // One more ring only removes tets: the reading cannot rise.
   Meter ringed({.incision_rings = 1});
   ringed.Sample(p.model, p.state.x.data(), at_blade, 0.0);
-  EXPECT_LE(ringed.metrics().stress_outside, away);
+  EXPECT_LE(ringed.metrics().stress_outside(), away);
 }
 
 /// Two boxes side by side with no shared face: two pieces.
@@ -214,14 +216,14 @@ TEST(SessionMeter, CutOffVolumeIsThePiecesAwayFromTheAnchor) {
   fem::State<double> state(model);
   Meter free_body({});
   free_body.Sample(model, state.x.data(), {.cut = &cut}, 0.0);
-  EXPECT_NEAR(free_body.metrics().cut_off_volume, Volume(model, first_b, model.num_tets()), 1e-15);
+  EXPECT_NEAR(free_body.metrics().cut_off_volume(), Volume(model, first_b, model.num_tets()), 1e-15);
 
   // The small piece anchored: the large one is what was cut off.
   fem::Model<double> anchored(m, std::span(&mat, 1));
   anchored.SetFixed(m.num_nodes() - 1, true);
   Meter held({});
   held.Sample(anchored, state.x.data(), {.cut = &cut}, 0.0);
-  EXPECT_NEAR(held.metrics().cut_off_volume, Volume(anchored, 0, first_b), 1e-15);
+  EXPECT_NEAR(held.metrics().cut_off_volume(), Volume(anchored, 0, first_b), 1e-15);
 
   // The stress of a piece cut off does not count: pull a node of it.
   state.x[3 * static_cast<size_t>(m.num_nodes() - 1)] += 0.003;
@@ -229,7 +231,7 @@ TEST(SessionMeter, CutOffVolumeIsThePiecesAwayFromTheAnchor) {
   away.Sample(model, state.x.data(), {.cut = &cut}, 0.0);
   // The pulled piece is under kPa; the body keeps round-off only (FMA
   // builds round its rest state to ~1e-13 Pa).
-  EXPECT_LT(away.metrics().stress_outside, 1e-6);
+  EXPECT_LT(away.metrics().stress_outside(), 1e-6);
 }
 
 TEST(SessionMeter, RestoreCarriesTheMeasuresOn) {
@@ -243,21 +245,40 @@ TEST(SessionMeter, RestoreCarriesTheMeasuresOn) {
     b.AddFrame(0.01, ToolAt({0.001 * i, 0, 0}, true, {0, 0, 0.1 * i}));
   }
   // The restored meter does not know the tip before the save: one chord less.
-  EXPECT_NEAR(b.metrics().path_length, a.metrics().path_length - 0.001, 1e-12);
-  EXPECT_DOUBLE_EQ(b.metrics().peak_force, a.metrics().peak_force);
-  EXPECT_NEAR(b.metrics().force_impulse, a.metrics().force_impulse, 1e-12);
+  EXPECT_NEAR(b.metrics().path_length(), a.metrics().path_length() - 0.001, 1e-12);
+  EXPECT_DOUBLE_EQ(b.metrics().peak_force(), a.metrics().peak_force());
+  EXPECT_NEAR(b.metrics().force_impulse(), a.metrics().force_impulse(), 1e-12);
 }
 
 TEST(SessionMetricsProto, RoundTripsAndRefusesBadFields) {
-  SessionMetrics m{.peak_force = 2.0, .mean_force = 1.0, .force_impulse = 0.5, .path_length = 0.1,
-                   .contact_time = 0.5, .cut_off_volume = 1e-6, .opened_area = 2e-4,
-                   .max_stress_outside = 3e3, .stress_outside = 1e3, .stress_samples = 7};
   v1::SessionMetrics p;
-  SessionMetricsToProto(m, &p);
+  p.set_peak_force(2.0);
+  p.set_mean_force(1.0);
+  p.set_force_impulse(0.5);
+  p.set_path_length(0.1);
+  p.set_contact_time(0.5);
+  p.set_cut_off_volume(1e-6);
+  p.set_opened_area(2e-4);
+  p.set_max_stress_outside(3e3);
+  p.set_stress_outside(1e3);
+  p.set_stress_samples(7);
   const SessionMetrics back = SessionMetricsFromProto(p, "ckpt");
-  EXPECT_EQ(back.peak_force, m.peak_force);
-  EXPECT_EQ(back.stress_samples, m.stress_samples);
-  EXPECT_EQ(back.opened_area, m.opened_area);
+  EXPECT_EQ(back.SerializeAsString(), p.SerializeAsString());
+
+  // Every field, whichever the message holds, is checked by name.
+  const google::protobuf::Descriptor* descriptor = v1::SessionMetrics::descriptor();
+  for (int i = 0; i < descriptor->field_count(); ++i) {
+    const google::protobuf::FieldDescriptor* f = descriptor->field(i);
+    ASSERT_EQ(f->cpp_type(), google::protobuf::FieldDescriptor::CPPTYPE_DOUBLE) << f->name();
+    v1::SessionMetrics negative = p;
+    negative.GetReflection()->SetDouble(&negative, f, -1.0);
+    try {
+      (void)SessionMetricsFromProto(negative, "ckpt");
+      ADD_FAILURE() << f->name() << " = -1 accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("metrics." + f->name()), std::string::npos) << e.what();
+    }
+  }
 
   v1::SessionMetrics bad = p;
   bad.set_path_length(std::nan(""));
@@ -274,6 +295,49 @@ TEST(SessionMetricsProto, RoundTripsAndRefusesBadFields) {
   bad = p;
   bad.set_contact_time(-1.0);
   EXPECT_THROW((void)SessionMetricsFromProto(bad, "ckpt"), InputError);
+}
+
+TEST(SummaryToReport, FillsEveryFieldOfTheHeadlessSummaryFromTheSummary) {
+  // Every scalar field of the headless summary (the metrics and score are
+  // messages of their own) has its entry in the summary's table: a field
+  // added to the report without one fails here instead of printing zero.
+  const std::vector<std::string> names = SummaryFieldNames();
+  const google::protobuf::Descriptor* d = v1::HeadlessSummary::descriptor();
+  for (int i = 0; i < d->field_count(); ++i) {
+    const google::protobuf::FieldDescriptor* f = d->field(i);
+    if (f->cpp_type() == google::protobuf::FieldDescriptor::CPPTYPE_MESSAGE) continue;
+    EXPECT_NE(std::find(names.begin(), names.end(), f->name()), names.end()) << f->name();
+  }
+
+  SimulationSummary s;
+  s.scene = "block";
+  s.num_tets = 384;
+  s.frames = int64_t{1} << 40;  // saturates in a uint32 count
+  s.sim_time = 2.5;
+  s.at_rest = true;
+  s.cuts = 7;
+  s.status = kStatusUnconverged;
+  s.implicit.max_pcg_iterations = 31;
+  s.implicit.max_correction_seconds = 0.004;
+  v1::HeadlessSummary r;
+  SummaryToReport(s, &r);
+  EXPECT_EQ(r.scene(), "block");
+  EXPECT_EQ(r.tets(), 384u);
+  EXPECT_EQ(r.frames(), std::numeric_limits<uint32_t>::max());
+  EXPECT_EQ(r.sim_time(), 2.5);
+  EXPECT_TRUE(r.at_rest());
+  EXPECT_EQ(r.cuts(), 7u);
+  EXPECT_EQ(r.status(), kStatusUnconverged);
+  EXPECT_EQ(r.max_pcg_iterations(), 31u);
+  EXPECT_EQ(r.max_correction_seconds(), 0.004);
+
+  // The server's statistics take the entries they name and keep the rest.
+  v1::ServerSessionStats stats;
+  stats.set_session("s1");
+  SummaryToReport(s, &stats);
+  EXPECT_EQ(stats.session(), "s1");
+  EXPECT_EQ(stats.cuts(), 7u);
+  EXPECT_EQ(stats.max_correction_seconds(), 0.004);
 }
 
 }  // namespace
