@@ -1,9 +1,10 @@
 #pragma once
 /// @file
 /// Blocking HTTP and WebSocket clients on loopback for the tests of the web
-/// servers (tests/unit/web, tests/unit/devices). They are compiled once, in
-/// cutsim_web_test_client, and their header names no Boost type, so a test
-/// that uses them does not instantiate Beast's client templates itself.
+/// servers (tests/unit/web, tests/unit/devices) and bench/lab_bench. They
+/// are compiled once, in cutsim_web_test_client, and their header names no
+/// Boost type, so a test that uses them does not instantiate Beast's client
+/// templates itself.
 
 #include <cstdint>
 #include <memory>
