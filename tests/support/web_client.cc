@@ -62,6 +62,11 @@ bool WebSocketClient::Write(std::string_view bytes, bool binary) {
   return !ec;
 }
 
+std::pair<int, std::string> WebSocketClient::CloseReason() const {
+  const websocket::close_reason& r = impl_->ws.reason();
+  return {static_cast<int>(r.code), std::string(r.reason.c_str())};
+}
+
 bool WebSocketClient::Close() {
   beast::error_code ec;
   impl_->ws.close(websocket::close_code::normal, ec);

@@ -40,6 +40,10 @@ class WebSocketClient {
   /// server may close the connection midway).
   bool Write(std::string_view bytes, bool binary = false);
 
+  /// The close frame the server sent, as (code, reason); code 0 when none
+  /// arrived yet.
+  [[nodiscard]] std::pair<int, std::string> CloseReason() const;
+
   /// Sends a WebSocket close frame (code 1000, normal closure) and waits for
   /// the server's; false when the close handshake fails.
   bool Close();

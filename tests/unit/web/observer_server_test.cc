@@ -174,26 +174,22 @@ TEST(ObserverServerTest, OnlyTheInstructorControlsAndEveryMessageIsAnswered) {
   // An observer that sends is closed with 1008 and its reason; nothing is handed on.
   Client observer;
   ASSERT_TRUE(observer.Open(server.port()));
-  observer.ws.text(true);
-  observer.ws.write(net::buffer(std::string("pause")));
+  observer.Write("pause");
   EXPECT_EQ(observer.Read(), std::nullopt);
-  EXPECT_EQ(observer.ws.reason().code, websocket::close_code::policy_error);
-  EXPECT_NE(std::string(observer.ws.reason().reason.c_str()).find("instructor"), std::string::npos);
+  EXPECT_EQ(observer.CloseReason().first, 1008);  // policy violation
+  EXPECT_NE(observer.CloseReason().second.find("instructor"), std::string::npos);
   // The instructor's messages are handed on and answered, a binary frame is
   // refused by field, and beyond the rate cap messages are refused.
   Client instructor;
   ASSERT_TRUE(instructor.Open(server.port(), "/ws?instructor=instructor-token-0123456789"));
   ASSERT_TRUE(Eventually([&] { return server.stats().instructors == 1; }));
-  instructor.ws.text(true);
-  instructor.ws.write(net::buffer(std::string("seek 1.5")));
+  instructor.Write("seek 1.5");
   EXPECT_EQ(instructor.Read()->first, R"({"type":"control","ok":true})");
-  instructor.ws.binary(true);
-  instructor.ws.write(net::buffer(std::string("\x01\x02")));
+  instructor.Write("\x01\x02", true);
   EXPECT_NE(instructor.Read()->first.find(R"("field":"command")"), std::string::npos);
-  instructor.ws.text(true);
   int refused = 0;
   for (int i = 0; i < 10; ++i) {
-    instructor.ws.write(net::buffer(std::string("next")));
+    instructor.Write("next");
     if (instructor.Read()->first.find(R"("field":"rate")") != std::string::npos) ++refused;
   }
   EXPECT_GT(refused, 0) << "10 messages at once against 5 a second";
