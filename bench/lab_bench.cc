@@ -23,27 +23,22 @@
 #include <fstream>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include <CLI/CLI.hpp>
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/websocket.hpp>
 #include <fmt/format.h>
 
 #include "common/core/clock.h"
 #include "common/transport/dds.h"
 #include "common/transport/mesh_publisher.h"
 #include "tests/support/fake_mesh.h"
+#include "tests/support/web_client.h"
 
 namespace {
 
-namespace net = boost::asio;
-namespace beast = boost::beast;
-namespace websocket = beast::websocket;
-using tcp = net::ip::tcp;
 using namespace std::chrono_literals;
 
 using namespace cutsim;  // NOLINT: a benchmark's own file
@@ -109,25 +104,20 @@ struct Watcher {
   std::atomic<bool> stop{false};
   std::string last_text;
   std::thread thread;
-  net::io_context ioc;
-  websocket::stream<tcp::socket> ws{ioc};
+  test::WebSocketClient ws;
 
   void Start(uint16_t port, const std::string& target) {
-    ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
-    ws.handshake("127.0.0.1:" + std::to_string(port), target);
+    if (!ws.Open(port, target)) throw std::runtime_error("the lab bridge refused the WebSocket " + target);
     thread = std::thread([this] {
-      beast::flat_buffer buffer;
       while (!stop) {
-        beast::error_code ec;
-        buffer.clear();
-        ws.read(buffer, ec);
-        if (ec) break;
-        bytes += buffer.size();
-        if (ws.got_binary()) {
+        auto message = ws.Read();
+        if (!message) break;
+        bytes += message->first.size();
+        if (message->second) {
           ++binary_frames;
         } else {
           ++texts;
-          const std::string text = beast::buffers_to_string(buffer.data());
+          const std::string& text = message->first;
           size_t n = 0, at = 0;
           while ((at = text.find("\"live\":true", at)) != std::string::npos) ++n, ++at;
           live_listed = static_cast<int>(n);
@@ -137,8 +127,7 @@ struct Watcher {
   }
   ~Watcher() {
     stop = true;
-    beast::error_code ec;
-    ws.next_layer().close(ec);
+    ws.Shutdown();  // wakes the thread's blocking read
     if (thread.joinable()) thread.join();
   }
 };

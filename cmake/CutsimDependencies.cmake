@@ -29,7 +29,7 @@ find_package(OpenSSL 3 REQUIRED COMPONENTS Crypto)
 find_package(SQLite3 REQUIRED)
 
 # Browser observers' HTTP/WebSocket server: Boost.Beast over Boost.Asio
-# (header-only in Boost 1.74).
+# (header-only in Boost 1.74; common/net compiles their sources once).
 find_package(Boost 1.74 REQUIRED)
 
 # gmsh (libgmsh-dev): .msh reading/writing and surface tetrahedralisation.

@@ -16,6 +16,20 @@ if(CUTSIM_NATIVE)
   add_compile_options(-march=native)
 endif()
 
+# The linker, as the compiler driver's -fuse-ld= (empty: the toolchain's
+# default, GNU ld). The test presets (ci, asan, fuzz) set lld: it links the
+# test executables, each of which pulls in most of the static libraries with
+# their debug line tables, in about a third of GNU ld's CPU time.
+set(CUTSIM_LINKER "" CACHE STRING "Linker for -fuse-ld= (lld, gold, ...); empty: the toolchain's default")
+if(CUTSIM_LINKER)
+  include(CheckLinkerFlag)
+  check_linker_flag(CXX -fuse-ld=${CUTSIM_LINKER} CUTSIM_LINKER_WORKS)
+  if(NOT CUTSIM_LINKER_WORKS)
+    message(FATAL_ERROR "CUTSIM_LINKER=${CUTSIM_LINKER}: the compiler cannot link with it (deploy/install-deps.sh installs lld)")
+  endif()
+  add_link_options(-fuse-ld=${CUTSIM_LINKER})
+endif()
+
 if(CUTSIM_SANITIZE)
   add_compile_options(-fsanitize=address,undefined -fno-sanitize-recover=undefined
                       -fno-omit-frame-pointer)

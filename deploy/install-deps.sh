@@ -21,6 +21,8 @@ done
 packages=(
   # toolchain
   build-essential cmake ninja-build pkg-config git
+  # the linker of the test presets (CUTSIM_LINKER=lld in CMakePresets.json)
+  lld
   # maths and utilities
   libeigen3-dev libcli11-dev libspdlog-dev libfmt-dev
   # sparse Cholesky (CHOLMOD) and the BLAS it runs on, for the implicit step

@@ -4,6 +4,7 @@
 // loopback (token, Origin, one trainee, size and rate caps) while a valid
 // trainee's samples reach Read and the force frames reach the page.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
@@ -14,25 +15,16 @@
 
 #include <fmt/format.h>
 
-#include <boost/asio/connect.hpp>
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/http.hpp>
-#include <boost/beast/websocket.hpp>
-
 #include "common/core/clock.h"
 #include "common/transport/tool_auth.h"
 #include "common/web/trainee_server.h"
 #include "haptic_client/browser_device.h"
+#include "tests/support/web_client.h"
 
 namespace cutsim::haptic_client {
 namespace {
 
-namespace net = boost::asio;
-namespace beast = boost::beast;
-namespace http = beast::http;
-namespace websocket = beast::websocket;
-using tcp = net::ip::tcp;
+using test::WebSocketClient;
 using namespace std::chrono_literals;
 
 DeviceInfo Box() {
@@ -174,16 +166,8 @@ class BrowserDeviceServerTest : public ::testing::Test {
   }
 
   /// Opens a WebSocket; false when the upgrade is refused.
-  bool Open(websocket::stream<tcp::socket>* ws, const std::string& token, const std::string& origin) {
-    tcp::resolver resolver(ioc_);
-    net::connect(ws->next_layer(), resolver.resolve("127.0.0.1", std::to_string(device_->server().port())));
-    const std::string host = "127.0.0.1:" + std::to_string(device_->server().port());
-    ws->set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
-      if (!origin.empty()) req.set(http::field::origin, origin);
-    }));
-    beast::error_code ec;
-    ws->handshake(host, "/ws?token=" + token, ec);
-    return !ec;
+  bool Open(WebSocketClient* ws, const std::string& token, const std::string& origin) {
+    return ws->Open(device_->server().port(), "/ws?token=" + token, origin);
   }
 
   std::string Own() const { return "http://127.0.0.1:" + std::to_string(device_->server().port()); }
@@ -196,7 +180,6 @@ class BrowserDeviceServerTest : public ::testing::Test {
 
   std::filesystem::path three_ =
       std::filesystem::temp_directory_path() / ("cutsim_three_stub_" + std::to_string(::getpid()));
-  net::io_context ioc_;
   std::unique_ptr<BrowserDevice> device_;
 };
 
@@ -214,17 +197,15 @@ TEST_F(BrowserDeviceServerTest, ATraineeDrivesTheToolAndReceivesTheForce) {
   const DeviceInfo& info = device_->info();
   EXPECT_NEAR(ReadAt(MonotonicNs()).pose.tip.z(), info.workspace_max.z(), 1e-12);
 
-  websocket::stream<tcp::socket> ws(ioc_);
+  WebSocketClient ws;
   ASSERT_TRUE(Open(&ws, "abc123", Own()));
-  beast::flat_buffer buffer;
-  ws.read(buffer);
-  EXPECT_NE(beast::buffers_to_string(buffer.data()).find("\"hello\""), std::string::npos);
-  buffer.clear();
+  const auto hello = ws.ReadData();
+  ASSERT_TRUE(hello);
+  EXPECT_NE(hello->find("\"hello\""), std::string::npos);
 
-  ws.text(true);
-  ws.write(net::buffer(std::string("p 1000 0.5 0.5 0.25 0 0 1 1")));
-  ws.write(net::buffer(std::string("p 1010 0.5 0.75 0.25 0 0 1 1")));
-  ws.write(net::buffer(std::string("p 1020 nan 0.75 0.25 0 0 1 1")));  // refused, harmless
+  ASSERT_TRUE(ws.Write("p 1000 0.5 0.5 0.25 0 0 1 1"));
+  ASSERT_TRUE(ws.Write("p 1010 0.5 0.75 0.25 0 0 1 1"));
+  ASSERT_TRUE(ws.Write("p 1020 nan 0.75 0.25 0 0 1 1"));  // refused, harmless
   ASSERT_TRUE(WaitFor([&] { return device_->stats().samples == 2 && device_->stats().refused_total() == 1; }));
   const DeviceState s = ReadAt(MonotonicNs() + 1'000'000'000);  // long after: the newest sample
   EXPECT_NEAR(s.pose.tip.y(), info.workspace_min.y() + 0.75 * (info.workspace_max.y() - info.workspace_min.y()),
@@ -239,21 +220,21 @@ TEST_F(BrowserDeviceServerTest, ATraineeDrivesTheToolAndReceivesTheForce) {
   device_->SetForce(Eigen::Vector3d(0.0, 0.0, 2.5));
   bool seen = false;
   for (int i = 0; i < 20 && !seen; ++i) {
-    ws.read(buffer);
-    const std::string frame = beast::buffers_to_string(buffer.data());
-    buffer.clear();
+    const auto read = ws.ReadData();
+    ASSERT_TRUE(read);
+    const std::string& frame = *read;
     seen = frame.find("\"force\":[0.00000,0.00000,2.50000]") != std::string::npos &&
            frame.find("\"cuts\":7") != std::string::npos && frame.find("\"used_ms\":1010.000") != std::string::npos;
   }
   EXPECT_TRUE(seen);
 
   // A second trainee is refused while the first holds the tool.
-  websocket::stream<tcp::socket> second(ioc_);
+  WebSocketClient second;
   EXPECT_FALSE(Open(&second, "abc123", Own()));
   EXPECT_EQ(device_->server().stats().web.refused_cap, 1U);
 
   // The page leaves: cutting stops, the tool holds its place.
-  ws.close(websocket::close_code::normal);
+  ASSERT_TRUE(ws.Close());
   ASSERT_TRUE(WaitFor([&] { return !device_->server().stats().connected; }));
   const DeviceState after = ReadAt(MonotonicNs() + 2'000'000'000);
   EXPECT_EQ(after.buttons, 0U);
@@ -261,41 +242,39 @@ TEST_F(BrowserDeviceServerTest, ATraineeDrivesTheToolAndReceivesTheForce) {
 }
 
 TEST_F(BrowserDeviceServerTest, RefusesAWrongTokenAForeignOriginAndOversizedMessages) {
-  websocket::stream<tcp::socket> bad_token(ioc_);
+  WebSocketClient bad_token;
   EXPECT_FALSE(Open(&bad_token, "abc124", Own()));
-  websocket::stream<tcp::socket> no_token(ioc_);
+  WebSocketClient no_token;
   EXPECT_FALSE(Open(&no_token, "", ""));
-  websocket::stream<tcp::socket> foreign(ioc_);
+  WebSocketClient foreign;
   EXPECT_FALSE(Open(&foreign, "abc123", "http://evil.example"));
   const web::TraineeServerStats st = device_->server().stats();
   EXPECT_EQ(st.web.refused_token, 2U);
   EXPECT_EQ(st.web.refused_origin, 1U);
   EXPECT_EQ(st.accepted, 0U);
 
-  websocket::stream<tcp::socket> ws(ioc_);
+  WebSocketClient ws;
   ASSERT_TRUE(Open(&ws, "abc123", ""));
-  ws.write(net::buffer(std::string(4096, 'p')));
-  beast::flat_buffer buffer;
-  beast::error_code ec;
-  for (int i = 0; i < 100 && !ec; ++i) ws.read(buffer, ec);
-  EXPECT_TRUE(ec);  // closed
+  ASSERT_TRUE(ws.Write(std::string(4096, 'p')));
+  bool closed = false;
+  for (int i = 0; i < 100 && !closed; ++i) closed = !ws.Read();
+  EXPECT_TRUE(closed);
   ASSERT_TRUE(WaitFor([&] { return device_->server().stats().closed_oversized == 1; }));
   EXPECT_EQ(device_->stats().samples, 0U);
   // The slot is free again for the next trainee.
   ASSERT_TRUE(WaitFor([&] { return !device_->server().stats().connected; }));
-  websocket::stream<tcp::socket> again(ioc_);
+  WebSocketClient again;
   EXPECT_TRUE(Open(&again, "abc123", Own()));
 }
 
 TEST_F(BrowserDeviceServerTest, DropsMessagesAboveTheRateCap) {
-  websocket::stream<tcp::socket> ws(ioc_);
+  WebSocketClient ws;
   ASSERT_TRUE(Open(&ws, "abc123", Own()));
-  ws.text(true);
   // Far more than the burst, as fast as a socket takes them, their times
   // 10 µs apart (all within the stream clock's window however slowly they
   // arrive).
   for (int i = 0; i < 2000; ++i) {
-    ws.write(net::buffer("p " + std::to_string(1000.0 + 0.01 * i) + " 0.5 0.5 0.5 0 0 1 0"));
+    ASSERT_TRUE(ws.Write("p " + std::to_string(1000.0 + 0.01 * i) + " 0.5 0.5 0.5 0 0 1 0"));
   }
   ASSERT_TRUE(WaitFor([&] {
     const auto st = device_->server().stats();

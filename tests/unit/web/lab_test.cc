@@ -4,6 +4,7 @@
 // only its session's messages; a bad session name is refused), and the lab
 // list's JSON (escaping, non-finite numbers).
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <array>
 #include <chrono>
@@ -14,23 +15,16 @@
 #include <thread>
 #include <vector>
 
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/websocket.hpp>
-
 #include "common/transport/dds.h"
 #include "common/transport/session_directory.h"
 #include "common/transport/stream_auth.h"
 #include "common/web/lab_bridge.h"
 #include "common/web/observer_server.h"
+#include "tests/support/web_client.h"
 
 namespace cutsim::web {
 namespace {
 
-namespace net = boost::asio;
-namespace beast = boost::beast;
-namespace websocket = beast::websocket;
-using tcp = net::ip::tcp;
 using namespace std::chrono_literals;
 using transport::SessionDirectory;
 using transport::SessionDirectoryOptions;
@@ -158,25 +152,6 @@ TEST(LabListJsonTest, ASessionCarriesItsTraineesTrendAndNoOneElses) {
   EXPECT_NE(json.find(R"("trend":[])", bay2), std::string::npos) << "bob has no finished session: " << json;
 }
 
-/// A WebSocket client of the server on loopback.
-struct Client {
-  net::io_context ioc;
-  websocket::stream<tcp::socket> ws{ioc};
-  bool Open(uint16_t port, const std::string& target) {
-    ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
-    beast::error_code ec;
-    ws.handshake("127.0.0.1:" + std::to_string(port), target, ec);
-    return !ec;
-  }
-  std::optional<std::string> Read() {
-    beast::flat_buffer buffer;
-    beast::error_code ec;
-    ws.read(buffer, ec);
-    if (ec) return std::nullopt;
-    return beast::buffers_to_string(buffer.data());
-  }
-};
-
 Outgoing Text(const std::string& s) { return {std::make_shared<const std::string>(s), false}; }
 
 template <typename P>
@@ -199,7 +174,7 @@ TEST(ObserverChannelsTest, AClientReceivesOnlyItsSessionsMessages) {
   ObserverServer server(o);
   server.SetJoinMessages("", {Text("list")});
   server.SetJoinMessages("a", {Text("join-a")});
-  Client list, a, b, bad;
+  test::WebSocketClient list, a, b, bad;
   ASSERT_TRUE(list.Open(server.port(), "/ws"));
   ASSERT_TRUE(a.Open(server.port(), "/ws?session=a"));
   ASSERT_TRUE(b.Open(server.port(), "/ws?session=b"));
@@ -209,11 +184,11 @@ TEST(ObserverChannelsTest, AClientReceivesOnlyItsSessionsMessages) {
   server.Broadcast("a", {Text("frame-a")});
   server.Broadcast("b", {Text("frame-b")});
   server.Broadcast("", {Text("list-2")});
-  EXPECT_EQ(list.Read(), "list");
-  EXPECT_EQ(list.Read(), "list-2");
-  EXPECT_EQ(a.Read(), "join-a");
-  EXPECT_EQ(a.Read(), "frame-a");
-  EXPECT_EQ(b.Read(), "frame-b") << "b has no join messages and never sees a's";
+  EXPECT_EQ(list.ReadData(), "list");
+  EXPECT_EQ(list.ReadData(), "list-2");
+  EXPECT_EQ(a.ReadData(), "join-a");
+  EXPECT_EQ(a.ReadData(), "frame-a");
+  EXPECT_EQ(b.ReadData(), "frame-b") << "b has no join messages and never sees a's";
   ASSERT_TRUE(Eventually([&] { return server.stats().channel_bytes.size() == 3; }));
   const auto bytes = server.stats().channel_bytes;
   EXPECT_EQ(bytes.at("a"), std::string("join-a").size() + std::string("frame-a").size());

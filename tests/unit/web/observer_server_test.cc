@@ -4,34 +4,27 @@
 // client that sends anything, or too much, is closed; one that stops reading
 // is closed instead of buffered for) while the others keep receiving.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include <boost/asio/connect.hpp>
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/http.hpp>
-#include <boost/beast/websocket.hpp>
-
 #include "common/core/error.h"
 #include "common/web/observer_server.h"
+#include "tests/support/web_client.h"
 
 namespace cutsim::web {
 namespace {
 
-namespace net = boost::asio;
-namespace beast = boost::beast;
-namespace http = beast::http;
-namespace websocket = beast::websocket;
-using tcp = net::ip::tcp;
 using namespace std::chrono_literals;
+using Client = test::WebSocketClient;
 
 /// A page file in a temporary directory.
 class TempPage {
@@ -53,45 +46,6 @@ ObserverServerOptions Options(const TempPage& page) {
   return o;
 }
 
-/// GET `target`; returns the status code and body.
-std::pair<int, std::string> Get(uint16_t port, const std::string& target) {
-  net::io_context ioc;
-  beast::tcp_stream stream(ioc);
-  stream.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
-  http::request<http::empty_body> req(http::verb::get, target, 11);
-  req.set(http::field::host, "127.0.0.1:" + std::to_string(port));
-  http::write(stream, req);
-  beast::flat_buffer buffer;
-  http::response<http::string_body> res;
-  http::read(stream, buffer, res);
-  return {static_cast<int>(res.result_int()), res.body()};
-}
-
-/// A WebSocket client on its own io_context.
-struct Client {
-  net::io_context ioc;
-  websocket::stream<tcp::socket> ws{ioc};
-
-  /// Connects and upgrades; returns false when the server refuses.
-  bool Open(uint16_t port, const std::string& target = "/ws", const std::string& origin = "") {
-    ws.next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port));
-    ws.set_option(websocket::stream_base::decorator([origin](websocket::request_type& req) {
-      if (!origin.empty()) req.set(http::field::origin, origin);
-    }));
-    beast::error_code ec;
-    ws.handshake("127.0.0.1:" + std::to_string(port), target, ec);
-    return !ec;
-  }
-  /// The next message, or nullopt when the connection ends.
-  std::optional<std::pair<std::string, bool>> Read() {
-    beast::flat_buffer buffer;
-    beast::error_code ec;
-    ws.read(buffer, ec);
-    if (ec) return std::nullopt;
-    return std::make_pair(beast::buffers_to_string(buffer.data()), ws.got_binary());
-  }
-};
-
 Outgoing Text(const std::string& s) { return {std::make_shared<const std::string>(s), false}; }
 Outgoing Binary(const std::string& s) { return {std::make_shared<const std::string>(s), true}; }
 
@@ -109,10 +63,10 @@ bool Eventually(P pred) {
 TEST(ObserverServerTest, ServesThePageAndNothingElse) {
   TempPage page;
   ObserverServer server(Options(page));
-  EXPECT_EQ(Get(server.port(), "/"), std::make_pair(200, std::string("<html>observer</html>")));
-  EXPECT_EQ(Get(server.port(), "/index.html").first, 200);
-  EXPECT_EQ(Get(server.port(), "/../index.html").first, 404);
-  EXPECT_EQ(Get(server.port(), "/etc/passwd").first, 404);
+  EXPECT_EQ(test::HttpGet(server.port(), "/"), std::make_pair(200, std::string("<html>observer</html>")));
+  EXPECT_EQ(test::HttpGet(server.port(), "/index.html").first, 200);
+  EXPECT_EQ(test::HttpGet(server.port(), "/../index.html").first, 404);
+  EXPECT_EQ(test::HttpGet(server.port(), "/etc/passwd").first, 404);
   EXPECT_EQ(server.stats().web.pages_served, 2u);
   EXPECT_EQ(server.Url(), "http://127.0.0.1:" + std::to_string(server.port()) + "/");
 }
@@ -131,7 +85,7 @@ TEST(ObserverServerTest, OffLoopbackNeedsATokenAndTheStreamChecksIt) {
   o.token = "0123456789abcdef0123";
   ObserverServer server(o);
   // The page's files carry no session data; the stream needs the token.
-  EXPECT_EQ(Get(server.port(), "/").first, 200);
+  EXPECT_EQ(test::HttpGet(server.port(), "/").first, 200);
   Client without, wrong, with;
   EXPECT_FALSE(without.Open(server.port()));
   EXPECT_FALSE(wrong.Open(server.port(), "/ws?token=0123456789abcdef0124"));
@@ -192,11 +146,8 @@ TEST(ObserverServerTest, AClientThatSendsIsClosedAndTheOthersGoOn) {
   ASSERT_TRUE(flooder.Open(server.port()));
   ASSERT_TRUE(watcher.Open(server.port()));
   ASSERT_TRUE(Eventually([&] { return server.stats().clients == 3; }));
-  talker.ws.text(true);
-  talker.ws.write(net::buffer(std::string("{\"type\":\"cut\"}")));
-  flooder.ws.binary(true);
-  beast::error_code ec;
-  flooder.ws.write(net::buffer(std::string(2u << 20, 'x')), ec);  // may fail midway: the server closes
+  ASSERT_TRUE(talker.Write("{\"type\":\"cut\"}"));
+  flooder.Write(std::string(2u << 20, 'x'), true);  // may fail midway: the server closes
   EXPECT_EQ(talker.Read(), std::nullopt);
   EXPECT_EQ(flooder.Read(), std::nullopt);
   EXPECT_TRUE(Eventually([&] { return server.stats().clients == 1; }));
@@ -223,26 +174,22 @@ TEST(ObserverServerTest, OnlyTheInstructorControlsAndEveryMessageIsAnswered) {
   // An observer that sends is closed with 1008 and its reason; nothing is handed on.
   Client observer;
   ASSERT_TRUE(observer.Open(server.port()));
-  observer.ws.text(true);
-  observer.ws.write(net::buffer(std::string("pause")));
+  observer.Write("pause");
   EXPECT_EQ(observer.Read(), std::nullopt);
-  EXPECT_EQ(observer.ws.reason().code, websocket::close_code::policy_error);
-  EXPECT_NE(std::string(observer.ws.reason().reason.c_str()).find("instructor"), std::string::npos);
+  EXPECT_EQ(observer.CloseReason().first, 1008);  // policy violation
+  EXPECT_NE(observer.CloseReason().second.find("instructor"), std::string::npos);
   // The instructor's messages are handed on and answered, a binary frame is
   // refused by field, and beyond the rate cap messages are refused.
   Client instructor;
   ASSERT_TRUE(instructor.Open(server.port(), "/ws?instructor=instructor-token-0123456789"));
   ASSERT_TRUE(Eventually([&] { return server.stats().instructors == 1; }));
-  instructor.ws.text(true);
-  instructor.ws.write(net::buffer(std::string("seek 1.5")));
+  instructor.Write("seek 1.5");
   EXPECT_EQ(instructor.Read()->first, R"({"type":"control","ok":true})");
-  instructor.ws.binary(true);
-  instructor.ws.write(net::buffer(std::string("\x01\x02")));
+  instructor.Write("\x01\x02", true);
   EXPECT_NE(instructor.Read()->first.find(R"("field":"command")"), std::string::npos);
-  instructor.ws.text(true);
   int refused = 0;
   for (int i = 0; i < 10; ++i) {
-    instructor.ws.write(net::buffer(std::string("next")));
+    instructor.Write("next");
     if (instructor.Read()->first.find(R"("field":"rate")") != std::string::npos) ++refused;
   }
   EXPECT_GT(refused, 0) << "10 messages at once against 5 a second";
@@ -276,8 +223,7 @@ TEST(ObserverServerTest, AClientThatStopsReadingIsClosedNotBufferedFor) {
   EXPECT_TRUE(Eventually([&] { return received.load() == kMessages; })) << received.load();
   EXPECT_EQ(server.stats().clients, 1);
   // Shutdown (not close) wakes the drain thread's blocking read.
-  beast::error_code ec;
-  reader.ws.next_layer().shutdown(tcp::socket::shutdown_both, ec);
+  reader.Shutdown();
   drain.join();
 }
 

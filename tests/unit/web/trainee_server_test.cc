@@ -4,6 +4,7 @@
 // it, and mesh frames reach the trainee, the newest snapshot first for one
 // who joins.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
@@ -12,19 +13,13 @@
 #include <string>
 #include <thread>
 
-#include <boost/asio/ip/tcp.hpp>
-#include <boost/beast/core.hpp>
-#include <boost/beast/websocket.hpp>
-
 #include "common/web/trainee_server.h"
+#include "tests/support/web_client.h"
 
 namespace cutsim::web {
 namespace {
 
-namespace net = boost::asio;
-namespace beast = boost::beast;
-namespace websocket = beast::websocket;
-using tcp = net::ip::tcp;
+using test::WebSocketClient;
 using namespace std::chrono_literals;
 
 constexpr const char* kToken = "trainee-token-0123";
@@ -48,12 +43,7 @@ class TraineeServerTest : public ::testing::Test {
   }
 
   /// Opens a trainee's WebSocket; false when refused.
-  bool Open(websocket::stream<tcp::socket>* ws) {
-    ws->next_layer().connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), server_->port()));
-    beast::error_code ec;
-    ws->handshake("127.0.0.1:" + std::to_string(server_->port()), std::string("/ws?token=") + kToken, ec);
-    return !ec;
-  }
+  bool Open(WebSocketClient* ws) { return ws->Open(server_->port(), std::string("/ws?token=") + kToken); }
 
   template <typename P>
   static bool Eventually(P pred) {
@@ -66,52 +56,45 @@ class TraineeServerTest : public ::testing::Test {
   }
 
   std::filesystem::path dir_;
-  net::io_context ioc_;
   std::unique_ptr<TraineeServer> server_;
 };
 
 TEST_F(TraineeServerTest, ASilentTraineeLosesTheSeatAHeartbeatKeepsIt) {
   Start(0.5);
-  websocket::stream<tcp::socket> silent(ioc_);
+  WebSocketClient silent;
   ASSERT_TRUE(Open(&silent));
   // Nothing sent: the server closes the socket and frees the seat.
-  beast::flat_buffer buffer;
-  beast::error_code ec;
-  while (!ec) silent.read(buffer, ec);
+  while (silent.Read()) {
+  }
   EXPECT_TRUE(Eventually([&] { return !server_->stats().connected && server_->stats().web.ws_clients == 0; }));
   EXPECT_EQ(server_->stats().closed_idle, 1u);
 
-  websocket::stream<tcp::socket> beating(ioc_);
+  WebSocketClient beating;
   ASSERT_TRUE(Open(&beating));
-  beating.text(true);
   // Heartbeats at ten times the idle rate, for three idle times.
   for (int i = 0; i < 30; ++i) {
-    beating.write(net::buffer(std::string("h")));
+    ASSERT_TRUE(beating.Write("h"));
     std::this_thread::sleep_for(50ms);
   }
   EXPECT_TRUE(server_->stats().connected);
   EXPECT_EQ(server_->stats().closed_idle, 1u);
-  websocket::stream<tcp::socket> second(ioc_);
+  WebSocketClient second;
   EXPECT_FALSE(Open(&second));  // the seat is still taken
 }
 
 TEST_F(TraineeServerTest, MeshFramesReachTheTraineeTheNewestSnapshotFirstOnJoining) {
   Start(10.0);
   server_->SendMesh(std::make_shared<const std::string>("S0"), true);
-  websocket::stream<tcp::socket> ws(ioc_);
+  WebSocketClient ws;
   ASSERT_TRUE(Open(&ws));
-  beast::flat_buffer buffer;
-  ws.read(buffer);
-  EXPECT_TRUE(ws.got_binary());
-  EXPECT_EQ(beast::buffers_to_string(buffer.data()), "S0");
-  buffer.clear();
+  const auto s0 = ws.Read();
+  ASSERT_TRUE(s0);
+  EXPECT_TRUE(s0->second);
+  EXPECT_EQ(s0->first, "S0");
   server_->SendMesh(std::make_shared<const std::string>("S1"), true);
-  ws.read(buffer);
-  EXPECT_EQ(beast::buffers_to_string(buffer.data()), "S1");
-  buffer.clear();
+  EXPECT_EQ(ws.ReadData(), "S1");
   server_->SendMesh(std::make_shared<const std::string>("U1"), false);
-  ws.read(buffer);
-  EXPECT_EQ(beast::buffers_to_string(buffer.data()), "U1");
+  EXPECT_EQ(ws.ReadData(), "U1");
 }
 
 }  // namespace
