@@ -54,6 +54,9 @@ packages=(
   # the Debian package (deploy/package.sh): dpkg-shlibdeps finds its
   # dependencies, `file` tells CPack which files are programs
   dpkg-dev file
+  # man pages made from each program's --help at build time (cmake), and
+  # `man -l` that the test renders them with
+  help2man man-db
 )
 
 # Optional: the reference solver of bench/reference/run_calculix.py; its
