@@ -57,6 +57,8 @@ packages=(
   # man pages made from each program's --help at build time (cmake), and
   # `man -l` that the test renders them with
   help2man man-db
+  # deploy/verify-package.sh: a fresh Debian 12 root to install the package in
+  debootstrap
 )
 
 # Optional: the reference solver of bench/reference/run_calculix.py; its
