@@ -38,6 +38,7 @@
 #include "common/transport/report_json.h"
 #include "common/transport/server_presence.h"
 #include "common/transport/stream_auth.h"
+#include "server/observed_plan.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 
@@ -290,6 +291,7 @@ class DebriefLoop {
     if (now >= next_timeline_ns_) {
       next_timeline_ns_ = now + 1'000'000'000;
       TimelineToProto(player_.timeline(), d->mutable_timeline());
+      if (const sim::PlannedIncision* plan = s.Plan()) FillPlannedLine(*plan, o.mutable_plan());
     }
     if (!s.has_tool()) return;
     const sim::ToolReport tool = s.Tool();

@@ -39,6 +39,7 @@
 #include "common/transport/server_presence.h"
 #include "cutsim/v1/report.pb.h"
 #include "server/frame_profile.h"
+#include "server/observed_plan.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 
@@ -160,6 +161,7 @@ class RealtimeLoop {
   LatencyStats latency_;
   FrameProfile profile_;
   v1::ObserverSession observed_;  // reused every viewer frame
+  int64_t next_plan_ns_ = 0;      // when observers get the planned line again
 };
 
 RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double decay_per_second,
@@ -286,6 +288,11 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
           .count());
   o.set_topology_version(p_.simulation.topology_version());
   sim::SessionMetricsToProto(p_.simulation.Metrics(), o.mutable_metrics());
+  // The plan about once a second: a page that joins has it within a second.
+  if (frame_start >= next_plan_ns_) {
+    next_plan_ns_ = frame_start + 1'000'000'000;
+    if (const sim::PlannedIncision* plan = p_.simulation.Plan()) FillPlannedLine(*plan, o.mutable_plan());
+  }
   if (!p_.simulation.has_tool()) return;
   const sim::ToolReport tool = p_.simulation.Tool();
   o.set_cuts(tool.cuts);
