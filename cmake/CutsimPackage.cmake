@@ -8,6 +8,7 @@
 #   share/cutsim/web/observer/node_modules/three/          the three.js files they load
 #   share/cutsim/dds/                                      Cyclone DDS configurations
 #   share/doc/cutsim/                                      README, lab guide, device guide
+#   share/man/man1/cutsim-{server,haptic,viewer}.1.gz      man pages from each program's --help
 #   /etc/cutsim/cutsim.env                                 the lab's settings (a conffile)
 #   /lib/systemd/system/cutsim-{server,haptic,bridge}@.service, cutsim-lab.service
 # The web folder keeps the source tree's layout, so the apps resolve the same
@@ -59,6 +60,29 @@ install(FILES ${PROJECT_SOURCE_DIR}/deploy/cyclonedds-loopback.xml ${PROJECT_SOU
   ${PROJECT_SOURCE_DIR}/deploy/cyclonedds-unicast.xml DESTINATION ${CUTSIM_INSTALL_DATADIR}/dds)
 install(FILES ${PROJECT_SOURCE_DIR}/README.md ${PROJECT_SOURCE_DIR}/docs/devices.md DESTINATION ${CMAKE_INSTALL_DOCDIR})
 install(FILES ${PROJECT_SOURCE_DIR}/deploy/README.md DESTINATION ${CMAKE_INSTALL_DOCDIR} RENAME lab-guide.md)
+
+# ---- Man pages ----------------------------------------------------------------
+# One per program, made at build time from its own --help (help2man, from
+# deploy/install-deps.sh), so a page cannot drift from its program. The
+# bridge and the lab page are modes of cutsim-viewer, on its page.
+find_program(CUTSIM_HELP2MAN help2man)
+if(CUTSIM_HELP2MAN)
+  set(_man_out ${PROJECT_BINARY_DIR}/man/man1)
+  set(_man_pages)
+  foreach(program cutsim-server cutsim-haptic cutsim-viewer)
+    add_custom_command(OUTPUT ${_man_out}/${program}.1.gz
+      COMMAND ${CMAKE_COMMAND} -E make_directory ${_man_out}
+      COMMAND ${PROJECT_SOURCE_DIR}/cmake/man_page.sh $<TARGET_FILE:${program}> ${_man_out}/${program}.1.gz
+              ${PROJECT_VERSION}
+      DEPENDS ${program} ${PROJECT_SOURCE_DIR}/cmake/man_page.sh
+      COMMENT "Man page of ${program} from its --help" VERBATIM)
+    list(APPEND _man_pages ${_man_out}/${program}.1.gz)
+  endforeach()
+  add_custom_target(cutsim-man ALL DEPENDS ${_man_pages})
+  install(FILES ${_man_pages} DESTINATION ${CMAKE_INSTALL_MANDIR}/man1)
+else()
+  message(WARNING "help2man not found (deploy/install-deps.sh installs it): no man pages are made or installed")
+endif()
 
 # ---- systemd units and the lab's environment file ---------------------------
 # The units name the installed paths of this configuration (the prefix set at

@@ -142,6 +142,26 @@ elif [[ $rc -ne 0 ]]; then
 fi
 cat "$out/trainee_latency.json" 2>/dev/null || true
 
+echo "== debrief of a 61 s recording (first picture within 2 s of the launch, every seek within 1 s)"
+# Its output ends with the JSON line; the per-seek lines stay in the .out.
+rc=0
+bench/debrief_seek.sh "$PWD/$bin" "$PWD/$out/debrief" >"$out/debrief_seek.out" 2>"$out/debrief_seek.log" || rc=$?
+tail -n 1 "$out/debrief_seek.out" >"$out/debrief_seek.json" 2>/dev/null || true
+if [[ $rc -ne 0 ]]; then
+  echo "!! debrief_seek failed (exit $rc, see $out/debrief_seek.out and .log)"
+  failed+=(debrief_seek)
+fi
+cat "$out/debrief_seek.json" 2>/dev/null || true
+
+echo "== the package in a fresh Debian 12 root (deploy/verify-package.sh; root only, else skipped)"
+if [[ "$(id -u)" -eq 0 ]] && command -v debootstrap >/dev/null; then
+  run package "$out/package.log" ./deploy/package.sh >"$out/package.out"
+  run verify_package "$out/verify_package.log" ./deploy/verify-package.sh >"$out/verify_package.out"
+  tail -n 1 "$out/verify_package.out" 2>/dev/null || true
+else
+  echo "verify-package skipped: needs root and debootstrap"
+fi
+
 echo "== observer bridge under 1100 idle connections from one peer (page time for another peer, server CPU)"
 run bridge_flood "$out/bridge_flood.log" "$bin/bridge_flood_bench" --idle 1100 --seconds 5 >"$out/bridge_flood.json"
 cat "$out/bridge_flood.json" 2>/dev/null || true

@@ -56,6 +56,11 @@ packages=(
   # the Debian package (deploy/package.sh): dpkg-shlibdeps finds its
   # dependencies, `file` tells CPack which files are programs
   dpkg-dev file
+  # man pages made from each program's --help at build time (cmake), and
+  # `man -l` that the test renders them with
+  help2man man-db
+  # deploy/verify-package.sh: a fresh Debian 12 root to install the package in
+  debootstrap
 )
 
 # Optional: the reference solver of bench/reference/run_calculix.py; its

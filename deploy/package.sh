@@ -33,7 +33,7 @@ else
 fi
 echo "== build $build (-j $jobs)"
 # The programs; cutsim-haptic brings its device plugins.
-cmake --build "$build" -j "$jobs" --target cutsim-server cutsim-haptic cutsim-viewer
+cmake --build "$build" -j "$jobs" --target cutsim-server cutsim-haptic cutsim-viewer cutsim-man
 echo "== cpack -G DEB"
 (cd "$build" && cpack -G DEB) > "$build/cpack.log" 2>&1 || { tail -n 30 "$build/cpack.log" >&2; exit 1; }
 deb="$(ls -t "$build"/cutsim_*.deb | head -n 1)"

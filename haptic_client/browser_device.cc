@@ -157,6 +157,7 @@ std::map<std::string, std::filesystem::path> TraineePageFiles(const std::string&
           {"/trainee.js", dir / "trainee.js"},
           {"/trainee.css", dir / "trainee.css"},
           {"/common/scalpel.js", dir / ".." / "common" / "scalpel.js"},
+          {"/common/plan_line.js", dir / ".." / "common" / "plan_line.js"},
           {"/common/mesh_frames.js", dir / ".." / "common" / "mesh_frames.js"},
           {"/vendor/three.module.js", three / "build" / "three.module.js"},
           {"/vendor/three.core.js", three / "build" / "three.core.js"},

@@ -38,6 +38,7 @@
 #include "common/transport/report_json.h"
 #include "common/transport/server_presence.h"
 #include "common/transport/stream_auth.h"
+#include "server/observed_plan.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 #include "server/session_report.h"
@@ -130,9 +131,7 @@ class DebriefLoop {
         publisher_(publisher),
         control_(control),
         viewer_period_ns_(static_cast<int64_t>(std::llround(1e9 / options.viewer_fps))),
-        start_ns_(MonotonicNs()) {
-    TimelineToProto(player_.timeline(), &timeline_);
-  }
+        start_ns_(MonotonicNs()) {}
 
   void Run() {
     StdinLines stdin_lines;
@@ -287,9 +286,11 @@ class DebriefLoop {
     d->set_last_command(last_command_);
     // The timeline about once a second: a page that joins has it within a
     // second, and frames in between stay small.
+    // It grows while the checkpoints are made.
     if (now >= next_timeline_ns_) {
       next_timeline_ns_ = now + 1'000'000'000;
-      *d->mutable_timeline() = timeline_;
+      TimelineToProto(player_.timeline(), d->mutable_timeline());
+      if (const sim::PlannedIncision* plan = s.Plan()) FillPlannedLine(*plan, o.mutable_plan());
     }
     FillObservedSession(s, &o);
   }
@@ -349,7 +350,6 @@ class DebriefLoop {
   double seek_max_s_ = 0.0;
   std::string last_command_;
   int64_t next_timeline_ns_ = 0;
-  v1::DebriefTimeline timeline_;
   v1::ObserverSession observed_;
 };
 
@@ -372,11 +372,14 @@ int ServerApp::RunDebrief() {
   const sim::LoadedScene scene = sim::LoadScene(recording.scene);
   const sim::SimulationOptions sim_options{.threads = recording.header.threads(),
                                            .precision = recording.header.precision()};
-  // The pre-pass: the whole recording once, checked against it as --replay
-  // checks (every frame's topology version, the final mesh hash).
+  // The producer: the whole recording once on a thread of its own, checked
+  // against it as --replay checks (every frame's topology version, each
+  // recorded mesh hash, the final one), while the picture already plays.
+  // Its findings are read after it ended (WaitProduced).
   const Stopwatch prepass_watch;
   std::string mismatch;
   uint64_t prepass_hashes = 0;
+  std::atomic<bool> ending{false};
   Stopwatch since_progress;
   debrief::DebriefPlayer player(
       [&] { return sim::Simulation::Create(scene, sim_options); }, recording.frames,
@@ -394,25 +397,26 @@ int ServerApp::RunDebrief() {
         }
         if (since_progress.ElapsedSeconds() > 5.0) {
           since_progress.Reset();
-          Log().info("debrief: pre-pass at {:.1f} s of the recording", s.sim_time());
+          Log().info("debrief: checkpoints made up to {:.1f} s of the recording", s.sim_time());
         }
-        return !StopRequested();
+        if (i + 1 == recording.frames.size()) {
+          if (recording.end && mismatch.empty() && RecordingHash(recording, s) != recording.end->mesh_hash()) {
+            mismatch = "the final mesh hash differs from the recorded one";
+          }
+          if (!mismatch.empty()) {
+            Log().warn("debrief of {}: the re-run differs from the recording ({}): what observers see is the re-run",
+                       options_.replay, mismatch);
+          }
+          Log().info("debrief of {}: {:.3f} s, {} frames; checkpoints complete (every {:.3g} s), "
+                     "pre-pass {:.2f} s; {} recorded mesh hashes {}",
+                     options_.replay, s.sim_time(), recording.frames.size(),
+                     options_.debrief_checkpoint_every, prepass_watch.ElapsedSeconds(), prepass_hashes,
+                     mismatch.empty() ? "all equal" : "checked: " + mismatch);
+        }
+        return !StopRequested() && !ending;
       });
-  if (StopRequested()) return 0;
-  if (recording.end && mismatch.empty() &&
-      RecordingHash(recording, player.simulation()) != recording.end->mesh_hash()) {
-    mismatch = "the final mesh hash differs from the recorded one";
-  }
-  if (!mismatch.empty()) {
-    Log().warn("debrief of {}: the re-run differs from the recording ({}): what observers see is the re-run",
-               options_.replay, mismatch);
-  }
-  Log().info("debrief of {}: {:.3f} s, {} frames, {} cut steps, {} checkpoints (every {:.3g} s), pre-pass {:.2f} s; "
-             "{} recorded mesh hashes {}",
-             options_.replay, player.duration(), player.frames(), player.timeline().step_t.size(), player.checkpoints(),
-             options_.debrief_checkpoint_every, prepass_watch.ElapsedSeconds(), prepass_hashes,
-             mismatch.empty() ? "all equal" : "checked: " + mismatch);
-  player.Seek(0.0);
+  Log().info("debrief of {}: {:.3f} s, {} frames; playing from the start while checkpoints are made",
+             options_.replay, player.duration(), player.frames());
 
   transport::DdsParticipant participant(options_.dds_domain, ConfigUri(options_.dds_config));
   transport::MeshStreamPublisher publisher(participant, options_.session, {.key = key});
@@ -427,13 +431,21 @@ int ServerApp::RunDebrief() {
              options_.session, options_.replay, options_.dds_domain);
   DebriefLoop loop(options_, recording, player, publisher, control);
   loop.Run();
+  ending = true;
+  bool produced = true;
+  try {
+    player.WaitProduced();
+  } catch (const InputError& e) {
+    produced = false;
+    Log().error("debrief of {}: {}", options_.replay, e.what());
+  }
   std::printf("%s\n", loop.SummaryJson().c_str());
   std::fflush(stdout);
   const transport::DebriefControlStats& c = control.stats();
   Log().info("debrief ended: control messages accepted {}, unsigned {}, forged {}, stale {}, malformed {}", c.accepted,
              c.unsigned_samples, c.forged, c.stale, c.malformed);
   if (presence.refused()) return transport::kExitDuplicateServer;
-  return loop.hash_mismatches() == 0 && mismatch.empty() ? 0 : 4;
+  return loop.hash_mismatches() == 0 && mismatch.empty() && produced ? 0 : 4;
 }
 
 }  // namespace cutsim::server

@@ -39,6 +39,7 @@
 #include "common/transport/server_presence.h"
 #include "cutsim/v1/report.pb.h"
 #include "server/frame_profile.h"
+#include "server/observed_plan.h"
 #include "server/recorder.h"
 #include "server/server_app.h"
 
@@ -159,6 +160,7 @@ class RealtimeLoop {
   LatencyStats latency_;
   FrameProfile profile_;
   v1::ObserverSession observed_;  // reused every viewer frame
+  int64_t next_plan_ns_ = 0;      // when observers get the planned line again
 };
 
 RealtimeLoop::RealtimeLoop(const ServerOptions& options, double frame_dt, double decay_per_second,
@@ -284,6 +286,11 @@ void RealtimeLoop::FillObserved(int64_t frame_start) {
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
           .count());
   o.set_topology_version(p_.simulation.topology_version());
+  // The plan about once a second: a page that joins has it within a second.
+  if (frame_start >= next_plan_ns_) {
+    next_plan_ns_ = frame_start + 1'000'000'000;
+    if (const sim::PlannedIncision* plan = p_.simulation.Plan()) FillPlannedLine(*plan, o.mutable_plan());
+  }
   FillObservedSession(p_.simulation, &o);
 }
 

@@ -30,7 +30,7 @@ struct DebriefPlayer::Checkpoint {
 };
 
 DebriefPlayer::DebriefPlayer(SimulationFactory make, std::vector<PlayerFrame> frames, PlayerOptions options,
-                             const PrepassObserver& observer)
+                             PrepassObserver observer)
     : make_(std::move(make)), frames_(std::move(frames)), options_(options) {
   if (frames_.empty()) ThrowInputError({.field = "recording"}, "the recording has no frames");
   if (!(options_.checkpoint_every > 0.0) || !std::isfinite(options_.checkpoint_every)) {
@@ -42,20 +42,46 @@ DebriefPlayer::DebriefPlayer(SimulationFactory make, std::vector<PlayerFrame> fr
   }
   end_time_.resize(frames_.size() + 1, 0.0);
   for (size_t i = 0; i < frames_.size(); ++i) end_time_[i + 1] = end_time_[i] + frames_[i].frame_time;
-  timeline_.duration = end_time_.back();
   if (options_.checkpoint_bytes == 0) ThrowInputError({.field = "checkpoint_bytes"}, "must be positive");
-  const double widest = timeline_.duration / static_cast<double>(kMaxCheckpoints - 1);
+  const double widest = duration() / static_cast<double>(kMaxCheckpoints - 1);
   if (options_.checkpoint_every < widest) {
     Log().info("debrief: {:.3g} s of recording: checkpoints every {:.3g} s instead of {:.3g} s (at most {})",
-               timeline_.duration, widest, options_.checkpoint_every, kMaxCheckpoints);
+               duration(), widest, options_.checkpoint_every, kMaxCheckpoints);
     options_.checkpoint_every = widest;
   }
-  Prepass(observer);
+  checkpoint_every_ = options_.checkpoint_every;
+  timeline_.duration = duration();
+  // The start is a checkpoint too: a fresh simulation, nothing to restore.
+  checkpoints_.push_back({.frame = 0, .body = {}, .memo = nullptr});
+  sim_ = make_();
+  producer_ = std::thread([this, observer = std::move(observer)] { Produce(observer); });
 }
 
-DebriefPlayer::~DebriefPlayer() = default;
+DebriefPlayer::~DebriefPlayer() {
+  stop_ = true;
+  if (producer_.joinable()) producer_.join();
+}
 
-size_t DebriefPlayer::checkpoints() const { return checkpoints_.size(); }
+size_t DebriefPlayer::checkpoints() const {
+  const std::lock_guard lock(mu_);
+  return checkpoints_.size();
+}
+
+double DebriefPlayer::checkpoint_every() const {
+  const std::lock_guard lock(mu_);
+  return checkpoint_every_;
+}
+
+Timeline DebriefPlayer::timeline() const {
+  const std::lock_guard lock(mu_);
+  return timeline_;
+}
+
+void DebriefPlayer::WaitProduced() {
+  std::unique_lock lock(mu_);
+  done_cv_.wait(lock, [this] { return producer_done_.load(); });
+  if (failure_) std::rethrow_exception(failure_);
+}
 
 void DebriefPlayer::Apply(size_t index, sim::Simulation& simulation) const {
   const PlayerFrame& f = frames_[index];
@@ -66,68 +92,93 @@ void DebriefPlayer::Apply(size_t index, sim::Simulation& simulation) const {
   }
 }
 
-void DebriefPlayer::Prepass(const PrepassObserver& observer) {
-  sim_ = make_();
-  std::vector<double> frame_force(frames_.size(), 0.0);
-  uint64_t version = sim_->topology_version();
-  double next_checkpoint = options_.checkpoint_every;
-  // The start is a checkpoint too: a fresh simulation, nothing to restore.
-  checkpoints_.push_back({.frame = 0, .body = {}, .memo = nullptr});
-  for (size_t i = 0; i < frames_.size(); ++i) {
-    Apply(i, *sim_);
-    frame_ = i + 1;
-    if (sim_->has_tool()) frame_force[i] = sim_->Tool().force_on_tool.norm();
-    if (sim_->topology_version() != version) {
-      version = sim_->topology_version();
-      timeline_.step_t.push_back(end_time_[i + 1]);
+void DebriefPlayer::Produce(const PrepassObserver& observer) {
+  try {
+    std::unique_ptr<sim::Simulation> producer = make_();
+    std::vector<double> frame_force(frames_.size(), 0.0);
+    uint64_t version = producer->topology_version();
+    double every = options_.checkpoint_every;
+    double next_checkpoint = every;
+    bool spaced = false;
+    for (size_t i = 0; i < frames_.size() && !stop_; ++i) {
+      Apply(i, *producer);
+      if (producer->has_tool()) frame_force[i] = producer->Tool().force_on_tool.norm();
+      const bool stepped = producer->topology_version() != version;
+      version = producer->topology_version();
+      const bool checkpoint = end_time_[i + 1] >= next_checkpoint - kTimeSlack && i + 1 < frames_.size();
+      if (stepped || checkpoint) {
+        // Taken outside the lock: the player's seeks do not wait for a copy.
+        std::optional<Checkpoint> taken;
+        if (checkpoint) taken = Checkpoint{.frame = i + 1, .body = producer->CheckpointState(), .memo = producer->Memo()};
+        if (taken && !spaced) {
+          // The first checkpoint sizes the others (their memory bound).
+          every = std::max(every, SpacedPeriod(taken->body));
+          spaced = true;
+        }
+        Timeline timeline = BuildTimeline(frame_force, i + 1, *producer);
+        const std::lock_guard lock(mu_);
+        if (stepped) step_t_.push_back(end_time_[i + 1]);
+        timeline.step_t = step_t_;
+        timeline_ = std::move(timeline);
+        if (taken) checkpoints_.push_back(std::move(*taken));
+        checkpoint_every_ = every;
+      }
+      if (checkpoint) {
+        while (next_checkpoint <= end_time_[i + 1] + kTimeSlack) next_checkpoint += every;
+      }
+      produced_ = i + 1;
+      if (observer && !observer(i, *producer)) break;
     }
-    if (end_time_[i + 1] >= next_checkpoint - kTimeSlack && i + 1 < frames_.size()) {
-      checkpoints_.push_back({.frame = i + 1, .body = sim_->CheckpointState(), .memo = sim_->Memo()});
-      if (checkpoints_.size() == 2) SpaceCheckpoints(checkpoints_.back().body);
-      while (next_checkpoint <= end_time_[i + 1] + kTimeSlack) next_checkpoint += options_.checkpoint_every;
-    }
-    if (observer && !observer(i, *sim_)) {
-      frames_.resize(i + 1);
-      end_time_.resize(i + 2);
-      timeline_.duration = end_time_.back();
-      break;
-    }
+    Timeline timeline = BuildTimeline(frame_force, produced_, *producer);
+    const std::lock_guard lock(mu_);
+    timeline.step_t = step_t_;
+    timeline_ = std::move(timeline);
+  } catch (...) {
+    const std::lock_guard lock(mu_);
+    failure_ = std::current_exception();
   }
-  frame_force.resize(frames_.size());
-  BuildTimeline(frame_force);
+  {
+    const std::lock_guard lock(mu_);
+    producer_done_ = true;
+  }
+  done_cv_.notify_all();
 }
 
-void DebriefPlayer::SpaceCheckpoints(const v1::CheckpointBody& first) {
+double DebriefPlayer::SpacedPeriod(const v1::CheckpointBody& first) const {
   // The memo holds the FEM state's vectors (positions, velocities, forces,
   // scratch): several times the body's positions and velocities.
   const double each = 8.0 * static_cast<double>(sizeof(double)) *
                       static_cast<double>(first.positions_size() + first.velocities_size());
   const double fit = std::max(2.0, static_cast<double>(options_.checkpoint_bytes) / std::max(each, 1.0));
-  const double every = timeline_.duration / std::min(fit, static_cast<double>(kMaxCheckpoints - 1));
+  const double every = duration() / std::min(fit, static_cast<double>(kMaxCheckpoints - 1));
   if (every > options_.checkpoint_every) {
     Log().info("debrief: checkpoints every {:.3g} s instead of {:.3g} s ({:.3g} MB each, {:.3g} GB at most)", every,
                options_.checkpoint_every, 1e-6 * each, 1e-9 * static_cast<double>(options_.checkpoint_bytes));
-    options_.checkpoint_every = every;
   }
+  return every;
 }
 
-void DebriefPlayer::BuildTimeline(const std::vector<double>& frame_force) {
+Timeline DebriefPlayer::BuildTimeline(const std::vector<double>& frame_force, size_t produced,
+                                      const sim::Simulation& producer) const {
   // The force in equal spans of recorded time, each its largest |f|: a
-  // peak shorter than a span still shows.
+  // peak shorter than a span still shows. Spans not produced yet stay 0.
+  Timeline timeline;
+  timeline.duration = duration();
   const size_t n = std::min(static_cast<size_t>(options_.timeline_samples), frames_.size());
-  const double span = timeline_.duration / static_cast<double>(n);
-  timeline_.force_t.assign(n, 0.0);
-  timeline_.force_n.assign(n, 0.0);
-  for (size_t k = 0; k < n; ++k) timeline_.force_t[k] = span * static_cast<double>(k);
-  for (size_t i = 0; i < frames_.size(); ++i) {
+  const double span = duration() / static_cast<double>(n);
+  timeline.force_t.assign(n, 0.0);
+  timeline.force_n.assign(n, 0.0);
+  for (size_t k = 0; k < n; ++k) timeline.force_t[k] = span * static_cast<double>(k);
+  for (size_t i = 0; i < produced; ++i) {
     const size_t k = std::min(n - 1, static_cast<size_t>(end_time_[i] / span));
-    timeline_.force_n[k] = std::max(timeline_.force_n[k], frame_force[i]);
+    timeline.force_n[k] = std::max(timeline.force_n[k], frame_force[i]);
   }
-  for (const sim::CutPoint& c : sim_->ScoredCutPoints()) {
-    timeline_.cut_t.push_back(c.t);
-    timeline_.cut_deviation.push_back(c.deviation);
+  for (const sim::CutPoint& c : producer.ScoredCutPoints()) {
+    timeline.cut_t.push_back(c.t);
+    timeline.cut_deviation.push_back(c.deviation);
   }
-  if (const sim::PlannedIncision* plan = sim_->Plan()) timeline_.tolerance = plan->tolerance;
+  if (const sim::PlannedIncision* plan = producer.Plan()) timeline.tolerance = plan->tolerance;
+  return timeline;
 }
 
 bool DebriefPlayer::StepFrame() {
@@ -153,12 +204,18 @@ size_t DebriefPlayer::FrameAt(double t) const {
 }
 
 SeekReport DebriefPlayer::Seek(double t) {
-  const double target_t = std::clamp(std::isfinite(t) ? t : 0.0, 0.0, timeline_.duration);
+  const double target_t = std::clamp(std::isfinite(t) ? t : 0.0, 0.0, duration());
   const size_t target = FrameAt(target_t);
-  // The checkpoint at or before the target.
-  const auto after = std::upper_bound(checkpoints_.begin(), checkpoints_.end(), target,
-                                      [](size_t f, const Checkpoint& c) { return f < c.frame; });
-  const Checkpoint& from = *(after - 1);
+  // The checkpoint at or before the target, among those produced so far
+  // (the deque keeps it in place while the producer adds more).
+  const Checkpoint* found = nullptr;
+  {
+    const std::lock_guard lock(mu_);
+    const auto after = std::upper_bound(checkpoints_.begin(), checkpoints_.end(), target,
+                                        [](size_t f, const Checkpoint& c) { return f < c.frame; });
+    found = &*(after - 1);
+  }
+  const Checkpoint& from = *found;
   SeekReport report;
   // Stepping on from here is cheaper than a restore when the target is
   // ahead and no farther than from the checkpoint (same frames, same state).
@@ -191,14 +248,16 @@ SeekReport DebriefPlayer::Seek(double t) {
 }
 
 std::optional<double> DebriefPlayer::NextStep() const {
-  const auto it = std::upper_bound(timeline_.step_t.begin(), timeline_.step_t.end(), position() + kTimeSlack);
-  if (it == timeline_.step_t.end()) return std::nullopt;
+  const std::lock_guard lock(mu_);
+  const auto it = std::upper_bound(step_t_.begin(), step_t_.end(), position() + kTimeSlack);
+  if (it == step_t_.end()) return std::nullopt;
   return *it;
 }
 
 std::optional<double> DebriefPlayer::PreviousStep() const {
-  const auto it = std::lower_bound(timeline_.step_t.begin(), timeline_.step_t.end(), position() - kTimeSlack);
-  if (it == timeline_.step_t.begin()) return std::nullopt;
+  const std::lock_guard lock(mu_);
+  const auto it = std::lower_bound(step_t_.begin(), step_t_.end(), position() - kTimeSlack);
+  if (it == step_t_.begin()) return std::nullopt;
   return *(it - 1);
 }
 

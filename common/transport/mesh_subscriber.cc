@@ -292,11 +292,21 @@ bool ValidDebrief(const v1::DebriefState& d) {
          FiniteList(t.cut_deviation()) && t.cut_t_size() == t.cut_deviation_size() && FiniteList(t.step_t());
 }
 
+/// Points of a planned line a page is given at most.
+constexpr int kMaxPlanPoints = 64;
+
+bool ValidPlan(const v1::PlannedLine& p) {
+  bool ok = p.points_size() <= kMaxPlanPoints && std::isfinite(p.tolerance()) && p.tolerance() >= 0;
+  for (const v1::Vec3& v : p.points()) ok = ok && FiniteVec(v);
+  return ok;
+}
+
 }  // namespace
 
 void MeshStreamSubscriber::TakeObserved(const v1::ObserverSession& o) {
   bool ok = o.tools_size() <= kMaxObservedTools && std::isfinite(o.sim_time()) && std::isfinite(o.wall_time()) &&
-            ValidMetrics(o.metrics()) && (!o.has_debrief() || ValidDebrief(o.debrief()));
+            ValidMetrics(o.metrics()) && (!o.has_debrief() || ValidDebrief(o.debrief())) &&
+            (!o.has_plan() || ValidPlan(o.plan()));
   for (const v1::ToolView& t : o.tools()) {
     ok = ok && FiniteVec(t.tip()) && FiniteVec(t.blade_dir()) && FiniteVec(t.force()) &&
          t.blade_length() >= 0 && t.blade_length() <= kMaxObservedBladeLength;

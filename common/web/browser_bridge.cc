@@ -20,6 +20,7 @@ std::map<std::string, std::filesystem::path> ObserverPageFiles(const std::filesy
       {"/debrief.js", web_root / "debrief.js"},
       {"/common/mesh_frames.js", web_root / ".." / "common" / "mesh_frames.js"},
       {"/common/scalpel.js", web_root / ".." / "common" / "scalpel.js"},
+      {"/common/plan_line.js", web_root / ".." / "common" / "plan_line.js"},
       {"/vendor/three.module.js", web_root / "node_modules/three/build/three.module.js"},
       {"/vendor/three.core.js", web_root / "node_modules/three/build/three.core.js"},
       {"/vendor/OrbitControls.js", web_root / "node_modules/three/examples/jsm/controls/OrbitControls.js"},

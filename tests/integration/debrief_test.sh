@@ -84,6 +84,10 @@ for _ in $(seq 100); do grep -q '^instructor:' "$out/bridge.out" 2>/dev/null && 
 grep -q '^instructor:' "$out/bridge.out" || fail "the bridge did not start"
 for _ in $(seq 600); do grep -q 'to observers on DDS' "$out/debrief.log" 2>/dev/null && break; sleep 0.1; done
 grep -q 'to observers on DDS' "$out/debrief.log" || fail "the debrief did not start (debrief.log)"
+# The debrief plays at once while its checkpoints are made; the seek checks
+# time seeks from checkpoints, so they start once all are made.
+for _ in $(seq 1200); do grep -q 'checkpoints complete' "$out/debrief.log" 2>/dev/null && break; sleep 0.1; done
+grep -q 'checkpoints complete' "$out/debrief.log" || fail "the debrief's checkpoints were not made (debrief.log)"
 
 # 4. The checks.
 node "$web/test/debrief_test.mjs" --observer "$(sed -n 's/^observers: //p' "$out/bridge.out")" \

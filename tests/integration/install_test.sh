@@ -8,7 +8,9 @@
 #  3. the installed server runs the ligament headless from the tree, the
 #     installed viewer and haptic station find their pages and plugins in
 #     the tree (not in the source tree), and serve the pages;
-#  4. `systemd-analyze verify` on an instance of each installed unit.
+#  4. `systemd-analyze verify` on an instance of each installed unit;
+#  5. each program's man page renders (`man -l`) and names every option its
+#     --help lists.
 #
 #   tests/integration/install_test.sh --cmake-install BUILD_DIR
 #       `DESTDIR=TMP cmake --install BUILD_DIR`, then the checks (quick:
@@ -116,7 +118,7 @@ need=("$bin/cutsim-server" "$bin/cutsim-haptic" "$bin/cutsim-viewer"
       "$data/web/observer/index.html" "$data/web/observer/observer.js" "$data/web/observer/observer.css"
       "$data/web/trainee/index.html" "$data/web/trainee/trainee.js" "$data/web/trainee/trainee.css"
       "$data/web/lab/index.html" "$data/web/lab/lab.js" "$data/web/lab/lab.css"
-      "$data/web/common/mesh_frames.js" "$data/web/common/scalpel.js"
+      "$data/web/common/mesh_frames.js" "$data/web/common/scalpel.js" "$data/web/common/plan_line.js"
       "$data/web/observer/node_modules/three/build/three.module.js"
       "$data/web/observer/node_modules/three/build/three.core.js"
       "$data/web/observer/node_modules/three/examples/jsm/controls/OrbitControls.js"
@@ -175,6 +177,22 @@ else
   grep -q "<html" "$work/trainee.html" || fail "the trainee page is not a page"
   echo "install_test: the installed viewer and haptic station serve their pages and three.js; plugins load"
 fi
+
+# ---- 5. the man pages ----------------------------------------------------------
+# Each renders, and names every option of the installed program's --help
+# (both spellings of a short and long pair). C locale: plain hyphens.
+for p in server haptic viewer; do
+  page="$prefix/share/man/man1/cutsim-$p.1.gz"
+  [ -f "$page" ] || fail "no man page $page"
+  LC_ALL=C MANWIDTH=200 man -l "$page" > "$work/man-$p.txt" 2> "$work/man-$p.err" || fail "man -l $page: $(cat "$work/man-$p.err")"
+  grep -q "^NAME" "$work/man-$p.txt" || fail "cutsim-$p.1.gz rendered without a NAME section"
+  options="$(grep -E '^ +-' "$work/help-$p.log" | grep -oE -- '(^|[ ,])--?[A-Za-z][A-Za-z0-9-]*' | tr -d ' ,' | sort -u)"
+  [ "$(echo "$options" | wc -l)" -ge 5 ] || fail "cutsim-$p --help lists too few options to check: $options"
+  for o in $options; do
+    grep -qE -- "(^|[ ,])$o([ ,={]|$)" "$work/man-$p.txt" || fail "cutsim-$p.1.gz does not name $o (its --help does)"
+  done
+done
+echo "install_test: every program's man page renders and names each option of its --help"
 
 # ---- 4. the installed units -----------------------------------------------------
 if command -v systemd-analyze > /dev/null; then

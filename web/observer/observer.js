@@ -19,6 +19,7 @@ import * as THREE from 'three';
 import { OrbitControls } from '/vendor/OrbitControls.js';
 import { KIND_SNAPSHOT, parseMeshFrame } from '/common/mesh_frames.js';
 import { makeScalpel } from '/common/scalpel.js';
+import { makePlanLine } from '/common/plan_line.js';
 import { Debrief } from '/debrief.js';
 
 // ---------------------------------------------------------------------------
@@ -79,6 +80,7 @@ const state = {
   tool: null,                // {tip, bladeDir, bladeLength, force, contact}
   link: null,                // {frame_age_ms, bridge_gaps, clients}
   metrics: null,             // the session's measures (SessionMetrics, SI units), or null before any
+  plan: null,                // the planned incision's points ([x, y, z], m), or null: none heard of yet
   vertexCount: 0,
   triangleCount: 0,
   openedCount: 0,
@@ -167,6 +169,24 @@ let sceneRadius = null;   // half the diagonal of the first mesh's bounding box,
 // facing the way the tip last moved.
 const scalpel = makeScalpel(THREE);
 scene.add(scalpel.group);
+
+// The planned incision (web/common/plan_line.js, as the trainee's page has
+// it), from the session's `plan` (sent about once a second; kept between).
+let planLine = null;
+
+/** Draws the plan of `observed.plan` when its points changed. */
+function updatePlan(plan) {
+  if (!plan || typeof plan !== 'object' || !Array.isArray(plan.points)) return;
+  const points = plan.points.map((p) => [num(p.x), num(p.y), num(p.z)]);
+  if (JSON.stringify(points) === JSON.stringify(state.plan)) return;
+  state.plan = points;
+  if (planLine) {
+    scene.remove(planLine);
+    planLine.geometry.dispose();
+  }
+  planLine = makePlanLine(THREE, points);
+  if (planLine) scene.add(planLine);
+}
 
 // The force on the tool: a shaft (70 % of the length) and a cone, both unit
 // shapes along +y, scaled and turned onto the force direction.
@@ -435,6 +455,7 @@ function onSessionMessage(message) {
   forceHistory.push({ t: simTime, f });
   while (forceHistory.length > 0 && forceHistory[0].t < simTime - PLOT_WINDOW_S) forceHistory.shift();
   placeTool(state.tool);
+  updatePlan(observed.plan);
   debrief.update(observed.debrief);
   requestFrame(true);
 }

@@ -25,13 +25,13 @@
 import * as THREE from 'three';
 import { parseMeshFrame, KIND_SNAPSHOT } from '/common/mesh_frames.js';
 import { makeScalpel } from '/common/scalpel.js';
+import { makePlanLine } from '/common/plan_line.js';
 
 const COLOURS = {
   background: 0x1e222c,
   tissue: 0xe4988e,
   cutFace: 0xebb91e,
   force: 0x3cc85a,
-  plan: 0x4fc3f7,
   above: 0x9be29b,    // the tip's line to the surface: above it
   inside: 0xff8c40,   // below it (in the tissue)
   contact: 0x40e0ff,
@@ -41,7 +41,6 @@ const FOV_DEG = 35;
 const VIEW_DIRECTION = new THREE.Vector3(0.0, -0.55, 1.0).normalize();  // from above, tilted towards −y
 const HEARTBEAT_MS = 1000;
 const ARROW_FULL_LENGTH = 0.03;  // m, the arrow of the largest force
-const PLAN_RADIUS = 0.00025;     // m, the planned incision's tube
 
 const state = {
   ws: null,
@@ -275,18 +274,8 @@ function onHello(m) {
   grid.position.set(box.getCenter(new THREE.Vector3()).x, box.getCenter(new THREE.Vector3()).y, box.min.z);
   scene.add(grid);
   if (planLine) scene.remove(planLine);
-  planLine = null;
-  if (state.plan.length >= 2) {
-    const points = state.plan.map((p) => new THREE.Vector3(p[0], p[1], p[2]));
-    // A thin tube rather than a line: WebGL draws lines one pixel wide,
-    // too faint on the tissue to aim at.
-    const path = new THREE.CurvePath();
-    for (let i = 1; i < points.length; ++i) path.add(new THREE.LineCurve3(points[i - 1], points[i]));
-    planLine = new THREE.Mesh(new THREE.TubeGeometry(path, 16 * (points.length - 1), PLAN_RADIUS, 8, false),
-      new THREE.MeshBasicMaterial({ color: COLOURS.plan, depthTest: false }));
-    planLine.renderOrder = 5;
-    scene.add(planLine);
-  }
+  planLine = makePlanLine(THREE, state.plan);
+  if (planLine) scene.add(planLine);
   if (!view.framed) frameOn(box);
   send(performance.now());
 }

@@ -1,10 +1,14 @@
 // The debrief's player: the recording played again looks the same however a
 // frame is reached (straight through, after a seek back or forward, after a
-// step to a cut), bit for bit, on the ligament cut by its scripted path.
+// step to a cut), bit for bit, on the ligament cut by its scripted path;
+// and it plays at once, while its checkpoints are still being made.
 #include "common/debrief/debrief_player.h"
 
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -41,7 +45,9 @@ struct Fixture {
                [this](size_t, const sim::Simulation& s) {
                  hashes.push_back(StateHash(s));
                  return true;
-               }) {}
+               }) {
+    player.WaitProduced();
+  }
 
   std::vector<PlayerFrame> Frames(double seconds) const {
     const double dt = scene.scene.time_step().frame_dt();
@@ -84,7 +90,7 @@ TEST(DebriefPlayerTest, PlayAcrossTheCutAfterARestoreEqualsThePrepass) {
   // must cut on the same frame and the same way.
   Fixture& f = Shared();
   DebriefPlayer& p = f.player;
-  const double cut = p.timeline().step_t.front();
+  const double cut = p.timeline().step_t.at(0);
   p.Seek(3.2);
   const SeekReport r = p.Seek(cut - 0.1);
   ASSERT_TRUE(r.restored);
@@ -104,7 +110,7 @@ TEST(DebriefPlayerTest, PlayFromTheStartEqualsThePrepass) {
 TEST(DebriefPlayerTest, StepsGoToTheNextAndPreviousCut) {
   Fixture& f = Shared();
   DebriefPlayer& p = f.player;
-  const std::vector<double>& steps = p.timeline().step_t;
+  const std::vector<double> steps = p.timeline().step_t;
   ASSERT_GE(steps.size(), 1u) << "the path cuts the ligament";
   p.Seek(0.0);
   ASSERT_TRUE(p.NextStep().has_value());
@@ -134,7 +140,7 @@ TEST(DebriefPlayerTest, StepsGoToTheNextAndPreviousCut) {
 }
 
 TEST(DebriefPlayerTest, TimelineHoldsTheForcePeakAndTheScoredCut) {
-  const Timeline& t = Shared().player.timeline();
+  const Timeline t = Shared().player.timeline();
   ASSERT_EQ(t.force_t.size(), 100u);
   ASSERT_EQ(t.force_n.size(), 100u);
   double peak = 0.0;
@@ -142,6 +148,55 @@ TEST(DebriefPlayerTest, TimelineHoldsTheForcePeakAndTheScoredCut) {
   EXPECT_GT(peak, 0.01) << "the blade pressed on the ligament";
   EXPECT_EQ(t.cut_t.size(), t.cut_deviation.size());
   EXPECT_GT(t.tolerance, 0.0) << "the ligament has a planned incision";
+}
+
+TEST(DebriefPlayerTest, ASeekAheadOfTheProducedCheckpointsLandsOnTheRightState) {
+  // The producer is held after 0.3 s of the recording (one checkpoint past
+  // the start) while the player already plays and then seeks to 0.9 s,
+  // beyond everything produced: it simulates there itself. Released, the
+  // producer's own frame at 0.9 s must be the same state, bit for bit.
+  const sim::LoadedScene scene = sim::LoadScene(kScene);
+  const double dt = scene.scene.time_step().frame_dt();
+  const size_t hold = static_cast<size_t>(std::lround(0.3 / dt));
+  std::mutex mu;
+  std::condition_variable cv;
+  bool released = false;
+  std::vector<uint64_t> hashes;
+  DebriefPlayer p([&] { return sim::Simulation::Create(scene); },
+                  std::vector<PlayerFrame>(static_cast<size_t>(std::lround(1.1 / dt)), PlayerFrame{.frame_time = dt}),
+                  {.checkpoint_every = 0.25, .timeline_samples = 100}, [&](size_t i, const sim::Simulation& s) {
+                    hashes.push_back(StateHash(s));
+                    if (i + 1 == hold) {
+                      std::unique_lock lock(mu);
+                      cv.wait(lock, [&] { return released; });
+                    }
+                    return true;
+                  });
+  EXPECT_EQ(p.frame(), 0u) << "the player stands at the start at once";
+  ASSERT_TRUE(p.StepFrame()) << "and plays before the checkpoints are made";
+  while (p.produced() < hold) std::this_thread::yield();
+  EXPECT_EQ(p.produced(), hold) << "the producer is held";
+  EXPECT_EQ(p.checkpoints(), 2u) << "the start and 0.25 s";
+  const SeekReport r = p.Seek(0.9);
+  EXPECT_NEAR(p.position(), 0.9, 0.0051);
+  EXPECT_LE(p.produced(), hold) << "the seek went beyond what was produced";
+  EXPECT_TRUE(r.restored);
+  EXPECT_NEAR(r.restore_from, 0.25, 0.0051) << "from the latest checkpoint produced";
+  const uint64_t seen = StateHash(p.simulation());
+  {
+    const std::lock_guard lock(mu);
+    released = true;
+  }
+  cv.notify_all();
+  p.WaitProduced();
+  ASSERT_EQ(hashes.size(), p.frames());
+  EXPECT_EQ(seen, hashes.at(p.frame() - 1)) << "the state at 0.9 s as the uninterrupted producer has it";
+  EXPECT_EQ(p.checkpoints(), 5u) << "the start, 0.25, 0.5, 0.75 and 1.0 s";
+  // And back, behind the position: from the nearest checkpoint (0.5 s).
+  const SeekReport back = p.Seek(0.6);
+  EXPECT_TRUE(back.restored);
+  EXPECT_NEAR(back.restore_from, 0.5, 0.0051);
+  EXPECT_EQ(StateHash(p.simulation()), hashes.at(p.frame() - 1));
 }
 
 TEST(DebriefPlayerTest, RefusesAnEmptyRecordingAndABadPeriod) {

@@ -11,7 +11,7 @@
 // final JSON summary line (also written to DIR/summary.json with the
 // screenshots); exits 0 when every check passes, 1 otherwise, 2 on bad usage.
 //
-// Checks: page-loads, canvas-shows-tissue-and-scalpel,
+// Checks: page-loads, canvas-shows-tissue-and-scalpel, planned-line-drawn,
 // view-updates-as-tool-moves, view-updates-after-cut, late-joiner-catches-up,
 // twenty-clients, hostile-input-refused, page-reports-no-errors.
 //
@@ -200,11 +200,13 @@ const CLASSES = {
   cut: (r, g, b, hs) => Math.max(r, g, b) >= 40 && hs.hue >= 30 && hs.hue <= 65 && hs.saturation >= 0.6,
   // #3cc85a: hue ≈ 133°, saturation ≈ 0.70 (the C++ IsForceColour rule).
   force: (r, g, b, hs) => Math.max(r, g, b) >= 40 && hs.hue >= 100 && hs.hue <= 165 && hs.saturation >= 0.5,
+  // #4fc3f7 (web/common/plan_line.js): hue ≈ 199°, saturation ≈ 0.68.
+  plan: (r, g, b, hs) => Math.max(r, g, b) >= 80 && hs.hue >= 185 && hs.hue <= 215 && hs.saturation >= 0.45,
 };
 
 /** Pixel counts per class of a decoded image. */
 function classify(image) {
-  const counts = { pixels: image.width * image.height, tissue: 0, tool: 0, cut: 0, force: 0 };
+  const counts = { pixels: image.width * image.height, tissue: 0, tool: 0, cut: 0, force: 0, plan: 0 };
   const { rgba } = image;
   for (let i = 0; i < rgba.length; i += 4) {
     const r = rgba[i], g = rgba[i + 1], b = rgba[i + 2];
@@ -364,7 +366,7 @@ async function main() {
       report('page-loads', true, '', { ms: Date.now() - t0, vertices: s.vertexCount, triangles: s.triangleCount });
     });
     if (!loaded) {
-      for (const name of ['canvas-shows-tissue-and-scalpel', 'hud-beside-the-view', 'view-updates-as-tool-moves',
+      for (const name of ['canvas-shows-tissue-and-scalpel', 'planned-line-drawn', 'hud-beside-the-view', 'view-updates-as-tool-moves',
         'view-updates-after-cut',
         'late-joiner-catches-up', 'twenty-clients', 'hostile-input-refused', 'page-reports-no-errors']) {
         report(name, false, 'skipped: the page did not load');
@@ -383,6 +385,19 @@ async function main() {
         const ok = counts.tissue >= 500 && counts.tool >= 30;
         report('canvas-shows-tissue-and-scalpel', ok,
           `tissue pixels ${counts.tissue} (need ≥ 500), scalpel pixels ${counts.tool} (need ≥ 30)`, { counts });
+      });
+      // The planned incision, as the trainee's page draws it: the session's
+      // plan (the ligament's two points) on the page and its colour on the
+      // canvas.
+      await check('planned-line-drawn', async () => {
+        await waitState(first, '(s) => Array.isArray(s.plan) && s.plan.length >= 2', 3000);
+        await sleep(200);  // the frame after the line was added
+        const { plan } = await state(first);
+        const { counts } = await canvasImage(first, 'page1-canvas-plan');
+        const length = Math.hypot(...[0, 1, 2].map((k) => plan[plan.length - 1][k] - plan[0][k]));
+        report('planned-line-drawn', counts.plan >= 20 && length > 0.001,
+          `plan ${JSON.stringify(plan)} (${(1e3 * length).toFixed(1)} mm), its pixels ${counts.plan} (need ≥ 20)`,
+          { plan, counts });
       });
       // The HUD is beside the view, never over the tissue.
       await check('hud-beside-the-view', async () => {
