@@ -70,6 +70,25 @@ class CutAttemptTracker {
   [[nodiscard]] const Eigen::Vector3d& anchor_point() const { return anchor_point_; } ///< C_p(t0)
   [[nodiscard]] int32_t frames_outside() const { return frames_outside_; }
 
+  /// What the tracker carries from frame to frame (a checkpoint keeps it).
+  struct Memory {
+    int32_t anchor_node = -1;  ///< v_c(t0), −1: none
+    Eigen::Vector3d anchor_point = Eigen::Vector3d::Zero();
+    int32_t last_node = -1;
+    Eigen::Vector3d last_point = Eigen::Vector3d::Zero();
+    int32_t frames_outside = 0;
+  };
+  [[nodiscard]] Memory memory() const {
+    return {anchor_node_, anchor_point_, last_node_, last_point_, frames_outside_};
+  }
+  void set_memory(const Memory& m) {
+    anchor_node_ = m.anchor_node;
+    anchor_point_ = m.anchor_point;
+    last_node_ = m.last_node;
+    last_point_ = m.last_point;
+    frames_outside_ = m.frames_outside;
+  }
+
  private:
   CutParams params_;
   int32_t anchor_node_ = -1;

@@ -20,7 +20,9 @@ namespace cutsim::sim {
 namespace {
 
 constexpr char kMagic[] = "cutsim-checkpoint";
-constexpr uint32_t kFormatVersion = 1;
+// 2: each stage's part (FemStepPart, ToolPart, CutAttemptPart) besides the
+// tissue; a version-1 file lacks them and is refused.
+constexpr uint32_t kFormatVersion = 2;
 
 /// A file descriptor closed on every path out.
 class Fd {
@@ -103,28 +105,14 @@ uint64_t SceneFingerprint(const std::string& scene_name, int32_t node_capacity, 
   return Fnv1a64(t.data(), static_cast<size_t>(t.size()) * sizeof(t(0, 0)), h);
 }
 
-template <typename T>
-v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity, const CheckpointProgress& progress,
-                                      const fem::State<T>& state, int32_t num_nodes) {
+v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity, int64_t frames) {
   v1::CheckpointBody b;
   b.set_scene_name(identity.scene_name);
   b.set_scene_fingerprint(identity.fingerprint);
   b.set_precision(identity.precision);
   b.set_initial_nodes(identity.initial_nodes);
   b.set_initial_tets(identity.initial_tets);
-  b.set_sim_time(state.time);
-  b.set_steps(state.step);
-  b.set_frames(progress.frames);
-  b.set_cuts(progress.cuts);
-  b.set_topology_version(progress.topology_version);
-  for (const cutting::TopologyEvent& e : progress.events) *b.add_events() = EventToProto(e);
-  const size_t n3 = 3 * static_cast<size_t>(num_nodes);
-  b.mutable_positions()->Reserve(static_cast<int>(n3));
-  b.mutable_velocities()->Reserve(static_cast<int>(n3));
-  for (size_t i = 0; i < n3; ++i) {
-    b.add_positions(static_cast<double>(state.x[i]));
-    b.add_velocities(static_cast<double>(state.v[i]));
-  }
+  b.set_frames(frames);
   return b;
 }
 
@@ -263,26 +251,6 @@ std::vector<cutting::TopologyEvent> CheckCheckpointBody(const v1::CheckpointBody
   return events;
 }
 
-template <typename T>
-void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state) {
-  for (int i = 0; i < body.positions_size(); ++i) {
-    state.x[static_cast<size_t>(i)] = static_cast<T>(body.positions(i));
-    state.v[static_cast<size_t>(i)] = static_cast<T>(body.velocities(i));
-  }
-  state.time = body.sim_time();
-  state.step = body.steps();
-  state.dt_refreshed_step = -1;  // positions changed: refresh the stable step
-  state.cg_precond_step = -1;    // and the viscous solve's preconditioner
-}
-
-#define CUTSIM_SIM_CHECKPOINT_INSTANTIATE(T)                                                          \
-  template v1::CheckpointBody MakeCheckpointBody<T>(const CheckpointIdentity&, const CheckpointProgress&, \
-                                                    const fem::State<T>&, int32_t);                    \
-  template void RestoreFemState<T>(const v1::CheckpointBody&, fem::State<T>&);
-
-CUTSIM_SIM_CHECKPOINT_INSTANTIATE(float)
-CUTSIM_SIM_CHECKPOINT_INSTANTIATE(double)
-
 void WriteCheckpointFile(const std::filesystem::path& path, const v1::CheckpointBody& body) {
   v1::CheckpointFile file;
   file.set_magic(kMagic);
@@ -333,7 +301,12 @@ v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path) {
   }
   if (file.format_version() != kFormatVersion) {
     ThrowInputError({.file = source, .field = "format_version"},
-                    fmt::format("version {}, this build reads {}", file.format_version(), kFormatVersion));
+                    fmt::format("checkpoint format version {}, this build reads version {} only{}",
+                                file.format_version(), kFormatVersion,
+                                file.format_version() < kFormatVersion
+                                    ? " (older checkpoints lack the tool's grip, the cut test's anchor and the "
+                                      "step's state, so they cannot resume a run exactly): start from the scene"
+                                    : ""));
   }
   if (Fnv1a64(file.body().data(), file.body().size()) != file.body_fnv1a64()) {
     ThrowInputError({.file = source, .field = "body_fnv1a64"}, "checksum mismatch: the file is corrupted");

@@ -1,8 +1,10 @@
 #pragma once
 /// @file
 /// Checkpoint files of the server: the cut tissue (every topology event in
-/// order, replayed on the uncut scene mesh) plus positions, velocities, time
-/// and counters, in a framed protobuf (proto/cutsim/v1/checkpoint.proto).
+/// order, replayed on the uncut scene mesh) plus every stage's part of the
+/// state (stage.h: positions, velocities, the step's estimator, the tool's
+/// contact and grip, the cut test's anchor, the measures), in a framed
+/// protobuf (proto/cutsim/v1/checkpoint.proto).
 /// Writes are atomic (temporary file, fsync, rename), so a crash while
 /// writing leaves the previous checkpoint intact. Reads reject a corrupted,
 /// truncated or foreign file with an InputError naming the file and field,
@@ -47,20 +49,9 @@ struct CheckpointIdentity {
 [[nodiscard]] uint64_t SceneFingerprint(const std::string& scene_name, int32_t node_capacity,
                                         const mesh::TetMesh& mesh);
 
-/// The live part of a checkpoint besides its identity.
-struct CheckpointProgress {
-  int64_t frames = 0;
-  uint64_t cuts = 0;
-  uint64_t topology_version = 0;
-  std::span<const cutting::TopologyEvent> events;  ///< every event so far, in order
-};
-
-/// A checkpoint body: identity, progress, and the first `num_nodes` nodes'
-/// positions and velocities, time and step count of `state`.
-template <typename T>
-[[nodiscard]] v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity,
-                                                    const CheckpointProgress& progress, const fem::State<T>& state,
-                                                    int32_t num_nodes);
+/// A checkpoint body with `identity` and the frame count; the stages add
+/// their parts (stage.h).
+[[nodiscard]] v1::CheckpointBody MakeCheckpointBody(const CheckpointIdentity& identity, int64_t frames);
 
 /// The simulation a checkpoint is restored into.
 struct RestoreTarget {
@@ -97,12 +88,6 @@ struct RestoreTarget {
 /// steps that changed nothing (their empty events are not recorded).
 void ReplayEvent(cutting::CutMesh& cut, const cutting::TopologyEvent& event);
 
-/// Positions, velocities, time and step count of a checked `body` into
-/// `state`, with the stable step and the viscous preconditioner due for a
-/// refresh.
-template <typename T>
-void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state);
-
 // ---- files ------------------------------------------------------------------
 
 /// Frames and writes `body` atomically: `path`.tmp, fsync, rename onto
@@ -111,7 +96,9 @@ void RestoreFemState(const v1::CheckpointBody& body, fem::State<T>& state);
 void WriteCheckpointFile(const std::filesystem::path& path, const v1::CheckpointBody& body);
 
 /// Reads and checks a checkpoint file (magic, format version, checksum,
-/// body). Throws InputError naming the file and field.
+/// body). Throws InputError naming the file and field; a file of another
+/// format version (e.g. 1, before the stages' parts) is refused naming both
+/// versions.
 [[nodiscard]] v1::CheckpointBody ReadCheckpointFile(const std::filesystem::path& path);
 
 /// Saves `sim` to `path` (CheckpointState + WriteCheckpointFile) with the

@@ -1,11 +1,17 @@
 #include "common/sim/cut_pipeline.h"
 
 #include <algorithm>
+#include <cmath>
 #include <utility>
+
+#include <fmt/format.h>
 
 #include "common/core/error.h"
 #include "common/core/log.h"
 #include "common/fem/forces.h"
+#include "common/sim/checkpoint.h"
+#include "common/sim/checkpoint_part.h"
+#include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
 namespace {
@@ -277,6 +283,54 @@ void CutPipeline<T>::AddToReport(ToolReport& r) const {
   r.cuts = cuts_;
   r.cut_this_frame = cut_this_frame_;
   r.sigma_c = sigma_c_;
+}
+
+template <typename T>
+void CutPipeline<T>::Save(v1::CheckpointBody& body) const {
+  body.set_cuts(cuts_);
+  body.set_topology_version(cut_.version());
+  for (const cutting::TopologyEvent& e : events_) *body.add_events() = EventToProto(e);
+  v1::CutAttemptPart& p = *body.mutable_cut_attempt();
+  const cutting::CutAttemptTracker::Memory m = tracker_.memory();
+  p.set_anchor_node(m.anchor_node);
+  Vec3ToProto(m.anchor_point, p.mutable_anchor_point());
+  p.set_last_node(m.last_node);
+  Vec3ToProto(m.last_point, p.mutable_last_point());
+  p.set_frames_outside(m.frames_outside);
+  Vec3ToProto(anchor_tip_, p.mutable_anchor_tip());
+  p.set_cut_attempts(cut_attempts_);
+  p.set_cuts_rejected(cuts_rejected_);
+  p.set_sigma_c(sigma_c_);
+}
+
+template <typename T>
+void CutPipeline<T>::Check(const v1::CheckpointBody& body, const PartCheck& check) const {
+  const std::string& src = check.source;
+  if (!body.has_cut_attempt()) FailPart(src, "cut_attempt", "missing: the checkpoint does not hold the cut test's state");
+  const v1::CutAttemptPart& p = body.cut_attempt();
+  CheckNodeOrNone(p.anchor_node(), check.num_nodes, src, "cut_attempt.anchor_node");
+  CheckNodeOrNone(p.last_node(), check.num_nodes, src, "cut_attempt.last_node");
+  (void)Vec3FromPart(p.anchor_point(), src, "cut_attempt.anchor_point");
+  (void)Vec3FromPart(p.last_point(), src, "cut_attempt.last_point");
+  (void)Vec3FromPart(p.anchor_tip(), src, "cut_attempt.anchor_tip");
+  if (p.frames_outside() < 0) FailPart(src, "cut_attempt.frames_outside", "negative");
+  if (!std::isfinite(p.sigma_c())) FailPart(src, "cut_attempt.sigma_c", "not finite");
+}
+
+template <typename T>
+void CutPipeline<T>::Restore(const v1::CheckpointBody& body) {
+  const v1::CutAttemptPart& p = body.cut_attempt();
+  const std::string none;  // checked before: nothing throws here
+  cuts_ = body.cuts();
+  tracker_.set_memory({.anchor_node = p.anchor_node(),
+                       .anchor_point = Vec3FromPart(p.anchor_point(), none, ""),
+                       .last_node = p.last_node(),
+                       .last_point = Vec3FromPart(p.last_point(), none, ""),
+                       .frames_outside = p.frames_outside()});
+  anchor_tip_ = Vec3FromPart(p.anchor_tip(), none, "");
+  cut_attempts_ = p.cut_attempts();
+  cuts_rejected_ = p.cuts_rejected();
+  sigma_c_ = p.sigma_c();
 }
 
 template class CutPipeline<float>;

@@ -45,6 +45,7 @@
 #include "common/sim/fem_event.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/side_by_side.h"
+#include "common/sim/stage.h"
 #include "common/sim/surface_tracker.h"
 #include "common/sim/tool_contact.h"
 #include "common/sim/types.h"
@@ -71,7 +72,7 @@ struct CutTargets {
 };
 
 template <typename T>
-class CutPipeline {
+class CutPipeline final : public CheckpointedStage {
  public:
   /// The scene's cutting parameters (InputError naming the scene's
   /// `cutting` field if invalid) and cut complex over the uncut `mesh`.
@@ -103,6 +104,15 @@ class CutPipeline {
     tracker_ = s.tracker;
     anchor_tip_ = s.anchor_tip;
   }
+  // ---- checkpoint part (stage.h) -------------------------------------------
+  /// Every topology event so far, the cut complex's version, the counters,
+  /// and the attempt's anchor t0 with the tip when it was set. The events
+  /// are checked and replayed by the engine (CheckCheckpointBody,
+  /// ApplyRecordedEvent) before Restore, which sets the rest.
+  void Save(v1::CheckpointBody& body) const override;
+  void Check(const v1::CheckpointBody& body, const PartCheck& check) const override;
+  void Restore(const v1::CheckpointBody& body) override;
+
   /// Cut counters and time into a summary; cut fields into a tool report.
   void AddToSummary(SimulationSummary& s) const;
   void AddToReport(ToolReport& r) const;

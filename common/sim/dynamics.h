@@ -26,6 +26,7 @@
 #include "common/sim/integrator_choice.h"
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
+#include "common/sim/stage.h"
 #include "common/sim/tool_state.h"
 #include "common/sim/types.h"
 
@@ -39,7 +40,7 @@ namespace cutsim::sim {
 [[nodiscard]] fem::ImplicitOptions ImplicitOptionsFor(const v1::Scene& scene, int threads, bool timed = false);
 
 template <typename T>
-class Dynamics {
+class Dynamics final : public CheckpointedStage {
  public:
   /// `options` serve the implicit step (unused by the explicit one).
   Dynamics(IntegratorKind kind, const fem::ImplicitOptions& options);
@@ -71,6 +72,16 @@ class Dynamics {
 
   /// The integrator and the implicit step's counters.
   void AddToSummary(SimulationSummary& s) const;
+
+  // ---- checkpoint part (stage.h): none -------------------------------------
+  /// The explicit step keeps nothing between frames beyond the FEM state
+  /// (SceneFem's part holds its step estimator). The implicit step's factor
+  /// and the haptic stiffness it holds are caches, rebuilt on the first
+  /// frame after a restore: an implicit scene resumes to within its Newton
+  /// tolerances rather than bit for bit. Its counters start again.
+  void Save(v1::CheckpointBody& /*body*/) const override {}
+  void Check(const v1::CheckpointBody& /*body*/, const PartCheck& /*check*/) const override {}
+  void Restore(const v1::CheckpointBody& /*body*/) override {}
 
   /// Wall time of the last frame's implicit phases, s (zero when explicit).
   [[nodiscard]] const std::array<double, kNumDynamicsPhases>& last_phase_seconds() const { return phase_seconds_; }

@@ -13,6 +13,8 @@
 #include "common/core/log.h"
 #include "common/fem/forces.h"
 #include "common/fem/stable_dt.h"
+#include "common/sim/checkpoint_part.h"
+#include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
 namespace {
@@ -360,6 +362,127 @@ double SceneFem<T>::MaxDisplacement() const {
     worst = std::max(worst, d2);
   }
   return std::sqrt(worst);
+}
+
+namespace {
+
+template <typename T, typename Repeated>
+void AppendValues(const std::vector<T>& values, size_t count, Repeated* out) {
+  out->Reserve(static_cast<int>(count));
+  for (size_t i = 0; i < count; ++i) out->Add(static_cast<double>(values[i]));
+}
+
+/// Values of `in` into the first in.size() entries of `out` (sized before).
+template <typename T, typename Repeated>
+void CopyValues(const Repeated& in, std::vector<T>& out) {
+  for (int i = 0; i < in.size(); ++i) out[static_cast<size_t>(i)] = static_cast<T>(in[i]);
+}
+
+/// `values` has `expected` entries (or none when `may_be_empty`), none NaN.
+template <typename Repeated>
+void CheckValues(const Repeated& values, size_t expected, bool may_be_empty, const std::string& source,
+                 const std::string& field) {
+  const auto n = static_cast<size_t>(values.size());
+  if (n != expected && !(may_be_empty && n == 0)) {
+    FailPart(source, field, fmt::format("{} values, this simulation needs {}", n, expected));
+  }
+  for (int i = 0; i < values.size(); ++i) {
+    if (std::isnan(values[i])) FailPart(source, fmt::format("{}[{}]", field, i), "not a number");
+  }
+}
+
+}  // namespace
+
+template <typename T>
+void SceneFem<T>::Save(v1::CheckpointBody& b) const {
+  const fem::State<T>& s = state_;
+  b.set_sim_time(s.time);
+  b.set_steps(s.step);
+  const size_t n3 = 3 * static_cast<size_t>(model_.num_nodes());
+  AppendValues(s.x, n3, b.mutable_positions());
+  AppendValues(s.v, n3, b.mutable_velocities());
+  v1::FemStepPart& p = *b.mutable_fem_step();
+  if (s.viscous_dv.size() >= n3) AppendValues(s.viscous_dv, n3, p.mutable_viscous_dv());
+  AppendValues(s.element_dt, s.element_dt.size(), p.mutable_element_dt());
+  AppendValues(s.dt_tree, s.dt_tree.size(), p.mutable_dt_tree());
+  AppendValues(s.element_dt_at_spectral, s.element_dt_at_spectral.size(), p.mutable_element_dt_at_spectral());
+  if (s.cg_precond_step >= 0) {
+    AppendValues(s.cg_precond, 6 * static_cast<size_t>(model_.num_nodes()), p.mutable_cg_precond());
+  }
+  p.set_dt_leaves(s.dt_leaves);
+  p.set_dt_refreshed_step(s.dt_refreshed_step);
+  p.set_dt_topology_version(s.dt_topology_version);
+  p.set_dt_ratio(s.dt_ratio);
+  p.set_dt_spectral_step(s.dt_spectral_step);
+  p.set_dt_bound_at_spectral(s.dt_bound_at_spectral);
+  p.set_dt_element_drift(s.dt_element_drift);
+  p.set_dt_held(s.dt_held);
+  p.set_dt_grow_since(s.dt_grow_since);
+  p.set_dt_grow_delay(s.dt_grow_delay);
+  p.set_dt_last_grow_step(s.dt_last_grow_step);
+  p.set_dt_calm_refreshes(s.dt_calm_refreshes);
+  p.set_dt_trusted(s.dt_trusted);
+  p.set_dt_spectral_topology_version(s.dt_spectral_topology_version);
+  p.set_cg_precond_step(s.cg_precond_step);
+  p.set_cg_precond_dt(s.cg_precond_dt);
+  p.set_cg_precond_topology(s.cg_precond_topology);
+}
+
+template <typename T>
+void SceneFem<T>::Check(const v1::CheckpointBody& b, const PartCheck& check) const {
+  const std::string& src = check.source;
+  if (!b.has_fem_step()) FailPart(src, "fem_step", "missing: the checkpoint does not hold the step's state");
+  const v1::FemStepPart& p = b.fem_step();
+  const fem::State<T>& s = state_;
+  const size_t n = static_cast<size_t>(check.num_nodes);
+  CheckValues(p.viscous_dv(), 3 * n, true, src, "fem_step.viscous_dv");
+  CheckValues(p.element_dt(), s.element_dt.size(), false, src, "fem_step.element_dt");
+  CheckValues(p.dt_tree(), s.dt_tree.size(), false, src, "fem_step.dt_tree");
+  CheckValues(p.element_dt_at_spectral(), s.element_dt_at_spectral.size(), true, src,
+              "fem_step.element_dt_at_spectral");
+  CheckValues(p.cg_precond(), 6 * n, true, src, "fem_step.cg_precond");
+  if (p.dt_leaves() != s.dt_leaves) {
+    FailPart(src, "fem_step.dt_leaves", fmt::format("{}, this simulation has {}", p.dt_leaves(), s.dt_leaves));
+  }
+  for (const double v : {p.dt_ratio(), p.dt_bound_at_spectral(), p.dt_element_drift(), p.dt_held(), p.cg_precond_dt()}) {
+    if (!std::isfinite(v) || v < 0) FailPart(src, "fem_step", "a negative or non-finite step or ratio");
+  }
+  if (p.dt_grow_delay() < 0 || p.dt_calm_refreshes() < 0) {
+    FailPart(src, "fem_step", "negative step-growth counters");
+  }
+}
+
+template <typename T>
+void SceneFem<T>::Restore(const v1::CheckpointBody& b) {
+  fem::State<T>& s = state_;
+  CopyValues(b.positions(), s.x);
+  CopyValues(b.velocities(), s.v);
+  s.time = b.sim_time();
+  s.step = b.steps();
+  const v1::FemStepPart& p = b.fem_step();
+  CopyValues(p.viscous_dv(), s.viscous_dv);
+  CopyValues(p.element_dt(), s.element_dt);
+  CopyValues(p.dt_tree(), s.dt_tree);
+  if (p.element_dt_at_spectral_size() > 0) CopyValues(p.element_dt_at_spectral(), s.element_dt_at_spectral);
+  const bool has_precond = p.cg_precond_size() > 0;
+  if (has_precond) CopyValues(p.cg_precond(), s.cg_precond);
+  s.dt_refreshed_step = p.dt_refreshed_step();
+  s.dt_topology_version = p.dt_topology_version();
+  s.dt_ratio = p.dt_ratio();
+  s.dt_spectral_step = p.dt_spectral_step();
+  s.dt_bound_at_spectral = p.dt_bound_at_spectral();
+  s.dt_element_drift = p.dt_element_drift();
+  s.dt_held = p.dt_held();
+  s.dt_grow_since = p.dt_grow_since();
+  s.dt_grow_delay = p.dt_grow_delay();
+  s.dt_last_grow_step = p.dt_last_grow_step();
+  s.dt_calm_refreshes = p.dt_calm_refreshes();
+  s.dt_trusted = p.dt_trusted();
+  s.dt_spectral_topology_version = p.dt_spectral_topology_version();
+  // Without the preconditioner's values, it is rebuilt at the next step.
+  s.cg_precond_step = has_precond ? p.cg_precond_step() : -1;
+  s.cg_precond_dt = p.cg_precond_dt();
+  s.cg_precond_topology = p.cg_precond_topology();
 }
 
 template mesh::Tets TetsMatrix<float>(const fem::Model<float>&);

@@ -16,6 +16,7 @@
 #include "common/fem/state.h"
 #include "common/sim/prescribed_motion.h"
 #include "common/sim/scene_loader.h"
+#include "common/sim/stage.h"
 #include "common/sim/scene_mesh.h"
 #include "common/sim/types.h"
 
@@ -61,7 +62,7 @@ struct RestTolerances {
 /// double) and the options every step uses. Not movable: adapters hold
 /// references into the state.
 template <typename T>
-class SceneFem {
+class SceneFem final : public CheckpointedStage {
  public:
   /// Builds the model over `mesh` (materials, boundary conditions), picks
   /// threads and viscosity and checks a fixed step against the stable
@@ -91,6 +92,16 @@ class SceneFem {
   [[nodiscard]] double KineticEnergy() const;
   [[nodiscard]] double ResidualForce() const;
   [[nodiscard]] double MaxDisplacement() const;
+
+  // ---- checkpoint part (stage.h) -------------------------------------------
+  /// Time, step count, the live nodes' positions and velocities, and what
+  /// the next steps start from: the stable-step estimator's held step, its
+  /// per-element bounds and history, and the implicit viscous solve's warm
+  /// start and preconditioner. (Positions and velocities are checked with
+  /// the tissue, CheckCheckpointBody.)
+  void Save(v1::CheckpointBody& body) const override;
+  void Check(const v1::CheckpointBody& body, const PartCheck& check) const override;
+  void Restore(const v1::CheckpointBody& body) override;
 
  private:
   void ApplyBoundaryConditions(const LoadedScene& scene, const SceneMesh& mesh);

@@ -167,11 +167,13 @@ void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const T* x, const
 }
 
 template <typename T>
-void SessionMeter<T>::Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time) {
+void SessionMeter<T>::Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time,
+                              const Running& running) {
   metrics_ = metrics;
   series_.assign(series.begin(), series.begin() + static_cast<std::ptrdiff_t>(std::min(series.size(), kMaxForceSamples)));
-  last_force_ = 0.0;
-  have_tip_ = false;
+  last_force_ = running.last_force;
+  have_tip_ = running.have_tip;
+  last_tip_ = running.last_tip;
   last_sample_slot_ = static_cast<int64_t>(std::floor(sim_time / options_.sample_period + 1e-6));
   pieces_version_ = ~uint64_t{0};
 }

@@ -86,9 +86,18 @@ class SessionMeter {
   [[nodiscard]] const SessionMetrics& metrics() const { return metrics_; }
   /// The force on the tool at each sample, for the session report's plot.
   [[nodiscard]] const std::vector<ForceSample>& force_series() const { return series_; }
-  /// After a checkpoint restore: carries the session's measures and force
-  /// series on.
-  void Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time);
+  /// What the meter carries from one frame to the next besides the
+  /// measures: the tool's last tip (for the path length) and the last force.
+  struct Running {
+    bool have_tip = false;
+    Eigen::Vector3d last_tip = Eigen::Vector3d::Zero();  ///< m
+    double last_force = 0.0;                              ///< N
+  };
+  [[nodiscard]] Running running() const { return {have_tip_, last_tip_, last_force_}; }
+  /// After a checkpoint restore: carries the session's measures, force
+  /// series and running state on.
+  void Restore(const SessionMetrics& metrics, std::span<const ForceSample> series, double sim_time,
+               const Running& running);
 
  private:
   void UpdatePieces(const fem::Model<T>& model, const IncisionView& incision);

@@ -1,5 +1,6 @@
 #include "common/sim/simulation.h"
 
+#include <array>
 #include <cmath>
 #include <new>
 #include <optional>
@@ -15,6 +16,7 @@
 #include "common/core/log.h"
 #include "common/fem/integrator.h"
 #include "common/sim/checkpoint.h"
+#include "common/sim/checkpoint_part.h"
 #include "common/sim/cut_pipeline.h"
 #include "common/sim/dynamics.h"
 #include "common/sim/integrator_choice.h"
@@ -24,6 +26,7 @@
 #include "common/sim/scene_mesh.h"
 #include "common/sim/session_metrics.h"
 #include "common/sim/settle.h"
+#include "common/sim/stage.h"
 #include "common/sim/surface_tracker.h"
 #include "common/sim/tool_state.h"
 #include "cutsim/v1/checkpoint.pb.h"
@@ -162,22 +165,20 @@ class Engine final : public Simulation {
     WriteStateVtu(path, fem_.model(), fem_.state(), mesh_.mesh.regions, cuts_ ? &cuts_->cut_mesh() : nullptr);
   }
 
+  /// The engine's identity and frame count, then every stage's part.
   v1::CheckpointBody CheckpointState() const override {
-    CheckpointProgress progress{.frames = run_.frames};
-    if (cuts_) {
-      progress.cuts = cuts_->cuts();
-      progress.topology_version = cuts_->cut_mesh().version();
-      progress.events = cuts_->events();
+    v1::CheckpointBody body = MakeCheckpointBody(Identity(), run_.frames);
+    for (const CheckpointedStage* stage : Stages()) {
+      if (stage != nullptr) stage->Save(body);
     }
-    v1::CheckpointBody body = MakeCheckpointBody(Identity(), progress, fem_.state(), fem_.model().num_nodes());
-    *body.mutable_metrics() = meter_.metrics();
-    SeriesToProto(meter_.force_series(), ScoredCutPoints(), &body);
     return body;
   }
 
-  /// Checks everything first (CheckCheckpointBody), then replays the events
-  /// through the cut complex and the FEM as live cuts apply them, sets the
-  /// state and rebuilds the surface.
+  /// Checks everything first: the tissue (CheckCheckpointBody: identity,
+  /// events replayed on a copy of the cut complex, positions and
+  /// velocities), then every stage's part. Then replays the events through
+  /// the cut complex and the FEM as live cuts apply them, restores every
+  /// stage and rebuilds the surface.
   void RestoreCheckpointState(const v1::CheckpointBody& body, const std::string& source) override {
     const CheckpointIdentity identity = Identity();
     const fem::Model<T>& model = fem_.model();
@@ -189,19 +190,21 @@ class Engine final : public Simulation {
                              .num_tets = model.num_tets(),
                              .node_capacity = model.node_capacity(),
                              .fresh = run_.frames == 0 && (!cuts_ || cuts_->events().empty())});
-    const SessionMetrics metrics = SessionMetricsFromProto(body.metrics(), source);
-    const SessionSeries series = SeriesFromProto(body, source);
+    const PartCheck check{.source = source,
+                          .num_nodes = body.positions_size() / 3,
+                          .topology_version = body.topology_version()};
+    for (const CheckpointedStage* stage : Stages()) {
+      if (stage != nullptr) stage->Check(body, check);
+    }
     for (cutting::TopologyEvent& e : events) {
       ReplayEvent(cuts_->cut_mesh(), e);
       cuts_->ApplyRecordedEvent(std::move(e), Targets());
     }
-    RestoreFemState(body, fem_.state());
     run_.frames = body.frames();
-    if (cuts_) cuts_->set_cuts(body.cuts());
-    if (tool_) tool_->MoveToPath(sim_time());
+    for (CheckpointedStage* stage : Stages()) {
+      if (stage != nullptr) stage->Restore(body);
+    }
     RebuildSurface();
-    meter_.Restore(metrics, series.force, sim_time());
-    if (scorer_) scorer_->Restore(series.cut_points);
   }
 
   /// What Memo() copies: see SimulationMemo.
@@ -454,6 +457,54 @@ class Engine final : public Simulation {
             .initial_tets = mesh_.mesh.num_tets()};
   }
 
+  /// The session's measures and the incision's score as one stage: their
+  /// part is the metrics and the report's series (metrics_proto.h).
+  class MeasuresStage final : public CheckpointedStage {
+   public:
+    explicit MeasuresStage(Engine& engine) : e_(engine) {}
+    void Save(v1::CheckpointBody& body) const override {
+      *body.mutable_metrics() = e_.meter_.metrics();
+      SeriesToProto(e_.meter_.force_series(), e_.ScoredCutPoints(), &body);
+      const typename SessionMeter<T>::Running running = e_.meter_.running();
+      v1::MeterPart& p = *body.mutable_meter();
+      p.set_have_tip(running.have_tip);
+      Vec3ToProto(running.last_tip, p.mutable_last_tip());
+      p.set_last_force(running.last_force);
+    }
+    void Check(const v1::CheckpointBody& body, const PartCheck& check) const override {
+      (void)SessionMetricsFromProto(body.metrics(), check.source);
+      (void)SeriesFromProto(body, check.source);
+      (void)Vec3FromPart(body.meter().last_tip(), check.source, "meter.last_tip");
+      if (!std::isfinite(body.meter().last_force()) || body.meter().last_force() < 0) {
+        FailPart(check.source, "meter.last_force", "negative or not finite");
+      }
+    }
+    void Restore(const v1::CheckpointBody& body) override {
+      const SessionSeries series = SeriesFromProto(body, "");
+      const v1::MeterPart& p = body.meter();
+      e_.meter_.Restore(SessionMetricsFromProto(body.metrics(), ""), series.force, e_.sim_time(),
+                        {.have_tip = p.have_tip(),
+                         .last_tip = Vec3FromPart(p.last_tip(), "", ""),
+                         .last_force = p.last_force()});
+      if (e_.scorer_) e_.scorer_->Restore(series.cut_points);
+    }
+
+   private:
+    Engine& e_;
+  };
+
+  /// Every stage of the frame, in restore order (null: not in this scene).
+  /// A checkpoint is the list of their parts: a stage added to the frame
+  /// is added here and says what it persists (stage.h). The FEM comes
+  /// first (time and positions), the surface last (the engine rebuilds it
+  /// from the restored tissue).
+  std::array<CheckpointedStage*, 6> Stages() {
+    return {&fem_, &dynamics_, tool_ ? &*tool_ : nullptr, cuts_ ? &*cuts_ : nullptr, &measures_, &surface_};
+  }
+  std::array<const CheckpointedStage*, 6> Stages() const {
+    return {&fem_, &dynamics_, tool_ ? &*tool_ : nullptr, cuts_ ? &*cuts_ : nullptr, &measures_, &surface_};
+  }
+
   LoadedScene scene_;
   SceneMesh mesh_;
   SceneFem<T> fem_;
@@ -467,6 +518,7 @@ class Engine final : public Simulation {
   RunCounters run_;
   SessionMeter<T> meter_{{.threads = fem_.threads()}};
   std::optional<IncisionScorer> scorer_;  // with a planned incision
+  MeasuresStage measures_{*this};          // meter_ and scorer_'s checkpoint part
   const std::vector<CutStepTiming> no_timings_;
 };
 

@@ -19,11 +19,12 @@
 #include "common/mesh/bvh.h"
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/debris.h"
+#include "common/sim/stage.h"
 #include "common/sim/types.h"
 
 namespace cutsim::sim {
 
-class SurfaceTracker {
+class SurfaceTracker final : public CheckpointedStage {
  public:
   /// Debris: a piece cut loose that the blade passes through rather than
   /// flings with a force sized for the body. Small in mass and in elements:
@@ -77,6 +78,13 @@ class SurfaceTracker {
   [[nodiscard]] const std::vector<uint8_t>& opened() const { return opened_; }  ///< #S: slot opened by a cut
   [[nodiscard]] const std::vector<uint8_t>& debris_facets() const { return debris_facet_; }
   [[nodiscard]] const std::vector<uint8_t>& wall_nodes() const { return wall_node_; }
+
+  // ---- checkpoint part (stage.h): none -------------------------------------
+  /// Everything here follows from the cut complex and the positions: the
+  /// engine rebuilds it (Rebuild) once the other stages are restored.
+  void Save(v1::CheckpointBody& /*body*/) const override {}
+  void Check(const v1::CheckpointBody& /*body*/, const PartCheck& /*check*/) const override {}
+  void Restore(const v1::CheckpointBody& /*body*/) override {}
 
  private:
   void RebuildFromCut(cutting::CutMesh& cut);

@@ -6,7 +6,11 @@
 #include <limits>
 #include <utility>
 
+#include <fmt/format.h>
+
 #include "common/core/units.h"
+#include "common/sim/checkpoint_part.h"
+#include "cutsim/v1/checkpoint.pb.h"
 #include "common/mesh/surface.h"
 
 namespace cutsim::sim {
@@ -289,6 +293,129 @@ template <typename T>
 void ToolState<T>::EnterCut(const CutSweep& sweep) {
   in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
   sweeps_.push_back(sweep);
+}
+
+
+namespace {
+
+void PoseToProto(const ToolPose& pose, v1::CheckpointToolPose* out) {
+  Vec3ToProto(pose.tip, out->mutable_tip());
+  Vec3ToProto(pose.blade_dir, out->mutable_blade_dir());
+}
+
+ToolPose PoseFromPart(const v1::CheckpointToolPose& p, const std::string& source, const std::string& field) {
+  return {Vec3FromPart(p.tip(), source, field + ".tip"), Vec3FromPart(p.blade_dir(), source, field + ".blade_dir")};
+}
+
+void NodesToProto(const std::array<int32_t, 3>& nodes, google::protobuf::RepeatedField<int32_t>* out) {
+  out->Add(nodes.begin(), nodes.end());
+}
+
+std::array<int32_t, 3> NodesFromPart(const google::protobuf::RepeatedField<int32_t>& in) {
+  return {in[0], in[1], in[2]};
+}
+
+void CheckNodes(const google::protobuf::RepeatedField<int32_t>& nodes, int32_t num_nodes, const std::string& source,
+                const std::string& field) {
+  if (nodes.size() != 3) FailPart(source, field, fmt::format("{} nodes, expected 3", nodes.size()));
+  for (int k = 0; k < 3; ++k) CheckNodeOrNone(nodes[k], num_nodes, source, fmt::format("{}[{}]", field, k));
+}
+
+}  // namespace
+
+template <typename T>
+void ToolState<T>::Save(v1::CheckpointBody& body) const {
+  v1::ToolPart& p = *body.mutable_tool();
+  PoseToProto(pose_, p.mutable_pose());
+  if (external_pose_) PoseToProto(*external_pose_, p.mutable_external_pose());
+  p.set_touching(facet_.touching);
+  p.set_surface_tri(facet_.surface_tri);
+  NodesToProto(facet_.nodes, p.mutable_facet_nodes());
+  Vec3ToProto(facet_.bary, p.mutable_facet_bary());
+  Vec3ToProto(facet_.point, p.mutable_facet_point());
+  Vec3ToProto(facet_.normal, p.mutable_facet_normal());
+  p.set_facet_depth(facet_.depth);
+  p.set_closest_node(facet_.closest_node);
+  p.set_in_slit(facet_.in_slit);
+  p.set_on_cut(facet_.on_cut);
+  p.set_grip_active(grip_.active);
+  NodesToProto(grip_.nodes, p.mutable_grip_nodes());
+  Vec3ToProto(grip_.bary, p.mutable_grip_bary());
+  Vec3ToProto(grip_.offset, p.mutable_grip_offset());
+  Vec3ToProto(grip_.stretch, p.mutable_grip_stretch());
+  p.set_grip_topology_version(grip_.topology_version);
+  p.set_in_cut(in_cut_);
+  for (const CutSweep& s : sweeps_) {
+    v1::ToolPart::Sweep* out = p.add_sweeps();
+    Vec3ToProto(s.from, out->mutable_from());
+    Vec3ToProto(s.to, out->mutable_to());
+    Vec3ToProto(s.blade_dir, out->mutable_blade_dir());
+  }
+}
+
+template <typename T>
+void ToolState<T>::Check(const v1::CheckpointBody& body, const PartCheck& check) const {
+  const std::string& src = check.source;
+  if (!body.has_tool()) FailPart(src, "tool", "missing: the checkpoint does not hold the tool's state");
+  const v1::ToolPart& p = body.tool();
+  (void)PoseFromPart(p.pose(), src, "tool.pose");
+  if (p.has_external_pose()) (void)PoseFromPart(p.external_pose(), src, "tool.external_pose");
+  CheckNodes(p.facet_nodes(), check.num_nodes, src, "tool.facet_nodes");
+  CheckNodes(p.grip_nodes(), check.num_nodes, src, "tool.grip_nodes");
+  CheckNodeOrNone(p.closest_node(), check.num_nodes, src, "tool.closest_node");
+  if (p.surface_tri() < -1) FailPart(src, "tool.surface_tri", fmt::format("{} is negative", p.surface_tri()));
+  for (const auto& [v, field] : {std::pair{&p.facet_bary(), "tool.facet_bary"}, {&p.facet_point(), "tool.facet_point"},
+                                 {&p.facet_normal(), "tool.facet_normal"}, {&p.grip_bary(), "tool.grip_bary"},
+                                 {&p.grip_offset(), "tool.grip_offset"}, {&p.grip_stretch(), "tool.grip_stretch"}}) {
+    (void)Vec3FromPart(*v, src, field);
+  }
+  if (!std::isfinite(p.facet_depth())) FailPart(src, "tool.facet_depth", "not finite");
+  if (p.grip_topology_version() > check.topology_version) {
+    FailPart(src, "tool.grip_topology_version",
+             fmt::format("{} is past the tissue's version {}", p.grip_topology_version(), check.topology_version));
+  }
+  // One swept area per cut step since the blade entered the tissue.
+  if (static_cast<uint64_t>(p.sweeps_size()) > body.cuts()) {
+    FailPart(src, "tool.sweeps", fmt::format("{} swept areas, more than the {} cut steps", p.sweeps_size(), body.cuts()));
+  }
+  for (int i = 0; i < p.sweeps_size(); ++i) {
+    const std::string field = fmt::format("tool.sweeps[{}]", i);
+    (void)Vec3FromPart(p.sweeps(i).from(), src, field + ".from");
+    (void)Vec3FromPart(p.sweeps(i).to(), src, field + ".to");
+    (void)Vec3FromPart(p.sweeps(i).blade_dir(), src, field + ".blade_dir");
+  }
+}
+
+template <typename T>
+void ToolState<T>::Restore(const v1::CheckpointBody& body) {
+  const v1::ToolPart& p = body.tool();
+  const std::string none;  // checked before: nothing throws here
+  pose_ = PoseFromPart(p.pose(), none, "");
+  external_pose_.reset();
+  if (p.has_external_pose()) external_pose_ = PoseFromPart(p.external_pose(), none, "");
+  facet_.touching = p.touching();
+  facet_.surface_tri = p.surface_tri();
+  facet_.nodes = NodesFromPart(p.facet_nodes());
+  facet_.bary = Vec3FromPart(p.facet_bary(), none, "");
+  facet_.point = Vec3FromPart(p.facet_point(), none, "");
+  facet_.normal = Vec3FromPart(p.facet_normal(), none, "");
+  facet_.depth = p.facet_depth();
+  facet_.closest_node = p.closest_node();
+  facet_.in_slit = p.in_slit();
+  facet_.on_cut = p.on_cut();
+  grip_.active = p.grip_active();
+  grip_.nodes = NodesFromPart(p.grip_nodes());
+  grip_.bary = Vec3FromPart(p.grip_bary(), none, "");
+  grip_.offset = Vec3FromPart(p.grip_offset(), none, "");
+  grip_.stretch = Vec3FromPart(p.grip_stretch(), none, "");
+  grip_.topology_version = p.grip_topology_version();
+  in_cut_ = p.in_cut();
+  sweeps_.clear();
+  for (const v1::ToolPart::Sweep& s : p.sweeps()) {
+    sweeps_.push_back({Vec3FromPart(s.from(), none, ""), Vec3FromPart(s.to(), none, ""),
+                       Vec3FromPart(s.blade_dir(), none, "")});
+  }
+  applied_nodes_ = {-1, -1, -1};  // no contact force is on f_ext between frames
 }
 
 template class ToolState<float>;

@@ -22,6 +22,7 @@
 #include "common/mesh/tet_mesh.h"
 #include "common/sim/contact_stiffness.h"
 #include "common/sim/scene_loader.h"
+#include "common/sim/stage.h"
 #include "common/sim/surface_tracker.h"
 #include "common/sim/tool_contact.h"
 #include "common/sim/types.h"
@@ -29,7 +30,7 @@
 namespace cutsim::sim {
 
 template <typename T>
-class ToolState {
+class ToolState final : public CheckpointedStage {
  public:
   /// The scene's tool over the uncut `mesh`, its contact spring as stiff as
   /// one element of the model's first material (E·h̄) unless the scene
@@ -89,6 +90,14 @@ class ToolState {
   [[nodiscard]] const ContactFacet& facet() const { return facet_; }
   /// Pose, contact and force; the cut fields are the cut pipeline's.
   [[nodiscard]] const ToolReport& report() const { return report_; }
+
+  // ---- checkpoint part (stage.h) -------------------------------------------
+  /// The pose (and the external one, when driven from outside), the
+  /// contact facet, the grip and the in-cut state with its swept areas:
+  /// what the next frame's contact starts from.
+  void Save(v1::CheckpointBody& body) const override;
+  void Check(const v1::CheckpointBody& body, const PartCheck& check) const override;
+  void Restore(const v1::CheckpointBody& body) override;
 
  private:
   [[nodiscard]] ToolPose Sample(double t) const;

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "common/core/error.h"
+#include "common/core/hash.h"
 #include "common/sim/scene_loader.h"
 #include "common/sim/simulation.h"
 #include "tests/support/block_scene.h"
@@ -101,9 +102,8 @@ TEST_F(CheckpointTest, RoundTripRestoresTheCutTissueAndItsFuture) {
   EXPECT_EQ(m1.max_stress_outside(), m0.max_stress_outside());
   EXPECT_EQ(m1.stress_samples(), m0.stress_samples());
 
-  // The restored tissue goes on (the tool keeps cutting). Not bit-identical
-  // to the original's future: the cut tracker's anchor and the stable-step
-  // estimator restart, as after a real server restart.
+  // The restored tissue goes on (the tool keeps cutting); that it goes on
+  // exactly as the original does is ResumedMidCutContinuesExactly...'s.
   const uint64_t version = restored->topology_version();
   for (int i = 0; i < 30; ++i) ASSERT_EQ(restored->AdvanceFrame(), SimStatus::kOk);
   EXPECT_GE(restored->topology_version(), version);
@@ -115,6 +115,48 @@ TEST_F(CheckpointTest, RoundTripRestoresTheCutTissueAndItsFuture) {
   SaveCheckpoint(*restored, dir_ / "again.ckpt");
   const v1::CheckpointBody a = ReadCheckpointFile(dir_ / "again.ckpt");
   EXPECT_GE(a.events_size(), original.CheckpointState().events_size());
+}
+
+/// FNV-1a 64 of the observable mesh: world and rest positions, tets,
+/// surface and opened flags, bit for bit.
+uint64_t ViewHash(const Simulation& sim) {
+  MeshView v;
+  sim.FillMeshView(v);
+  uint64_t h = Fnv1a64(v.world.data(), static_cast<size_t>(v.world.size()) * sizeof(v.world(0, 0)));
+  h = Fnv1a64(v.rest.data(), static_cast<size_t>(v.rest.size()) * sizeof(v.rest(0, 0)), h);
+  h = Fnv1a64(v.tets.data(), static_cast<size_t>(v.tets.size()) * sizeof(v.tets(0, 0)), h);
+  h = Fnv1a64(v.surface.data(), static_cast<size_t>(v.surface.size()) * sizeof(v.surface(0, 0)), h);
+  return Fnv1a64(v.opened.data(), v.opened.size() * sizeof(v.opened[0]), h);
+}
+
+// A server stopped mid-cut (the blade in the tissue, gripping it, its cut
+// tracker anchored) and resumed from its checkpoint file continues exactly
+// as the one that was not stopped: every stage's state is in the file.
+TEST_F(CheckpointTest, ResumedMidCutContinuesExactlyAsTheUnstoppedRun) {
+  auto unstopped = Make(BlockScene());
+  while (unstopped->QuickSummary().cuts < 2 && unstopped->sim_time() < 0.8) {
+    ASSERT_EQ(unstopped->AdvanceFrame(), SimStatus::kOk);
+  }
+  // Two frames past a cut step: the blade is inside its own cut.
+  for (int i = 0; i < 2; ++i) ASSERT_EQ(unstopped->AdvanceFrame(), SimStatus::kOk);
+  ASSERT_GE(unstopped->QuickSummary().cuts, 2u);
+  ASSERT_TRUE(unstopped->Tool().touching) << "the blade should be in the tissue";
+  const auto file = dir_ / "mid-cut.ckpt";
+  SaveCheckpoint(*unstopped, file);
+
+  auto resumed = Make(BlockScene());
+  RestoreCheckpoint(*resumed, file);
+  ASSERT_EQ(ViewHash(*resumed), ViewHash(*unstopped));
+  const uint64_t cuts_at_stop = unstopped->QuickSummary().cuts;
+  for (int frame = 1; frame <= 30; ++frame) {
+    ASSERT_EQ(unstopped->AdvanceFrame(), SimStatus::kOk);
+    ASSERT_EQ(resumed->AdvanceFrame(), SimStatus::kOk);
+    ASSERT_EQ(ViewHash(*resumed), ViewHash(*unstopped)) << "the runs part at frame " << frame << " after the stop";
+    ASSERT_EQ(resumed->QuickSummary().cuts, unstopped->QuickSummary().cuts) << "frame " << frame;
+    ASSERT_EQ(resumed->Tool().force_on_tool, unstopped->Tool().force_on_tool) << "frame " << frame;
+  }
+  EXPECT_GT(unstopped->QuickSummary().cuts, cuts_at_stop) << "the comparison should span further cut steps";
+  EXPECT_EQ(resumed->Metrics().path_length, unstopped->Metrics().path_length);
 }
 
 TEST_F(CheckpointTest, UncutSceneRoundTrips) {
@@ -209,6 +251,47 @@ TEST_F(CheckpointTest, BadEventsAreRefusedBeforeAnythingIsApplied) {
     return dir_ / "ok.ckpt";
   }());
   ExpectSameTissue(original, *fresh);
+}
+
+TEST_F(CheckpointTest, BadStagePartsAndOldVersionsAreRefusedNamingTheField) {
+  const v1::CheckpointBody body = CutSim().CheckpointState();
+  ASSERT_TRUE(body.has_tool() && body.has_cut_attempt() && body.has_fem_step());
+  auto fresh = Make(BlockScene());
+  v1::CheckpointBody bad = body;
+  bad.mutable_tool()->set_grip_nodes(0, bad.initial_nodes() * 100);
+  WriteCheckpointFile(dir_ / "bad-grip.ckpt", bad);
+  InputError e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "bad-grip.ckpt"); });
+  EXPECT_EQ(e.source().field, "tool.grip_nodes[0]") << e.what();
+  EXPECT_EQ(fresh->topology_version(), 0u) << "nothing applied";
+
+  bad = body;
+  bad.clear_cut_attempt();
+  WriteCheckpointFile(dir_ / "no-anchor.ckpt", bad);
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "no-anchor.ckpt"); });
+  EXPECT_EQ(e.source().field, "cut_attempt") << e.what();
+
+  bad = body;
+  bad.mutable_fem_step()->mutable_element_dt()->RemoveLast();
+  WriteCheckpointFile(dir_ / "short-dt.ckpt", bad);
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, dir_ / "short-dt.ckpt"); });
+  EXPECT_EQ(e.source().field, "fem_step.element_dt") << e.what();
+  EXPECT_EQ(fresh->topology_version(), 0u);
+  EXPECT_EQ(fresh->sim_time(), 0.0);
+
+  // A file of format version 1 (before the stages' parts) is refused with
+  // both versions named.
+  v1::CheckpointFile old;
+  old.set_magic("cutsim-checkpoint");
+  old.set_format_version(1);
+  ASSERT_TRUE(body.SerializeToString(old.mutable_body()));
+  old.set_body_fnv1a64(Fnv1a64(old.body().data(), old.body().size()));
+  const auto old_path = dir_ / "v1.ckpt";
+  std::ofstream(old_path, std::ios::binary) << old.SerializeAsString();
+  e = ErrorOf([&] { RestoreCheckpoint(*fresh, old_path); });
+  EXPECT_EQ(e.source().file, old_path.string());
+  EXPECT_EQ(e.source().field, "format_version") << e.what();
+  EXPECT_NE(std::string(e.what()).find("version 1"), std::string::npos) << e.what();
+  EXPECT_NE(std::string(e.what()).find("version 2"), std::string::npos) << e.what();
 }
 
 TEST_F(CheckpointTest, HugeVersionsAndTimesAreRefusedWithoutReplayingThem) {
