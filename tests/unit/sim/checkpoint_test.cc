@@ -156,7 +156,7 @@ TEST_F(CheckpointTest, ResumedMidCutContinuesExactlyAsTheUnstoppedRun) {
     ASSERT_EQ(resumed->Tool().force_on_tool, unstopped->Tool().force_on_tool) << "frame " << frame;
   }
   EXPECT_GT(unstopped->QuickSummary().cuts, cuts_at_stop) << "the comparison should span further cut steps";
-  EXPECT_EQ(resumed->Metrics().path_length, unstopped->Metrics().path_length);
+  EXPECT_EQ(resumed->Metrics().path_length(), unstopped->Metrics().path_length());
 }
 
 TEST_F(CheckpointTest, UncutSceneRoundTrips) {
