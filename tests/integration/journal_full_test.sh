@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # A disk that fills during a session fails the event journal loudly: a
 # headless run cuts the block with its checkpoint (and so its journal) on a
-# 128 KiB tmpfs, mounted in a private mount namespace, that a filler file
+# 512 KiB tmpfs, mounted in a private mount namespace, that a filler file
 # leaves one page of. The journal's writes fail with ENOSPC once its records
 # pass that page: the error names the journal, the summary counts the
 # failures, and, with the filler removed as soon as the error is logged (so
@@ -29,7 +29,7 @@ src="$(cd "$(dirname "$0")/../.." && pwd)"
 work="$(mktemp -d /tmp/cutsim-journal-full.XXXXXX)"
 trap 'umount "$work/full" "$work/roomy" 2>/dev/null; rm -rf "$work"' EXIT
 mkdir -p "$work/full" "$work/roomy"
-if ! mount -t tmpfs -o size=128k cutsim-full "$work/full" || ! mount -t tmpfs -o size=4m cutsim-roomy "$work/roomy"; then
+if ! mount -t tmpfs -o size=512k cutsim-full "$work/full" || ! mount -t tmpfs -o size=4m cutsim-roomy "$work/roomy"; then
   echo "journal_full_test: cannot mount a tmpfs here; skipping" >&2
   exit 77
 fi
@@ -50,7 +50,7 @@ else
 fi
 
 # One free page left.
-dd if=/dev/zero of="$work/full/filler" bs=4k count=31 status=none 2>/dev/null
+dd if=/dev/zero of="$work/full/filler" bs=4k count=127 status=none 2>/dev/null
 "${server[@]}" --checkpoint "$work/full/block.ckpt" >"$work/full.json" 2>"$work/full.err" &
 pid=$!
 # Room again once the journal has failed: the final checkpoint is written,
