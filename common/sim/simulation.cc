@@ -190,9 +190,7 @@ class Engine final : public Simulation {
                              .num_tets = model.num_tets(),
                              .node_capacity = model.node_capacity(),
                              .fresh = run_.frames == 0 && (!cuts_ || cuts_->events().empty())});
-    const PartCheck check{.source = source,
-                          .num_nodes = body.positions_size() / 3,
-                          .topology_version = body.topology_version()};
+    const PartCheck check{.source = source, .num_nodes = body.positions_size() / 3};
     for (const CheckpointedStage* stage : Stages()) {
       if (stage != nullptr) stage->Check(body, check);
     }

@@ -25,7 +25,6 @@ namespace cutsim::sim {
 struct PartCheck {
   const std::string& source;  ///< the checkpoint file, for errors
   int32_t num_nodes = 0;      ///< nodes after the body's events
-  uint64_t topology_version = 0;  ///< the body's
 };
 
 class CheckpointedStage {
