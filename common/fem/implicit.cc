@@ -11,6 +11,7 @@
 
 #include "common/core/clock.h"
 #include "common/core/hash.h"
+#include "common/core/headroom.h"
 #include "common/fem/implicit_internal.h"
 #include "common/fem/node_sums.h"
 
@@ -115,29 +116,29 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
     system_.Build(model);
     const auto nd = static_cast<size_t>(system_.num_dofs());
     const auto nnz = static_cast<size_t>(system_.nnz());
-    b_values_.assign(nnz, 0.0);
-    a_values_.assign(nnz, 0.0);
-    k_values_.assign(nnz, 0.0);
+    AssignWithHeadroom(b_values_, nnz, 0.0);
+    AssignWithHeadroom(a_values_, nnz, 0.0);
+    AssignWithHeadroom(k_values_, nnz, 0.0);
     for (auto* v : {&x0_, &v0_, &v_, &v_try_, &x_, &force_, &node_force_, &residual_, &residual_try_,
                     &bv_, &dir_, &rhs_}) {
-      v->assign(nd, 0.0);
+      AssignWithHeadroom(*v, nd, 0.0);
     }
-    compliance_z_.assign(3 * kComplianceBlocks * nd, 0.0);
-    compliance_q_.assign(3 * kComplianceBlocks * nd, 0.0);
-    compliance_r_.assign(3 * nd, 0.0);
-    tet_energy_.assign(static_cast<size_t>(system_.num_tets()), 0.0);
-    active_.assign(static_cast<size_t>(system_.num_nodes()), 0);
+    AssignWithHeadroom(compliance_z_, 3 * kComplianceBlocks * nd, 0.0);
+    AssignWithHeadroom(compliance_q_, 3 * kComplianceBlocks * nd, 0.0);
+    AssignWithHeadroom(compliance_r_, 3 * nd, 0.0);
+    AssignWithHeadroom(tet_energy_, static_cast<size_t>(system_.num_tets()), 0.0);
+    AssignWithHeadroom(active_, static_cast<size_t>(system_.num_nodes()), uint8_t{0});
     extra_.clear();
     extra_.reserve(kExtraBlockReserve);
     nodal_pressure_ = model.element() == ElementKind::kNodalPressure;
     if (nodal_pressure_) {
-      volume_grad_.assign(12 * static_cast<size_t>(system_.num_tets()), 0.0);
+      AssignWithHeadroom(volume_grad_, 12 * static_cast<size_t>(system_.num_tets()), 0.0);
       for (auto* v : {&node_volume_now_, &node_pressure_, &patch_curvature_, &patch_slope_}) {
-        v->assign(static_cast<size_t>(system_.num_nodes()), 0.0);
+        AssignWithHeadroom(*v, static_cast<size_t>(system_.num_nodes()), 0.0);
       }
       LumpPatchTerm(model);
     }
-    factor_values_.assign(nnz, 0.0);
+    AssignWithHeadroom(factor_values_, nnz, 0.0);
     solver_.Resize(system_);
     have_k_ = false;
     b_values_valid_ = false;

@@ -17,6 +17,7 @@
 #include <Eigen/LU>
 
 #include "common/core/clock.h"
+#include "common/core/headroom.h"
 #include "common/fem/node_sums.h"
 
 namespace cutsim::fem {
@@ -140,12 +141,12 @@ LinearSolver::~LinearSolver() {
 
 void LinearSolver::Resize(const SparseSystem& system) {
   const auto nd = static_cast<size_t>(system.num_dofs());
-  r_.resize(nd);
-  z_.resize(nd);
-  z_prev_.resize(nd);
-  p_.resize(nd);
-  q_.resize(nd);
-  jacobi_.resize(3 * nd);
+  ResizeWithHeadroom(r_, nd);
+  ResizeWithHeadroom(z_, nd);
+  ResizeWithHeadroom(z_prev_, nd);
+  ResizeWithHeadroom(p_, nd);
+  ResizeWithHeadroom(q_, nd);
+  ResizeWithHeadroom(jacobi_, 3 * nd);
 }
 
 bool LinearSolver::RequestFactor(const SparseSystem& system, const double* values) {

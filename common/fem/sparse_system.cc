@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cstddef>
 #include <span>
 #include <vector>
+
+#include "common/core/headroom.h"
 
 namespace cutsim::fem {
 
@@ -13,34 +16,44 @@ namespace {
 std::atomic<int64_t> g_next_pattern_id{0};
 
 /// Greedy colouring of the chunks: each takes the smallest colour none of
-/// its nodes has yet, in chunk order (deterministic). Returns per-chunk
-/// colours.
+/// its nodes has yet, in chunk order (deterministic). A node's colours are
+/// a bit set of `words` 64-bit words; when a chunk finds every colour of
+/// the set taken, the colouring restarts with twice the words. Returns
+/// per-chunk colours.
 std::vector<int32_t> ColorChunks(const Model<double>& model, int32_t chunk, int32_t* num_colors) {
   const int32_t nt = model.num_tets();
   const int32_t num_chunks = (nt + chunk - 1) / chunk;
-  std::vector<std::vector<int32_t>> node_colors(static_cast<size_t>(model.num_nodes()));
   std::vector<int32_t> color(static_cast<size_t>(num_chunks), 0);
-  std::vector<uint8_t> taken;
-  std::vector<int32_t> nodes;
-  *num_colors = 0;
-  for (int32_t k = 0; k < num_chunks; ++k) {
-    nodes.clear();
-    for (int32_t t = k * chunk; t < std::min(nt, (k + 1) * chunk); ++t) {
-      for (int c = 0; c < 4; ++c) nodes.push_back(model.tet_node(t, c));
+  for (size_t words = 1;; words *= 2) {
+    std::vector<uint64_t> used(words * static_cast<size_t>(model.num_nodes()), 0);
+    std::vector<uint64_t> taken(words);
+    bool fits = true;
+    *num_colors = 0;
+    for (int32_t k = 0; k < num_chunks && fits; ++k) {
+      const int32_t first = k * chunk, last = std::min(nt, (k + 1) * chunk);
+      std::fill(taken.begin(), taken.end(), 0);
+      for (int32_t t = first; t < last; ++t) {
+        for (int c = 0; c < 4; ++c) {
+          const uint64_t* u = used.data() + words * static_cast<size_t>(model.tet_node(t, c));
+          for (size_t w = 0; w < words; ++w) taken[w] |= u[w];
+        }
+      }
+      size_t w = 0;
+      while (w < words && taken[w] == ~uint64_t{0}) ++w;
+      if (w == words) {
+        fits = false;
+        break;
+      }
+      const int bit = std::countr_one(taken[w]);
+      const int32_t c = static_cast<int32_t>(64 * w) + bit;
+      color[static_cast<size_t>(k)] = c;
+      *num_colors = std::max(*num_colors, c + 1);
+      for (int32_t t = first; t < last; ++t) {
+        for (int q = 0; q < 4; ++q) used[words * static_cast<size_t>(model.tet_node(t, q)) + w] |= uint64_t{1} << bit;
+      }
     }
-    std::sort(nodes.begin(), nodes.end());
-    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
-    taken.assign(static_cast<size_t>(*num_colors) + 1, 0);
-    for (const int32_t n : nodes) {
-      for (const int32_t c : node_colors[static_cast<size_t>(n)]) taken[static_cast<size_t>(c)] = 1;
-    }
-    int32_t c = 0;
-    while (taken[static_cast<size_t>(c)] != 0) ++c;
-    color[static_cast<size_t>(k)] = c;
-    *num_colors = std::max(*num_colors, c + 1);
-    for (const int32_t n : nodes) node_colors[static_cast<size_t>(n)].push_back(c);
+    if (fits) return color;
   }
-  return color;
 }
 
 }  // namespace
@@ -48,72 +61,79 @@ std::vector<int32_t> ColorChunks(const Model<double>& model, int32_t chunk, int3
 void SparseSystem::Build(const Model<double>& model) {
   const int32_t nn = model.num_nodes();
   const int32_t nt = model.num_tets();
-  // Neighbour lists in one flat array (no list per node): every node is its
-  // own neighbour (the diagonal block) and each tet adds its 12 ordered
-  // pairs; then each node's list is sorted and made unique in place.
-  std::vector<int32_t> start(static_cast<size_t>(nn) + 1, 0);
-  for (int32_t n = 0; n < nn; ++n) start[static_cast<size_t>(n) + 1] = 1;
-  for (int32_t t = 0; t < nt; ++t) {
-    for (int i = 0; i < 4; ++i) start[static_cast<size_t>(model.tet_node(t, i)) + 1] += 3;
-  }
-  for (int32_t n = 0; n < nn; ++n) start[static_cast<size_t>(n) + 1] += start[static_cast<size_t>(n)];
-  std::vector<int32_t> flat(static_cast<size_t>(start.back()));
-  std::vector<int32_t> fill(start.begin(), start.end() - 1);
-  for (int32_t n = 0; n < nn; ++n) flat[static_cast<size_t>(fill[static_cast<size_t>(n)]++)] = n;
-  for (int32_t t = 0; t < nt; ++t) {
-    for (int i = 0; i < 4; ++i) {
-      for (int j = 0; j < 4; ++j) {
-        if (i != j) flat[static_cast<size_t>(fill[static_cast<size_t>(model.tet_node(t, j))]++)] = model.tet_node(t, i);
+  const int32_t* slots = model.incidence_slots();
+  // Node b's column: itself and every corner of its incident tets, found
+  // through the model's incidence (slot = 12·t + 3·corner) with a stamp per
+  // node, then sorted. A first pass counts each column's blocks.
+  std::vector<int32_t> stamp(static_cast<size_t>(nn), -1);
+  std::vector<int32_t> column;
+  auto gather = [&](int32_t b) {
+    column.clear();
+    column.push_back(b);
+    stamp[static_cast<size_t>(b)] = b;
+    for (int32_t k = model.incidence_begin(b); k < model.incidence_end(b); ++k) {
+      const int32_t t = slots[k] / 12;
+      for (int i = 0; i < 4; ++i) {
+        const int32_t a = model.tet_node(t, i);
+        if (stamp[static_cast<size_t>(a)] == b) continue;
+        stamp[static_cast<size_t>(a)] = b;
+        column.push_back(a);
       }
     }
-  }
-  block_ptr_.assign(static_cast<size_t>(nn) + 1, 0);
+  };
+  ResizeWithHeadroom(block_ptr_, static_cast<size_t>(nn) + 1);
+  block_ptr_[0] = 0;
   for (int32_t b = 0; b < nn; ++b) {
-    const auto first = flat.begin() + start[static_cast<size_t>(b)];
-    const auto last = flat.begin() + start[static_cast<size_t>(b) + 1];
-    std::sort(first, last);
-    const auto end = std::unique(first, last);
-    block_ptr_[static_cast<size_t>(b) + 1] = block_ptr_[static_cast<size_t>(b)] + static_cast<int32_t>(end - first);
+    gather(b);
+    block_ptr_[static_cast<size_t>(b) + 1] = block_ptr_[static_cast<size_t>(b)] + static_cast<int32_t>(column.size());
   }
-  block_row_.resize(static_cast<size_t>(block_ptr_.back()));
-  col_ptr_.assign(static_cast<size_t>(3 * nn) + 1, 0);
-  row_index_.resize(9 * block_row_.size());
-  diag_offset_.resize(static_cast<size_t>(nn));
+  ResizeWithHeadroom(block_row_, static_cast<size_t>(block_ptr_.back()));
+  ResizeWithHeadroom(col_ptr_, static_cast<size_t>(3 * nn) + 1);
+  ResizeWithHeadroom(row_index_, 9 * block_row_.size());
+  ResizeWithHeadroom(diag_offset_, static_cast<size_t>(nn));
+  ResizeWithHeadroom(tet_block_, 16 * static_cast<size_t>(nt));
+  // The second pass writes the sorted column, its scalar rows, and, with
+  // each row node's place in the column (`place`), the column's blocks of
+  // every incident tet: assembly's offsets without a search.
+  std::fill(stamp.begin(), stamp.end(), -1);
+  std::vector<int32_t> place(static_cast<size_t>(nn), 0);
   for (int32_t b = 0; b < nn; ++b) {
-    const int32_t deg = block_ptr_[static_cast<size_t>(b) + 1] - block_ptr_[static_cast<size_t>(b)];
-    const std::span<const int32_t> l(flat.data() + start[static_cast<size_t>(b)], static_cast<size_t>(deg));
+    gather(b);
+    std::sort(column.begin(), column.end());
+    const auto deg = static_cast<int32_t>(column.size());
     const int32_t base = 9 * block_ptr_[static_cast<size_t>(b)];
-    std::copy(l.begin(), l.end(), block_row_.begin() + block_ptr_[static_cast<size_t>(b)]);
+    std::copy(column.begin(), column.end(), block_row_.begin() + block_ptr_[static_cast<size_t>(b)]);
     for (int c = 0; c < 3; ++c) {
       const int32_t col_begin = base + 3 * c * deg;
       col_ptr_[static_cast<size_t>(3 * b + c)] = col_begin;
       for (int32_t k = 0; k < deg; ++k) {
-        for (int r = 0; r < 3; ++r) row_index_[static_cast<size_t>(col_begin + 3 * k + r)] = 3 * l[static_cast<size_t>(k)] + r;
+        for (int r = 0; r < 3; ++r) {
+          row_index_[static_cast<size_t>(col_begin + 3 * k + r)] = 3 * column[static_cast<size_t>(k)] + r;
+        }
       }
     }
-    const auto it = std::lower_bound(l.begin(), l.end(), b);
-    diag_offset_[static_cast<size_t>(b)] = base + 3 * static_cast<int32_t>(it - l.begin());
+    for (int32_t k = 0; k < deg; ++k) place[static_cast<size_t>(column[static_cast<size_t>(k)])] = k;
+    diag_offset_[static_cast<size_t>(b)] = base + 3 * place[static_cast<size_t>(b)];
+    for (int32_t k = model.incidence_begin(b); k < model.incidence_end(b); ++k) {
+      const int32_t t = slots[k] / 12;
+      const int32_t j = (slots[k] % 12) / 3;  // b is corner j of t
+      for (int i = 0; i < 4; ++i) {
+        tet_block_[16 * static_cast<size_t>(t) + static_cast<size_t>(4 * i + j)] =
+            base + 3 * place[static_cast<size_t>(model.tet_node(t, i))];
+      }
+    }
   }
   col_ptr_[static_cast<size_t>(3 * nn)] = static_cast<int32_t>(row_index_.size());
   num_nodes_ = nn;
   num_tets_ = nt;
 
-  tet_block_.resize(16 * static_cast<size_t>(nt));
-  for (int32_t t = 0; t < nt; ++t) {
-    for (int i = 0; i < 4; ++i) {
-      for (int j = 0; j < 4; ++j) {
-        tet_block_[16 * static_cast<size_t>(t) + static_cast<size_t>(4 * i + j)] =
-            FindBlock(model.tet_node(t, i), model.tet_node(t, j));
-      }
-    }
-  }
-
   int32_t num_colors = 0;
   const std::vector<int32_t> color = ColorChunks(model, kChunk, &num_colors);
-  color_ptr_.assign(static_cast<size_t>(num_colors) + 1, 0);
+  ResizeWithHeadroom(color_ptr_, static_cast<size_t>(num_colors) + 1);
+  std::fill(color_ptr_.begin(), color_ptr_.end(), 0);
   for (const int32_t c : color) ++color_ptr_[static_cast<size_t>(c) + 1];
   for (int32_t c = 0; c < num_colors; ++c) color_ptr_[static_cast<size_t>(c) + 1] += color_ptr_[static_cast<size_t>(c)];
-  color_chunks_.resize(color.size());
+  ResizeWithHeadroom(color_chunks_, color.size());
   std::vector<int32_t> next(color_ptr_.begin(), color_ptr_.end() - 1);
   for (size_t k = 0; k < color.size(); ++k) {
     color_chunks_[static_cast<size_t>(next[static_cast<size_t>(color[k])]++)] = static_cast<int32_t>(k);

@@ -32,7 +32,9 @@ class SparseSystem {
   SparseSystem() = default;
 
   /// Builds the pattern, the per-tet block offsets and the tet colouring
-  /// for the model's current nodes and tets. Allocates.
+  /// for the model's current nodes and tets, in one pass over the model's
+  /// node → tet incidence (no search per tet pair). Allocates when the
+  /// model grew beyond the headroom of the last build (core/headroom.h).
   void Build(const Model<double>& model);
 
   /// True if Build has not run for the model's current topology version and

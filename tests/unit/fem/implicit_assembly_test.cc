@@ -4,6 +4,9 @@
 // determinism of assembly, and the linear solver with a stale factor.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+#include <numbers>
 #include <random>
 #include <vector>
 
@@ -205,6 +208,108 @@ TEST(SparseSystemPattern, BlocksAreSymmetricAndColoursDisjoint) {
     }
   }
   for (const int n : tet_seen) EXPECT_EQ(n, 1);
+}
+
+/// Every node's column as an independent reference: the node itself and
+/// every node it shares a tet with, ascending.
+std::vector<std::vector<int32_t>> ReferenceColumns(const Model<double>& model) {
+  std::vector<std::vector<int32_t>> cols(static_cast<size_t>(model.num_nodes()));
+  for (int32_t n = 0; n < model.num_nodes(); ++n) cols[static_cast<size_t>(n)].push_back(n);
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    for (int i = 0; i < 4; ++i) {
+      for (int j = 0; j < 4; ++j) cols[static_cast<size_t>(model.tet_node(t, j))].push_back(model.tet_node(t, i));
+    }
+  }
+  for (auto& c : cols) {
+    std::sort(c.begin(), c.end());
+    c.erase(std::unique(c.begin(), c.end()), c.end());
+  }
+  return cols;
+}
+
+void ExpectPatternOf(const SparseSystem& sys, const Model<double>& model) {
+  const auto cols = ReferenceColumns(model);
+  ASSERT_EQ(sys.num_nodes(), model.num_nodes());
+  for (int32_t b = 0; b < model.num_nodes(); ++b) {
+    const auto& ref = cols[static_cast<size_t>(b)];
+    for (int c = 0; c < 3; ++c) {
+      const int32_t begin = sys.col_ptr()[3 * b + c], end = sys.col_ptr()[3 * b + c + 1];
+      ASSERT_EQ(end - begin, 3 * static_cast<int32_t>(ref.size())) << "node " << b;
+      for (size_t k = 0; k < ref.size(); ++k) {
+        for (int r = 0; r < 3; ++r) EXPECT_EQ(sys.row_index()[begin + 3 * static_cast<int32_t>(k) + r], 3 * ref[k] + r);
+      }
+    }
+    EXPECT_EQ(sys.diagonal_block(b), sys.FindBlock(b, b));
+  }
+  for (int32_t t = 0; t < model.num_tets(); ++t) {
+    for (int i = 0; i < 4; ++i) {
+      for (int j = 0; j < 4; ++j) {
+        EXPECT_EQ(sys.tet_blocks(t)[4 * i + j], sys.FindBlock(model.tet_node(t, i), model.tet_node(t, j)));
+      }
+    }
+  }
+}
+
+// The pattern is built from the model's incidence, which a cut edits in
+// place (a retargeted tet's slot moves to the end of the slot array): after
+// cuts, the rebuilt pattern is still exactly the tets' node pairs.
+TEST(SparseSystemPattern, EqualsTheTetPairsAfterCuts) {
+  Model<double> model = testing::MakeCantilever(16, 0.16, 3e4, true, 0, 0, 8);
+  State<double> state(model);
+  SparseSystem sys;
+  sys.Build(model);
+  ExpectPatternOf(sys, model);
+  std::vector<int32_t> incident;
+  for (const int32_t node : {20, 31, 40, 47}) {
+    // Split the node: tets whose centroid lies beyond it in x move to a copy.
+    const int32_t copy = model.AddNodeCopy(node, state);
+    const int32_t one[1] = {node};
+    model.IncidentTets(one, incident);
+    const double x0 = model.rest_position(node)(0);
+    std::vector<int32_t> moved;
+    for (const int32_t t : incident) {
+      double cx = 0;
+      for (int k = 0; k < 4; ++k) cx += 0.25 * model.rest_position(model.tet_node(t, k))(0);
+      if (cx <= x0) continue;
+      for (int k = 0; k < 4; ++k) {
+        if (model.tet_node(t, k) == node) model.RetargetTet(t, k, copy);
+      }
+      moved.push_back(t);
+    }
+    ASSERT_FALSE(moved.empty());
+    model.RecomputeElements(moved);
+    const int32_t both[2] = {node, copy};
+    model.RecomputeNodeMasses(both);
+    model.CommitTopology();
+    ASSERT_TRUE(sys.Stale(model));
+    sys.Build(model);
+    ExpectPatternOf(sys, model);
+  }
+}
+
+// A node shared by more chunks than one 64-bit word of colours holds (a
+// fan of 5 000 tets around one hub: every chunk needs its own colour):
+// the colouring widens its sets and stays disjoint.
+TEST(SparseSystemPattern, ColoursBeyondSixtyFour) {
+  constexpr int kFan = 5000;
+  mesh::TetMesh fan;
+  fan.nodes.resize(1 + 2 * kFan, 3);
+  fan.nodes.row(0) << 0, 0, 0;
+  for (int i = 0; i < kFan; ++i) {
+    const double a = 2 * std::numbers::pi * i / kFan;
+    fan.nodes.row(1 + i) << std::cos(a), std::sin(a), 0;
+    fan.nodes.row(1 + kFan + i) << 0.5 * std::cos(a), 0.5 * std::sin(a), 1;
+  }
+  fan.tets.resize(kFan, 4);
+  for (int i = 0; i < kFan; ++i) fan.tets.row(i) << 0, 1 + i, 1 + (i + 1) % kFan, 1 + kFan + i;
+  const Material mat = Material::FromYoungPoisson(3e4, 0.45, 1000.0);
+  const Model<double> model(fan, std::span(&mat, 1), ModelOptions{});
+  SparseSystem sys;
+  sys.Build(model);
+  const int32_t chunks = (kFan + SparseSystem::kChunk - 1) / SparseSystem::kChunk;
+  EXPECT_EQ(sys.num_colors(), chunks);
+  EXPECT_GT(sys.num_colors(), 64);
+  ExpectPatternOf(sys, model);
 }
 
 /// SPD test matrix on a model's pattern: M/h² + K at rest, identity rows on
