@@ -164,7 +164,7 @@ bool LinearSolver::RequestFactor(const SparseSystem& system, const double* value
       s.topology_version = system.topology_version();
       s.pattern_id = system.pattern_id();
     }
-    s.values.resize(static_cast<size_t>(system.nnz()));
+    ResizeWithHeadroom(s.values, static_cast<size_t>(system.nnz()));
     std::copy(values, values + system.nnz(), s.values.begin());
     ++stats_.requested;
     s.request = ++requests_;
