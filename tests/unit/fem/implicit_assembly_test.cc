@@ -259,28 +259,9 @@ TEST(SparseSystemPattern, EqualsTheTetPairsAfterCuts) {
   SparseSystem sys;
   sys.Build(model);
   ExpectPatternOf(sys, model);
-  std::vector<int32_t> incident;
   for (const int32_t node : {20, 31, 40, 47}) {
-    // Split the node: tets whose centroid lies beyond it in x move to a copy.
-    const int32_t copy = model.AddNodeCopy(node, state);
-    const int32_t one[1] = {node};
-    model.IncidentTets(one, incident);
     const double x0 = model.rest_position(node)(0);
-    std::vector<int32_t> moved;
-    for (const int32_t t : incident) {
-      double cx = 0;
-      for (int k = 0; k < 4; ++k) cx += 0.25 * model.rest_position(model.tet_node(t, k))(0);
-      if (cx <= x0) continue;
-      for (int k = 0; k < 4; ++k) {
-        if (model.tet_node(t, k) == node) model.RetargetTet(t, k, copy);
-      }
-      moved.push_back(t);
-    }
-    ASSERT_FALSE(moved.empty());
-    model.RecomputeElements(moved);
-    const int32_t both[2] = {node, copy};
-    model.RecomputeNodeMasses(both);
-    model.CommitTopology();
+    ASSERT_GT(testing::SplitNodeAsACut(model, state, node, [&](const Vec3<double>& c) { return c(0) > x0; }), 0);
     ASSERT_TRUE(sys.Stale(model));
     sys.Build(model);
     ExpectPatternOf(sys, model);
