@@ -9,7 +9,15 @@
 #include <atomic>
 #include <cstddef>
 
-#if !defined(__SANITIZE_ADDRESS__) && defined(__GLIBC__)
+// GCC names AddressSanitizer with a macro, clang with a feature test.
+#if defined(__SANITIZE_ADDRESS__)
+#define CUTSIM_MALLOC_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define CUTSIM_MALLOC_SANITIZED 1
+#endif
+#endif
+#if !defined(CUTSIM_MALLOC_SANITIZED) && defined(__GLIBC__)
 #define CUTSIM_COUNT_MALLOC 1
 #endif
 

@@ -57,7 +57,7 @@ TEST_F(InputFileTest, RefusesDevicesDirectoriesAndMissingFilesNamingThem) {
   for (const auto& [path, kind] : {std::pair{std::string("/dev/zero"), "character device"},
                                    std::pair{dir_.string(), "directory"},
                                    std::pair{(dir_ / "missing").string(), "No such file"}}) {
-    const std::string what = ErrorOf([&] { (void)ReadInputFile(path, "scene file"); });
+    const std::string what = ErrorOf([&, &path = path] { (void)ReadInputFile(path, "scene file"); });
     EXPECT_NE(what.find(path), std::string::npos) << what;
     EXPECT_NE(what.find("scene file"), std::string::npos) << what;
     EXPECT_NE(what.find(kind), std::string::npos) << what;
@@ -88,7 +88,7 @@ TEST_F(InputFileTest, OutputPathsAreCheckedBeforeTheWork) {
   for (const auto& [path, kind] : {std::pair{std::string("/dev/null"), "character device"},
                                    std::pair{std::string("/dev/full"), "character device"},
                                    std::pair{dir_.string(), "directory"}}) {
-    const std::string e = ErrorOf([&] { CheckOutputPath(path, "final state (--out)"); });
+    const std::string e = ErrorOf([&, &path = path] { CheckOutputPath(path, "final state (--out)"); });
     EXPECT_NE(e.find(kind), std::string::npos) << e;
     EXPECT_NE(e.find("--out"), std::string::npos) << e;
     EXPECT_NE(e.find(path), std::string::npos) << e;

@@ -101,7 +101,7 @@ TEST_F(LcmLogTest, ALengthPastTheEndIsATruncatedTail) {
 
 TEST_F(LcmLogTest, NonRegularFilesAreRefused) {
   EXPECT_THROW(LcmLogReader("/dev/zero"), InputError);
-  EXPECT_THROW(LcmLogReader(std::filesystem::temp_directory_path()), InputError);
+  EXPECT_THROW(LcmLogReader{std::filesystem::temp_directory_path()}, InputError);
 }
 
 TEST_F(LcmLogTest, WritesToAFullDeviceFailLoudly) {
