@@ -46,8 +46,8 @@ packages=(
   libboost-dev chromium
   # video frames from the viewer (optional at run time; tests of the encoder use it)
   ffmpeg
-  # tests and benchmarks; clang builds the sanitizer suite and the libFuzzer
-  # targets (asan preset), with its sanitizer runtimes and its OpenMP runtime
+  # tests and benchmarks; clang builds the libFuzzer targets (tests/fuzz),
+  # which need its sanitizer and fuzzer runtimes and its OpenMP runtime
   libgtest-dev libgmock-dev libbenchmark-dev clang libclang-rt-dev libomp-dev
   python3 python3-meshio python3-numpy python3-matplotlib
   # multi-host tests: namespaces, veth, packet loss
