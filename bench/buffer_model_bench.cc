@@ -1,4 +1,4 @@
-// Buffer-model accuracy (seed §3.4): the force a haptic client renders at
+// Buffer-model accuracy (method paper §3.4): the force a haptic client renders at
 // 1 kHz from local models the server builds at a physics frame rate f,
 // against a reference that runs the full FEM with 1 ms frames on the same
 // scripted tool path. Prints one JSON line per frame rate: the RMS force

@@ -12,7 +12,7 @@
 #   out/organ-frames/  PNG frames of a viewer of the organ session
 #   out/organ-*.json   the organ session's server, haptic and viewer reports
 #
-# The session: cutsim-server on scenes/ligament.pbtxt (the seed paper's
+# The session: cutsim-server on scenes/ligament.pbtxt (the method paper's
 # ligament), cutsim-haptic with the scripted device cutting it along
 # scenes/ligament-cut.path, and two cutsim-viewer processes. Then a second
 # real-time session on scenes/organ.pbtxt (≈ 22 000 tets, stepped by
@@ -70,7 +70,7 @@ cleanup() {
 }
 trap cleanup EXIT INT TERM
 
-echo "== session: server + scripted haptic client + two viewers (ligament, seed parameters)"
+echo "== session: server + scripted haptic client + two viewers (ligament, the method paper's parameters)"
 "$bin/cutsim-server" --scene scenes/ligament.pbtxt --duration 6 --stats-json "$out/server.json" \
   >"$out/server.log" 2>&1 &
 pids+=($!)

@@ -23,7 +23,7 @@ CuttingStressParts CuttingStressDetail(const Eigen::Matrix3d& cauchy, double kap
   // Eq. (9): with ascending eigenvalues the largest |σi − σj| is σ3 − σ1.
   parts.tau_max = 0.5 * (s[2] - s[0]);
   // Pure compression (no positive principal stress) never cuts, as in the
-  // seed: min(σ_max, τ_max) ≤ 0 there, and we clamp it to exactly 0 so that
+  // the method paper: min(σ_max, τ_max) ≤ 0 there, and we clamp it to exactly 0 so that
   // K_I = 0 cannot turn compression into a cut either. A largest principal
   // value within 1e-10·max|σi| of zero is eigen-solver round-off on a
   // compressive state with a zero principal value, not tension.

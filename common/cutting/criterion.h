@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Physical cut criterion (seed §3.1, eqs. 6–11): the Cauchy stress of the
+/// Physical cut criterion (method paper §3.1, eqs. 6–11): the Cauchy stress of the
 /// contact elements, scaled by 1/κ, is reduced to its principal values;
 /// σ_max is the largest, τ_max half the largest pairwise difference
 /// (eq. 9), σ_c = min(σ_max, τ_max)/ζ (eq. 10), and the tissue cuts iff

@@ -1,11 +1,11 @@
 #pragma once
 /// @file
-/// Geometric criterion (seed §3.1, Fig. 1, eq. 4): decides, frame by frame,
+/// Geometric criterion (method paper §3.1, Fig. 1, eq. 4): decides, frame by frame,
 /// whether the tool's motion on the surface is a cut attempt.
 ///
-/// Choices the seed leaves open, made here:
+/// Choices the method paper leaves open, made here:
 /// - Neighbourhood N: the ball of radius r = α·d_v centred on v_c(t) (the
-///   current closest vertex, as the seed's figure draws it), with
+///   current closest vertex, as the method paper's figure draws it), with
 ///   d_v = |x(v_c(t)) − x(v_c(t0))| in world coordinates at time t.
 /// - t0 (the anchor: C_p(t0), v_c(t0)) is set by the first contact and
 ///   reset (a) when contact is lost, (b) after each executed cut, to the

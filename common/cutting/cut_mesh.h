@@ -7,18 +7,18 @@
 /// rest position). World positions belong to the FEM and are read through
 /// `WorldAccess`.
 ///
-/// Cut step (seed §3.2–3.3), `ExecuteCut`; each numbered step below is
+/// Cut step (method paper §3.2–3.3), `ExecuteCut`; each numbered step below is
 /// one function of the same name in cut_plane.cc (1–2), cut_separate.cc
 /// (3–4b), cut_remesh.cc (5) and cut_step.cc (6):
 /// 1. Plane P (ChoosePlane). With a blade: the plane the blade sweeps,
 ///    spanned by its direction d and the tool's motion since t0 (tip0 → tip,
 ///    else C_p(t0) → C_p(t)), through the tip, then snapped parallel to
 ///    itself onto the slab vertex nearest to it (in step 2). Tool positions,
-///    not node positions: the seed's s1 = x(v1) − x(v0) joins closest
+///    not node positions: the method paper's s1 = x(v1) − x(v0) joins closest
 ///    vertices that jump between the two rows of nodes beside the blade and
 ///    are pushed around by the contact, which would swing P across the rows
 ///    and shatter the crack. Without a blade (or if the blade plane's step is
-///    rejected, one retry): the seed's plane through x(v1) spanned by the
+///    rejected, one retry): the method paper's plane through x(v1) spanned by the
 ///    facet normal n and s1, m = s1 × n / |s1 × n|.
 /// 2. Split set S (CollectSplitSet). With a blade: every vertex in the swept
 ///    slab, |m·(x − origin)| ≤ band (band = band_fraction × the mean edge
@@ -58,10 +58,10 @@
 ///    put on the far side of its neighbours), not a cut, and would fly off
 ///    under the blade.
 /// 5. Remeshing (Remesh). With a blade: the twins of v0 and of v1 (if within
-///    the band) move onto P, to their nearest point (the seed's move to C_p
+///    the band) move onto P, to their nearest point (the method paper's move to C_p
 ///    also slides them along the cut by up to α·d_v, which does not change
 ///    the cut's profile but shears their elements into slivers). Without a
-///    blade, the seed's: the twins of v0 (coincident copies of the same
+///    blade, the method paper's: the twins of v0 (coincident copies of the same
 ///    original vertex) move to C_p(t0) and those of v1 to C_p(t): world to
 ///    C_p, rest to the barycentric preimage of C_p in the world tet around
 ///    the vertex (or next to its star) that contains it best (largest
@@ -141,7 +141,7 @@ struct CutStep {
   Eigen::Vector3d cp0 = Eigen::Vector3d::Zero();      ///< C_p(t0), world, m
   Eigen::Vector3d cp = Eigen::Vector3d::Zero();       ///< C_p(t), world, m
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  ///< Outward facet normal, world
-  std::optional<Blade> blade;  ///< None: split v1 only (the seed's surface cut).
+  std::optional<Blade> blade;  ///< None: split v1 only (the method paper's surface cut).
   bool remesh = true;          ///< Move v0, v1 to the cut points (§3.3).
 };
 
@@ -341,7 +341,7 @@ class CutMesh {
   void FreeSlot(int32_t slot);
 
   /// ExecuteCut on the blade's plane (`blade_plane`, if a blade is given)
-  /// or on the seed's plane: the numbered steps of the file comment.
+  /// or on the method paper's plane: the numbered steps of the file comment.
   CutOutcome ExecuteCutOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                bool blade_plane, const PreparedCut* prepared, const SeparatedCallback* on_separated);
   /// True if `prepared` holds steps 1–2 of this step on the mesh as it is:

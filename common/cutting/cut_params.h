@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// Scene parameters of the cut algorithm (seed §3), mapped by the sim layer
+/// Scene parameters of the cut algorithm (method paper §3), mapped by the sim layer
 /// from the scene file, and their validation.
 
 #include <cstdint>
@@ -16,7 +16,7 @@ struct CutParams {
   double kappa = 1.0;
   /// Damage factor ζ ∈ (0, 1] of eq. (10), dimensionless.
   double zeta = 1.0;
-  /// Critical stress K_I of eq. (11), Pa (the seed calls it toughness but
+  /// Critical stress K_I of eq. (11), Pa (the method paper calls it toughness but
   /// compares it with a stress).
   double critical_stress = 1.0e4;
   /// Smallest mean-ratio quality a remeshing move may leave in a touched

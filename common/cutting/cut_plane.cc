@@ -38,7 +38,7 @@ bool StepInputValid(const CutStep& step, int32_t num_nodes) {
 // Step 1 on the blade's plane: through the tip, spanned by the blade
 // direction d and the part of the tool's motion since t0 that sweeps (the
 // tip's if the caller gives tip0, else the contact point's: tool positions,
-// never node ones). The seed's s1 = x(v1) − x(v0) joins two closest
+// never node ones). The method paper's s1 = x(v1) − x(v0) joins two closest
 // vertices, which on a blade passing between two rows of nodes (or past the
 // twins of an earlier split) jump from row to row; a plane along s1 would
 // swing across the rows and chop the crack into a zig-zag that sheds
@@ -58,10 +58,10 @@ void BladePlane(const CutStep& step, double h, internal::SweptSlab& slab) {
   }
 }
 
-// Step 1 on the seed's plane: through x(v1), spanned by the facet normal n
+// Step 1 on the method paper's plane: through x(v1), spanned by the facet normal n
 // and s1 = x(v1) − x(v0) (for twins, which coincide, the tool's motion).
 // False if s1 ∥ n.
-bool SeedPlane(const CutStep& step, const Vector3d& n, internal::SweptSlab& slab) {
+bool MethodPaperPlane(const CutStep& step, const Vector3d& n, internal::SweptSlab& slab) {
   Vector3d s1 = slab.x1 - slab.x0;
   if (!(s1.norm() > 0.0)) s1 = step.cp - step.cp0;
   Vector3d m = s1.cross(n);
@@ -76,7 +76,7 @@ bool SeedPlane(const CutStep& step, const Vector3d& n, internal::SweptSlab& slab
 
 // Step 1: plane P into `slab` (which holds x0, x1 and band), on the blade's
 // plane if `blade_plane` and a blade is given and moves across itself,
-// else on the seed's. False if there is no plane.
+// else on the method paper's. False if there is no plane.
 bool ChoosePlane(const CutStep& step, const Vector3d& n, double h, bool blade_plane, internal::SweptSlab& slab) {
   slab.blade_plane = blade_plane;
   slab.origin = slab.x1;
@@ -87,7 +87,7 @@ bool ChoosePlane(const CutStep& step, const Vector3d& n, double h, bool blade_pl
     slab.length = step.blade->length;
   }
   if (step.blade && blade_plane) BladePlane(step, h, slab);
-  if (slab.normal == Vector3d::Zero()) return SeedPlane(step, n, slab);
+  if (slab.normal == Vector3d::Zero()) return MethodPaperPlane(step, n, slab);
   return true;
 }
 
@@ -210,7 +210,7 @@ bool CutMesh::CollectSplitSet(const CutStep& step, const internal::StepWorld& wo
     return true;
   }
   if (!WalkSlab(step, world, slab, cancel)) return false;
-  // On the seed's plane, which holds v1, there is nothing to snap.
+  // On the method paper's plane, which holds v1, there is nothing to snap.
   return !slab.blade_plane || SnapPlane(step, world, slab, cancel);
 }
 

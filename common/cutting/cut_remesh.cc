@@ -27,13 +27,13 @@ double QualityCubed(const std::array<Vector3d, 4>& p) { return mesh::MeanRatioCu
 void CutMesh::Remesh(internal::StepState& s) {
   const CutStep& step = s.step;
   if (!step.remesh) return;
-  if (!step.blade) {  // the seed's moves: to C_p(t0) and C_p(t)
+  if (!step.blade) {  // the method paper's moves: to C_p(t0) and C_p(t)
     MoveTwins(s, step.v0, step.cp0);
     MoveTwins(s, step.v1, step.cp);
     return;
   }
   // With a blade, v0 and v1 move to the nearest point of P (if they are
-  // near it): the crack then lies on the blade's plane. The seed moves them
+  // near it): the crack then lies on the blade's plane. The method paper moves them
   // to C_p(t0), C_p(t); the part of that move along the cut (up to α·d_v)
   // does not change the cut's profile, only shears the elements around the
   // vertex into slivers, which the quality rule then limits or skips.

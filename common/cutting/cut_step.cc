@@ -1,4 +1,4 @@
-// CutMesh::ExecuteCut: one cut step (seed §3.2–3.3) as the list of its
+// CutMesh::ExecuteCut: one cut step (method paper §3.2–3.3) as the list of its
 // numbered steps (cut_mesh.h states the rules; the steps live in
 // cut_plane.cc, cut_separate.cc and cut_remesh.cc), and step 6, the event.
 #include <algorithm>
@@ -21,7 +21,7 @@ CutOutcome CutMesh::ExecuteCut(const CutStep& step, const WorldAccess& world, co
                                const PreparedCut* prepared, const SeparatedCallback* on_separated) {
   CutOutcome out = ExecuteCutOnPlane(step, world, params, /*blade_plane=*/true, prepared, on_separated);
   // A blade plane that leaves a singularity the rules cannot remove (rolled
-  // back, nothing changed) gets one more try on the seed's plane through
+  // back, nothing changed) gets one more try on the method paper's plane through
   // v0 and v1, which runs through existing vertices.
   if (out.status == CutStatus::kRejected && step.blade) {
     out = ExecuteCutOnPlane(step, world, params, false, nullptr, on_separated);

@@ -22,7 +22,7 @@ struct Split {
   std::vector<int32_t> tets;  ///< Retargeted tets, in application order.
 };
 
-/// Remeshing move of one node (seed §3.3), applied after all splits.
+/// Remeshing move of one node (method paper §3.3), applied after all splits.
 struct Move {
   int32_t node = -1;
   Eigen::Vector3d rest = Eigen::Vector3d::Zero();   ///< New rest position, m.

@@ -8,7 +8,7 @@
 ///
 /// Conventions (docs/DESIGN.md, physics): rest positions u, world positions x,
 /// Dm = [u₁−u₀ u₂−u₀ u₃−u₀], Ds = [x₁−x₀ x₂−x₀ x₃−x₀], F = Ds·Dm⁻¹.
-/// Node indices here are 0-based (the seed counts 1..4).
+/// Node indices here are 0-based (the method paper counts 1..4).
 
 #include <algorithm>
 #include <cmath>
@@ -41,7 +41,7 @@ Mat3<T> EdgeMatrix(const Mat34<T>& x) {
   return d;
 }
 
-/// Green strain E = ½(FᵀF − I): the seed's eq. (1) halved (docs/DESIGN.md).
+/// Green strain E = ½(FᵀF − I): the method paper's eq. (1) halved (docs/DESIGN.md).
 template <typename T>
 Mat3<T> GreenStrain(const Mat3<T>& F) {
   return T(0.5) * (F.transpose() * F - Mat3<T>::Identity());
@@ -126,7 +126,7 @@ Eigen::Matrix<T, 12, 12> StvkElementStiffness(const Mat34<T>& x, const Mat3<T>& 
   return K;
 }
 
-/// The seed's β: the 4×4 inverse of the barycentric matrix [u₀ u₁ u₂ u₃; 1 1 1 1],
+/// The method paper's β: the 4×4 inverse of the barycentric matrix [u₀ u₁ u₂ u₃; 1 1 1 1],
 /// so barycentric coordinates are b = β·[u; 1].  // 4×4
 template <typename T>
 Eigen::Matrix<T, 4, 4> InverseBarycentric(const Mat34<T>& u) {
@@ -136,13 +136,13 @@ Eigen::Matrix<T, 4, 4> InverseBarycentric(const Mat34<T>& u) {
   return A.inverse();
 }
 
-/// Reference implementation of the seed's eqs. (1)–(3) taken literally:
+/// Reference implementation of the method paper's eqs. (1)–(3) taken literally:
 /// ε_kl = ∂x/∂u_k·∂x/∂u_l − δ_kl (eq. 1, no ½), σ = λ tr(ε) I + 2με (eq. 2),
 /// f_i = −vol/2 Σ_j p_j Σ_k Σ_l β_jl β_ik σ_kl (eq. 3). With ∂x/∂u_l =
 /// Σ_j p_j β_jl this equals StvkElementForce (σ = 2S, and eq. 3's ½ undoes it).
 /// `p` world positions (columns), `beta` from InverseBarycentric.  // 12
 template <typename T>
-Vec12<T> SeedElementForce(const Mat34<T>& p, const Eigen::Matrix<T, 4, 4>& beta, T vol, T lambda,
+Vec12<T> MethodPaperElementForce(const Mat34<T>& p, const Eigen::Matrix<T, 4, 4>& beta, T vol, T lambda,
                           T mu) {
   // dx/du_l for l = 0..2: column l of p·β(:, 0..2).
   const Mat3<T> dxdu = p * beta.template leftCols<3>();

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// Time integration: symplectic Euler (v += dt·M⁻¹f, then x += dt·v; the
-/// seed's "modified Euler"), fixed nodes not integrated, substepping to a
+/// method paper's "modified Euler"), fixed nodes not integrated, substepping to a
 /// frame time under the stable-step bound (EqualSubstep: the one substep
 /// rule, shared with the simulation's frame), and a guard that stops before
 /// writing a non-finite or runaway state.

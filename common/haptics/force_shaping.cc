@@ -52,7 +52,7 @@ Eigen::Vector3d EvaluateBufferModel(const BoundedModel& model, const Eigen::Vect
                                     const Eigen::Vector3d& v, double max_force,
                                     double tangential_ratio) noexcept {
   if (!model.contact) return Eigen::Vector3d::Zero();
-  // Seed §3.4 buffer model, first order about the contact: F = f0 + (∂f/∂x)(x − x0)
+  // Method paper §3.4 buffer model, first order about the contact: F = f0 + (∂f/∂x)(x − x0)
   // = f0 − K(x − x0) since the wire sends K = −∂f/∂x; plus viscous damping.
   const Eigen::Vector3d f = model.f0 - model.stiffness * (x - model.x0) - model.damping * v;
   return ClampMagnitude(ApplyUnilateral(f, model.normal, tangential_ratio), max_force);

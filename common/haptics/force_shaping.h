@@ -1,8 +1,8 @@
 #pragma once
 /// @file
-/// Pure per-tick force kernels of the haptic loop: the buffer model of seed
-/// §3.4 with its unilateral and device bounds, the cut-force decay of seed
-/// eq. (13), and the safety limiters. Fixed-size Eigen only: no allocation,
+/// Pure per-tick force kernels of the haptic loop: the buffer model of the
+/// method paper (§3.4) with its unilateral and device bounds, its cut-force
+/// decay (eq. 13), and the safety limiters. Fixed-size Eigen only: no allocation,
 /// no throw.
 
 #include <cmath>
@@ -67,9 +67,9 @@ struct BoundedModel {
                                                   const Eigen::Vector3d& v, double max_force,
                                                   double tangential_ratio) noexcept;
 
-/// Cut-force decay, seed eq. (13) with the iteration counter replaced by
+/// Cut-force decay, method paper eq. (13) with the iteration counter replaced by
 /// time: `F_c · e^(−ξ t)` with ξ in 1/s and t = I·Δt the time since the
-/// switch, so the decay does not depend on the loop rate (the seed's
+/// switch, so the decay does not depend on the loop rate (the method paper's
 /// per-iteration ξ is ξ·Δt, i.e. ξ/1000 at 1 kHz).
 [[nodiscard]] inline Eigen::Vector3d CutDecayForce(const Eigen::Vector3d& force_at_switch,
                                                    double decay_per_second, double time_since_switch) {

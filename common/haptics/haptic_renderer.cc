@@ -94,7 +94,7 @@ ModelUpdate HapticRenderer::SetModel(const LocalModel& model, int64_t receive_ns
   if (!have_cut_baseline_ || model.cut.cuts < last_cuts_) {
     have_cut_baseline_ = true;  // first model, or the server's counter restarted
   } else if (model.cut.cuts > last_cuts_) {
-    cut_pending_ = true;        // seed §3.4: a cut was executed; switch on the next tick
+    cut_pending_ = true;        // method paper §3.4: a cut was executed; switch on the next tick
     cut_seq_ = model.seq;
     newer_since_cut_ = false;
     decay_rate_ = model_decay_;
@@ -109,7 +109,7 @@ Eigen::Vector3d HapticRenderer::ModelStageForce(const Eigen::Vector3d& f_buffer,
   if (cut_pending_) {
     cut_pending_ = false;
     ++stats_.cut_decays_started;
-    // F_c: the force rendered at the moment of switching (seed eq. 13), taken
+    // F_c: the force rendered at the moment of switching (method paper eq. 13), taken
     // before the watchdog gain so that gain and decay compose without a jump.
     decay_start_force_ = model_force_;
     decay_time_ = 0.0;
@@ -122,7 +122,7 @@ Eigen::Vector3d HapticRenderer::ModelStageForce(const Eigen::Vector3d& f_buffer,
   }
   if (phase_ == RenderPhase::kBufferModel) return f_buffer;
 
-  // Seed eq. (13) with I·Δt → t: F_c e^(−ξ t).
+  // Method paper eq. (13) with I·Δt → t: F_c e^(−ξ t).
   const Eigen::Vector3d f_decay = CutDecayForce(decay_start_force_, decay_rate_, decay_time_);
   if (phase_ == RenderPhase::kCutDecay) {
     const double decayed = f_decay.norm();

@@ -4,8 +4,8 @@
 /// as they arrive (`SetModel`) and turns the device state into the force to
 /// command (`Tick`). Pipeline per tick:
 ///
-///   buffer model (seed §3.4; unilateral, λ_max(K) and |F| bounded)
-///   └─ or cut-force decay F_c·e^(−ξt) (seed eq. 13) after a cut, blended back
+///   buffer model (method paper §3.4; unilateral, λ_max(K) and |F| bounded)
+///   └─ or cut-force decay F_c·e^(−ξt) (method paper eq. 13) after a cut, blended back
 ///   × watchdog gain (raised-cosine fade to 0 when the server goes silent)
 ///   → passivity controller (Hannaford–Ryu variable damper)
 ///   → |F| ≤ max_force → |ΔF| ≤ max_force_rate·Δt → finite check → device

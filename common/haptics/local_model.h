@@ -2,7 +2,7 @@
 /// @file
 /// The local haptic model (the in-memory form of the wire's `HapticModel`):
 /// what the server linearises around the tool contact each physics frame and
-/// the 1 kHz client renders until the next one arrives (the seed's "buffer
+/// the 1 kHz client renders until the next one arrives (the method paper's "buffer
 /// model", §3.4). Validation here is what stops a malformed or hostile model
 /// from ever reaching the device; the builder is the server-side half.
 ///
@@ -20,7 +20,7 @@ namespace cutsim::haptics {
 struct CutState {
   uint64_t cuts = 0;              ///< Cut steps so far; an increase means a cut happened.
   bool cutting = false;           ///< A cut happened in the frame this model comes from.
-  double decay_per_second = 0.0;  ///< ξ of seed eq. (13), 1/s; 0 = use the renderer's default.
+  double decay_per_second = 0.0;  ///< ξ of method paper eq. (13), 1/s; 0 = use the renderer's default.
 };
 
 /// One local model: `F(x, v) = f0 − K (x − x0) − damping · v` around the contact

@@ -79,11 +79,11 @@ NodePermutation ReverseCuthillMcKee(const TetMesh& mesh) {
   std::vector<uint8_t> visited(n, 0);
   std::vector<int32_t> order;
   order.reserve(n);
-  for (size_t seed = 0; seed < n; ++seed) {
-    if (visited[seed] != 0) continue;
+  for (size_t start = 0; start < n; ++start) {
+    if (visited[start] != 0) continue;
     // Pseudo-peripheral root (George–Liu): repeat BFS from the far end while
     // the level structure gets deeper; a few rounds suffice.
-    int32_t root = static_cast<int32_t>(seed), depth = 0;
+    int32_t root = static_cast<int32_t>(start), depth = 0;
     for (int round = 0; round < 4; ++round) {
       std::vector<uint8_t> probe = visited;
       std::vector<int32_t> tmp;

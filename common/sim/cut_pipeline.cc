@@ -82,7 +82,7 @@ std::optional<CutSweep> CutPipeline<T>::TryCut(const CutContact& contact, const 
   return sweep;
 }
 
-/// Phase `attempt`: the tracker's cut attempt (seed §3.1). The seed's
+/// Phase `attempt`: the tracker's cut attempt (method paper §3.1). The method paper's
 /// attempt reads the closest vertex only; a tool pressing straight down
 /// also changes it as the surface deforms under the blade. A cut step needs
 /// the tool itself to have moved along the surface since t0, by at least
@@ -151,7 +151,7 @@ void CutPipeline<T>::WalkBesideCriterion(StepRun& run, const CutTargets<T>& t) {
   });
 }
 
-/// The stress criterion (seed eqs. 6–11) on the contact elements around v1
+/// The stress criterion (method paper eqs. 6–11) on the contact elements around v1
 /// and the contact facet's tet.
 template <typename T>
 cutting::CriterionResult CutPipeline<T>::Criterion(const StepRun& run, const CutTargets<T>& t) {

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The cut test of a frame (seed §3), written once as a sequence of named
+/// The cut test of a frame (method paper §3), written once as a sequence of named
 /// phases:
 ///
 ///   attempt → [walk | criterion] → topology → [FEM half | surface half] → finish

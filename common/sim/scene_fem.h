@@ -43,7 +43,7 @@ inline constexpr double kNodalPressurePoisson = 0.4;
 /// linear one.
 [[nodiscard]] fem::ElementKind ChooseElement(const v1::Scene& scene);
 
-/// Node capacity: a cut copies nodes (seed §3.2), so cutting reserves room
+/// Node capacity: a cut copies nodes (method paper §3.2), so cutting reserves room
 /// for them.
 [[nodiscard]] int32_t NodeCapacity(const v1::Scene& scene, int32_t num_nodes);
 

@@ -143,7 +143,7 @@ void SessionMeter<T>::MarkIncision(const fem::Model<T>& model, const T* x, const
       if ((p - a - s * d).squaredNorm() <= r2) node_mark_[static_cast<size_t>(n)] = 1;
     }
   }
-  // Ring 0: the tets on a seed node. Each further ring: the tets on a node
+  // Ring 0: the tets on a node of the incision. Each further ring: the tets on a node
   // of the tets marked so far. Tets and nodes are marked in separate
   // passes, so each ring grows by exactly one layer.
   for (int ring = 0; ring <= options_.incision_rings; ++ring) {

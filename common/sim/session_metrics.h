@@ -65,7 +65,7 @@ class SessionMeter {
 
   struct Options {
     double sample_period = 0.1;   ///< s of simulated time between whole-mesh samples
-    int incision_rings = 1;       ///< rings of tets added around the incision's seed tets
+    int incision_rings = 1;       ///< rings of tets added around the incision's own tets
     int threads = 1;
   };
 

@@ -386,7 +386,7 @@ class Engine final : public Simulation {
     return false;
   }
 
-  /// The cut test of seed §3 on the frame's contact (CutPipeline).
+  /// The cut test of method paper §3 on the frame's contact (CutPipeline).
   void TryCut() {
     if (!cuts_) return;
     const ContactFacet& facet = tool_->facet();

@@ -57,7 +57,7 @@ class Simulation {
 
   /// Advances one frame of `frame_time` seconds (0: the scene's
   /// time_step.frame_dt) in stable substeps: tool contact, then dynamics,
-  /// then the cut test of seed §3, then the session's measures.
+  /// then the cut test of method paper §3, then the session's measures.
   virtual SimStatus AdvanceFrame(double frame_time = 0.0) = 0;
 
   /// Whether the scene has a tool, and when its scripted path ends (0: none).

@@ -104,7 +104,7 @@ struct SimulationSummary {
   ImplicitCounters implicit;
   // Tool and cutting (zero without a tool).
   uint64_t cuts = 0;             ///< executed cut steps
-  uint64_t cut_attempts = 0;     ///< geometric attempts (seed §3.1)
+  uint64_t cut_attempts = 0;     ///< geometric attempts (method paper §3.1)
   uint64_t cuts_rejected = 0;    ///< attempts that passed the stress test but were rolled back
   uint64_t topology_version = 0;
   int components = 1;            ///< face-connected parts of the mesh

@@ -9,7 +9,7 @@
 // With --cut-after S, once the tip has been in contact for S seconds the cut
 // counter increments (cutting = true in that frame) and the plane drops by
 // --cut-drop metres (the tissue parted under the blade), so the client sees
-// the cut decay of seed eq. (13). Publishes nothing until a tool pose arrives
+// the cut decay of method paper eq. (13). Publishes nothing until a tool pose arrives
 // (like the real server with no haptic client). With --key-file it checks
 // the tool messages' tags and signs its models, as the real server does.
 // Prints one JSON line of stats on exit (SIGTERM/SIGINT or --duration), with

@@ -124,7 +124,7 @@ std::string StopAndCollect(Subprocess& server) {
 }
 
 // A scripted cut: the client sees the cut state and the force decays as
-// F_c·e^(−ξt) (seed eq. 13 with ξ per second), then blends back.
+// F_c·e^(−ξt) (method paper eq. 13 with ξ per second), then blends back.
 TEST(HapticIntegrationTest, CutDecayIsRendered) {
   TempDir dir;
   const std::string url = Url(1), session = Session("cut"), csv = dir.path() + "/haptic.csv";

@@ -1,5 +1,5 @@
 // A whole training session as the demo runs it, shortened: the real server on
-// the seed's ligament, the scripted haptic client cutting it over LCM, and two
+// the method paper's ligament, the scripted haptic client cutting it over LCM, and two
 // viewers over DDS (one joining late). Runs inside its own network namespace
 // (deploy/netns-run.sh), with a unique session, LCM port and DDS domain.
 #include <algorithm>
@@ -94,7 +94,7 @@ TEST(SessionTest, ScriptedCutOfTheLigamentReachesHapticsAndViewers) {
   EXPECT_GT(JsonNumber(s, "pose_latency_samples"), 10) << s;
   EXPECT_LE(JsonNumber(s, "pose_latency_samples"), JsonNumber(s, "frames_with_pose")) << s;
 
-  // The client saw the cut state and rendered the decay (seed eq. 13).
+  // The client saw the cut state and rendered the decay (method paper eq. 13).
   const std::string h = haptic.Stdout();
   EXPECT_GE(JsonNumber(h, "cut_decays"), 1) << h;
   EXPECT_GT(JsonNumber(h, "models_accepted"), 10) << h;

@@ -161,8 +161,8 @@ inline mesh::TetMesh Cube(int cells, double side = 0.01) {
   return mesh::MakeBox(Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(side), cells, cells, cells);
 }
 
-/// Soft tissue of the seed paper (λ = 140 kPa, μ = 11 kPa) with its damping.
-inline fem::Material SeedTissue() {
+/// Soft tissue of the method paper (λ = 140 kPa, μ = 11 kPa) with its damping.
+inline fem::Material PaperTissue() {
   return {.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
 }
 
@@ -227,7 +227,7 @@ inline std::vector<uint8_t> NodesWhere(const mesh::TetMesh& m, const std::functi
 inline Result StretchX3(const Size& size) {
   const mesh::TetMesh m = Cube(size.cells);
   const double L = 0.01;
-  return PrescribedMotion("stretch x3 (uniaxial, prescribed face)", size, SeedTissue(),
+  return PrescribedMotion("stretch x3 (uniaxial, prescribed face)", size, PaperTissue(),
                           NodesWhere(m, [&](const Eigen::Vector3d& p) { return p.x() > L - 1e-9; }),
                           NodesWhere(m, [](const Eigen::Vector3d& p) { return p.x() < 1e-9; }),
                           [&](const Eigen::Vector3d& rest, double a) {
@@ -240,7 +240,7 @@ inline Result CompressVolume10(const Size& size) {
   const double L = 0.01;
   const double s_end = std::cbrt(0.1);  // every boundary node moves towards the centre
   const Eigen::Vector3d c = Eigen::Vector3d::Constant(L / 2);
-  return PrescribedMotion("compression to 10% volume (triaxial, whole boundary)", size, SeedTissue(),
+  return PrescribedMotion("compression to 10% volume (triaxial, whole boundary)", size, PaperTissue(),
                           NodesWhere(m, [&](const Eigen::Vector3d& p) {
                             return (p.array() < 1e-9).any() || (p.array() > L - 1e-9).any();
                           }),
@@ -253,7 +253,7 @@ inline Result CompressVolume10(const Size& size) {
 inline Result CompressUniaxial10(const Size& size) {
   const mesh::TetMesh m = Cube(size.cells);
   const double L = 0.01;
-  return PrescribedMotion("compression to 10% length (uniaxial, sides free)", size, SeedTissue(),
+  return PrescribedMotion("compression to 10% length (uniaxial, sides free)", size, PaperTissue(),
                           NodesWhere(m, [&](const Eigen::Vector3d& p) { return p.x() > L - 1e-9; }),
                           NodesWhere(m, [](const Eigen::Vector3d& p) { return p.x() < 1e-9; }),
                           [&](const Eigen::Vector3d& rest, double a) {
@@ -313,9 +313,9 @@ inline Result StiffnessContrast(const Size& size) {
                  [](const Eigen::Vector3d& c) { return c.x() < 0.005 ? 0 : 1; });
 }
 
-/// The seed's tissue without strain-rate damping (the energy cases).
+/// The method paper's tissue without strain-rate damping (the energy cases).
 inline fem::Material UndampedTissue() {
-  fem::Material mat = SeedTissue();
+  fem::Material mat = PaperTissue();
   mat.psi = mat.phi = 0;
   return mat;
 }

@@ -6,13 +6,13 @@ namespace cutsim::units {
 namespace {
 
 TEST(UnitsTest, LameRoundTripsThroughYoungPoisson) {
-  // The seed's ligament: λ = 140 kPa, μ = 11 kPa.
-  const Lame seed{140e3, 11e3};
-  const double E = YoungFromLame(seed);
-  const double nu = PoissonFromLame(seed);
+  // The method paper's ligament: λ = 140 kPa, μ = 11 kPa.
+  const Lame ligament{140e3, 11e3};
+  const double E = YoungFromLame(ligament);
+  const double nu = PoissonFromLame(ligament);
   const Lame back = LameFromYoungPoisson(E, nu);
-  EXPECT_NEAR(back.lambda, seed.lambda, 1e-9 * seed.lambda);
-  EXPECT_NEAR(back.mu, seed.mu, 1e-9 * seed.mu);
+  EXPECT_NEAR(back.lambda, ligament.lambda, 1e-9 * ligament.lambda);
+  EXPECT_NEAR(back.mu, ligament.mu, 1e-9 * ligament.mu);
   EXPECT_GT(nu, 0.0);
   EXPECT_LT(nu, 0.5);
 }

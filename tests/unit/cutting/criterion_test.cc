@@ -1,4 +1,4 @@
-// Physical criterion (seed eqs. 6–11): properties first, then values.
+// Physical criterion (method paper eqs. 6–11): properties first, then values.
 #include <cmath>
 #include <limits>
 #include <random>

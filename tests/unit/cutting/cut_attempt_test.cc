@@ -1,4 +1,4 @@
-// Geometric criterion (seed §3.1, Fig. 1): the attempt state machine.
+// Geometric criterion (method paper §3.1, Fig. 1): the attempt state machine.
 #include <gtest/gtest.h>
 
 #include "common/cutting/cut_attempt.h"

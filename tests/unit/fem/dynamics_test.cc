@@ -16,8 +16,8 @@
 namespace cutsim::fem {
 namespace {
 
-const Material kSeed{.lambda = 140000, .mu = 11000, .psi = 0, .phi = 0, .density = 1000};
-const Material kSeedDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
+const Material kPaperTissue{.lambda = 140000, .mu = 11000, .psi = 0, .phi = 0, .density = 1000};
+const Material kPaperTissueDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
 
 template <typename T>
 void Perturb(State<T>& state, int num_nodes, double amplitude, unsigned seed) {
@@ -37,7 +37,7 @@ TEST(FemDynamics, MomentumConservedWithoutBoundaryConditions) {
   for (const ElementKind element : {ElementKind::kLinear, ElementKind::kNodalPressure}) {
     ModelOptions options;
     options.element = element;
-    Model<double> model(mesh, std::span(&kSeedDamped, 1), options);
+    Model<double> model(mesh, std::span(&kPaperTissueDamped, 1), options);
     State<double> state(model);
     Perturb(state, model.num_nodes(), 1e-3, 1);
     std::mt19937 rng(2);
@@ -69,7 +69,7 @@ TEST(FemDynamics, MomentumConservedWithoutBoundaryConditions) {
 TEST(FemDynamics, EnergyBoundedUndampedAndDissipatedDamped) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(2, 2, 2, 0.02, 0.02, 0.02);
   for (const bool damped : {false, true}) {
-    const Material& mat = damped ? kSeedDamped : kSeed;
+    const Material& mat = damped ? kPaperTissueDamped : kPaperTissue;
     Model<double> model(mesh, std::span(&mat, 1));
     State<double> state(model);
     Perturb(state, model.num_nodes(), 5e-4, 3);
@@ -99,7 +99,7 @@ TEST(FemDynamics, EnergyBoundedUndampedAndDissipatedDamped) {
 
 /// True if an undamped free run at dt = factor × bound blows up.
 bool BlowsUp(const mesh::TetMesh& mesh, double factor, double* bound_out) {
-  Model<double> model(mesh, std::span(&kSeed, 1));
+  Model<double> model(mesh, std::span(&kPaperTissue, 1));
   State<double> state(model);
   // A tiny perturbation probes the linearised limit (larger ones stiffen StVK).
   Perturb(state, model.num_nodes(), 1e-7, 4);
@@ -127,7 +127,7 @@ TEST(FemStableStep, BoundIsStableAndNotAbsurdlyConservative) {
     (BlowsUp(mesh, mid, nullptr) ? hi : lo) = mid;
   }
   // Exact symplectic-Euler limit 2/ω_max from the assembled M⁻¹K at rest.
-  Model<double> model(mesh, std::span(&kSeed, 1));
+  Model<double> model(mesh, std::span(&kPaperTissue, 1));
   State<double> state(model);
   const int ndof = 3 * model.num_nodes();
   Eigen::MatrixXd K(ndof, ndof);
@@ -159,7 +159,7 @@ TEST(FemStableStep, BoundIsStableAndNotAbsurdlyConservative) {
 
 TEST(FemStableStep, StretchLowersTheBound) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(2, 2, 2, 0.01, 0.01, 0.01);
-  Model<double> model(mesh, std::span(&kSeed, 1));
+  Model<double> model(mesh, std::span(&kPaperTissue, 1));
   State<double> state(model);
   RefreshStableStep(model, state, true, 1);
   const double rest = StableStepBound(state);
@@ -168,13 +168,13 @@ TEST(FemStableStep, StretchLowersTheBound) {
   EXPECT_LT(StableStepBound(state), rest / 1.4);
 }
 
-// The seed's ψ = 10, φ = 80 Pa·s on mm elements: the viscous limit collapses
+// The method paper's ψ = 10, φ = 80 Pa·s on mm elements: the viscous limit collapses
 // the explicit step; the implicit viscous treatment restores the elastic one.
 TEST(FemViscous, ImplicitMatchesExplicitAtLargerStep) {
   const double h = 2.5e-3;
   const mesh::TetMesh mesh = testing::MakeBoxMesh(4, 2, 2, 4 * h, 2 * h, 2 * h);
   const auto run = [&](ViscousTreatment visc, double* dt_used, int* steps) {
-    Model<double> model(mesh, std::span(&kSeedDamped, 1), {.gravity = Eigen::Vector3d(0, 0, -9.81)});
+    Model<double> model(mesh, std::span(&kPaperTissueDamped, 1), {.gravity = Eigen::Vector3d(0, 0, -9.81)});
     for (int n = 0; n < model.num_nodes(); ++n) {
       if (model.rest_position(n)(0) < 1e-9) model.SetFixed(n, true);
     }
@@ -216,7 +216,7 @@ TEST(FemInversion, InvertedElementRecovers) {
   for (const bool remedy : {true, false}) {
     ModelOptions mo;
     if (!remedy) mo.inversion_det_threshold = -1e30;  // plain StVK everywhere
-    Model<double> model(mesh, std::span(&kSeedDamped, 1), mo);
+    Model<double> model(mesh, std::span(&kPaperTissueDamped, 1), mo);
     State<double> state(model);
     state.x[3 * 3 + 2] = -0.005;  // apex pushed through the base
     ASSERT_LT(DeformationGradient(model, state.x.data(), 0).determinant(), 0);
@@ -235,7 +235,7 @@ TEST(FemInversion, InvertedElementRecovers) {
 
 TEST(FemGuard, NonFiniteAndRunawayAreReportedAndNothingIsWritten) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.03, 0.03, 0.03);
-  Model<double> model(mesh, std::span(&kSeed, 1));
+  Model<double> model(mesh, std::span(&kPaperTissue, 1));
   State<double> state(model);
   const int node = 21;
   state.x[3 * node + 1] = std::nan("");
@@ -262,8 +262,8 @@ TEST(FemGuard, NonFiniteAndRunawayAreReportedAndNothingIsWritten) {
 TEST(FemPrecision, FloatAgreesWithDouble) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(4, 2, 2, 0.04, 0.02, 0.02);
   const ModelOptions mo{.gravity = Eigen::Vector3d(0, 0, -9.81)};
-  Model<double> md(mesh, std::span(&kSeedDamped, 1), mo);
-  Model<float> mf(mesh, std::span(&kSeedDamped, 1), mo);
+  Model<double> md(mesh, std::span(&kPaperTissueDamped, 1), mo);
+  Model<float> mf(mesh, std::span(&kPaperTissueDamped, 1), mo);
   for (int n = 0; n < md.num_nodes(); ++n) {
     if (md.rest_position(n)(0) < 1e-9) {
       md.SetFixed(n, true);
@@ -293,7 +293,7 @@ TEST(FemPrecision, FloatAgreesWithDouble) {
 
 TEST(FemDynamics, FixedNodesStayAndAdvanceHitsFrameTime) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 1, 1, 0.03, 0.01, 0.01);
-  Model<double> model(mesh, std::span(&kSeedDamped, 1), {.gravity = Eigen::Vector3d(0, 0, -9.81)});
+  Model<double> model(mesh, std::span(&kPaperTissueDamped, 1), {.gravity = Eigen::Vector3d(0, 0, -9.81)});
   for (int n = 0; n < model.num_nodes(); ++n) {
     if (model.rest_position(n)(0) < 1e-9) model.SetFixed(n, true);
   }

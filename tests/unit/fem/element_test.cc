@@ -1,4 +1,4 @@
-// Element-level properties: the seed's eqs. (1)–(3) vs the standard StVK
+// Element-level properties: the method paper's eqs. (1)–(3) vs the standard StVK
 // form, invariance, derivatives, the inversion remedy, uniaxial stress.
 #include <random>
 
@@ -13,8 +13,8 @@
 namespace cutsim::fem {
 namespace {
 
-constexpr double kLambda = 140000.0;  // seed §4, Pa
-constexpr double kMu = 11000.0;       // seed §4, Pa
+constexpr double kLambda = 140000.0;  // method paper §4, Pa
+constexpr double kMu = 11000.0;       // method paper §4, Pa
 
 Mat34<double> RandomTet(std::mt19937& rng) {
   std::uniform_real_distribution<double> u(-1.0, 1.0);
@@ -32,7 +32,7 @@ Mat3<double> RandomF(std::mt19937& rng, double amplitude) {
   return F;
 }
 
-TEST(FemElement, SeedFormEqualsStandardStvk) {
+TEST(FemElement, MethodPaperFormEqualsStandardStvk) {
   std::mt19937 rng(1);
   double worst = 0;
   for (int trial = 0; trial < 200; ++trial) {
@@ -45,7 +45,7 @@ TEST(FemElement, SeedFormEqualsStandardStvk) {
     x.colwise() += Vec3<double>(0.1, -0.2, 0.3);
     const Vec12<double> f_std = StvkElementForce<double>(x, dm_inv, vol, kLambda, kMu);
     const Vec12<double> f_seed =
-        SeedElementForce<double>(x, InverseBarycentric<double>(u), vol, kLambda, kMu);
+        MethodPaperElementForce<double>(x, InverseBarycentric<double>(u), vol, kLambda, kMu);
     const double err = (f_std - f_seed).norm() / std::max(f_std.norm(), 1e-30);
     worst = std::max(worst, err);
     EXPECT_LT(err, 1e-9) << "trial " << trial;

@@ -19,7 +19,7 @@ namespace cutsim::fem {
 namespace {
 
 const Material kTissue = Material::FromYoungPoisson(20000, 0.45, 1000);
-const Material kSeedDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
+const Material kPaperTissueDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
 
 double TotalEnergy(const Model<double>& m, const State<double>& s) {
   return StrainEnergy(m, s.x.data()) + KineticEnergy(m, s.v.data()) + GravityPotential(m, s.x.data());
@@ -100,7 +100,7 @@ TEST(FemLanczos, MatchesExactEigenvalueAndBoundsTheBound) {
 TEST(FemLanczos, SameEstimateForAnyThreadCount) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(24, 16, 16, 0.048, 0.032, 0.032);
   for (const bool damped : {false, true}) {
-    Model<double> model(mesh, std::span(damped ? &kSeedDamped : &kTissue, 1));
+    Model<double> model(mesh, std::span(damped ? &kPaperTissueDamped : &kTissue, 1));
     State<double> one(model);
     RandomDeform(one, model.num_nodes(), 2e-4, 11);
     State<double> two = one;
@@ -116,7 +116,7 @@ TEST(FemLanczos, SameEstimateForAnyThreadCount) {
 
 TEST(FemLanczos, DampingOperatorMatchesExact) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(2, 2, 2, 0.004, 0.004, 0.004);
-  Model<double> model(mesh, std::span(&kSeedDamped, 1));
+  Model<double> model(mesh, std::span(&kPaperTissueDamped, 1));
   State<double> state(model);
   RandomDeform(state, model.num_nodes(), 2e-4, 3);
   const double exact_c = ExactMax(model, state, true);

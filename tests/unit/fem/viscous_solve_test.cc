@@ -18,7 +18,7 @@
 namespace cutsim::fem {
 namespace {
 
-// The seed's ligament (scenes/ligament.pbtxt): 30 mm × ⌀8 mm, both ends on
+// The method paper's ligament (scenes/ligament.pbtxt): 30 mm × ⌀8 mm, both ends on
 // bone, ψ = 10, φ = 80 Pa·s, where the explicit viscous limit is ~14× below
 // the elastic one.
 const Material kLigament{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};

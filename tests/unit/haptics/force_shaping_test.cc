@@ -104,7 +104,7 @@ TEST(LimitStepTest, NeverStepsMoreThanAllowed) {
   EXPECT_EQ(LimitStep(from, Eigen::Vector3d(5, 5, 5), 0.0), from);
 }
 
-TEST(CutDecayTest, MatchesSeedEquation13) {
+TEST(CutDecayTest, MatchesMethodPaperEquation13) {
   const Eigen::Vector3d fc(0, 1, 2);
   EXPECT_EQ(CutDecayForce(fc, 40.0, 0.0), fc);
   // Seed: F_c e^(−ξ_iter I) with ξ_iter = ξ/1000 at 1 kHz.

@@ -109,7 +109,7 @@ TEST(HapticRendererTest, CutDecayIsIndependentOfLoopRate) {
   ASSERT_EQ(at_1khz.size(), times.size());
   ASSERT_EQ(at_2khz.size(), times.size());
   for (size_t i = 0; i < times.size(); ++i) {
-    const double expected = 5.0 * std::exp(-40.0 * times[i]);  // seed eq. (13), ξ = 40/s
+    const double expected = 5.0 * std::exp(-40.0 * times[i]);  // method paper eq. (13), ξ = 40/s
     EXPECT_NEAR(at_1khz[i], expected, 1e-9) << "t = " << times[i];
     EXPECT_NEAR(at_2khz[i], expected, 1e-9) << "t = " << times[i];
   }

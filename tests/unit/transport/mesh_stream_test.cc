@@ -194,7 +194,7 @@ TEST(MeshStreamTest, RandomDeformationsAndTopologyChangesKeepTheHash) {
     if (coin(rng) == 0) {  // topology: split a random node (adds a node, retargets tets)
       m.Split(std::uniform_int_distribution<int32_t>(0, static_cast<int32_t>(m.world.rows()) - 1)(rng));
     }
-    if (coin(rng) == 1) {  // a cut moving a rest position (seed §3.3)
+    if (coin(rng) == 1) {  // a cut moving a rest position (method paper §3.3)
       m.rest(coin(rng), 1) += 2e-4;
       ++m.version;
     }
