@@ -33,7 +33,7 @@ template <typename T>
 Dynamics<T>::~Dynamics() = default;
 
 template <typename T>
-fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start,
                                        double frame_time, int64_t deadline_ns, RunCounters& run) {
   phase_seconds_.fill(0.0);
   if (kind_ == IntegratorKind::kImplicit) return StepImplicit(fem, tool, start, frame_time, deadline_ns, run);
@@ -44,7 +44,7 @@ fem::StepResult Dynamics<T>::StepFrame(SceneFem<T>& fem, ToolState<T>* tool, con
 /// each while the tool loads the tissue, and the contact force refreshed
 /// before each for the tip interpolated over the frame.
 template <typename T>
-fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start,
                                           double frame_time, RunCounters& run) {
   fem::Model<T>& model = fem.model();
   fem::State<T>& state = fem.state();
@@ -81,7 +81,7 @@ fem::StepResult Dynamics<T>::StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, 
 /// tip at the frame's end; the report then shows the force at the step's
 /// end positions.
 template <typename T>
-fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start,
+fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start,
                                           double frame_time, int64_t deadline_ns, RunCounters& run) {
   fem::StepResult r;
   if constexpr (std::is_same_v<T, double>) {
@@ -128,7 +128,7 @@ fem::StepResult Dynamics<T>::StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, 
 }
 
 template <typename T>
-bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+bool Dynamics<T>::StepInSubsteps(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start, double frame_time,
                                  int substeps) {
   if constexpr (std::is_same_v<T, double>) {
     fem::Model<double>& model = fem.model();
@@ -209,9 +209,9 @@ void Dynamics<T>::Prime(SceneFem<T>& fem, double frame_time) {
 }
 
 template <typename T>
-Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const {
+Eigen::Matrix3d Dynamics<T>::ContactStiffness(const ToolStage<T>& tool, const SceneFem<T>& fem) const {
   if constexpr (std::is_same_v<T, double>) {
-    // Without load the stiffness is zero (ToolState): no tangent to assemble,
+    // Without load the stiffness is zero (ToolStage): no tangent to assemble,
     // and the next contact starts without a held stiffness.
     if (!tool.Loaded()) held_tissue_.setZero();
     if (kind_ == IntegratorKind::kImplicit && tool.Loaded()) {

@@ -11,7 +11,7 @@
 /// With the implicit step the haptic linearisation is the step's own: the
 /// tissue's point stiffness is EffectiveStiffness at the contact's nodes
 /// minus the contact spring the last step put in its Jacobian, in series
-/// with the contact spring (ToolState::ContactStiffness).
+/// with the contact spring (ToolStage::ContactStiffness).
 
 #include <array>
 #include <cstdint>
@@ -27,7 +27,7 @@
 #include "common/sim/output.h"
 #include "common/sim/scene_fem.h"
 #include "common/sim/stage.h"
-#include "common/sim/tool_state.h"
+#include "common/sim/tool_stage.h"
 #include "common/sim/types.h"
 
 namespace cutsim::sim {
@@ -59,7 +59,7 @@ class Dynamics final : public CheckpointedStage {
   /// energy, e.g. a trial that inverts a patch) is redone from the same
   /// state in 2, then 4, then 8 substeps with the clamped tangent K⁺; only
   /// when all of them fail does the frame fail like an explicit step.
-  fem::StepResult StepFrame(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+  fem::StepResult StepFrame(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start, double frame_time,
                             int64_t deadline_ns, RunCounters& run);
 
   /// The implicit step's first factor, made now at the state (load time;
@@ -68,7 +68,7 @@ class Dynamics final : public CheckpointedStage {
   void Prime(SceneFem<T>& fem, double frame_time);
 
   /// The haptic stiffness at the tool's contact (file comment), N/m.
-  [[nodiscard]] Eigen::Matrix3d ContactStiffness(const ToolState<T>& tool, const SceneFem<T>& fem) const;
+  [[nodiscard]] Eigen::Matrix3d ContactStiffness(const ToolStage<T>& tool, const SceneFem<T>& fem) const;
 
   /// The integrator and the implicit step's counters.
   void AddToSummary(SimulationSummary& s) const;
@@ -87,16 +87,16 @@ class Dynamics final : public CheckpointedStage {
   [[nodiscard]] const std::array<double, kNumDynamicsPhases>& last_phase_seconds() const { return phase_seconds_; }
 
  private:
-  fem::StepResult StepExplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+  fem::StepResult StepExplicit(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start, double frame_time,
                                RunCounters& run);
-  fem::StepResult StepImplicit(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+  fem::StepResult StepImplicit(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start, double frame_time,
                                int64_t deadline_ns, RunCounters& run);
   /// The recovery of a failed implicit step: `substeps` steps of
   /// frame_time/substeps with K⁺, the contact spring moved along the
   /// tool's path, each to its tolerance (no deadline: a recovery must not
   /// carry an error). False if one of them fails (the state is then
   /// restored).
-  bool StepInSubsteps(SceneFem<T>& fem, ToolState<T>* tool, const ToolPose& start, double frame_time,
+  bool StepInSubsteps(SceneFem<T>& fem, ToolStage<T>* tool, const ToolPose& start, double frame_time,
                       int substeps);
   void Count(const fem::ImplicitResult& r, int64_t step);
 

@@ -28,7 +28,7 @@
 #include "common/sim/settle.h"
 #include "common/sim/stage.h"
 #include "common/sim/surface_tracker.h"
-#include "common/sim/tool_state.h"
+#include "common/sim/tool_stage.h"
 #include "cutsim/v1/checkpoint.pb.h"
 
 namespace cutsim::sim {
@@ -36,7 +36,7 @@ namespace {
 
 /// A Simulation composed of its stages: the scene's FEM (SceneFem), the
 /// surface the tool sees (SurfaceTracker), the tool and its contact
-/// (ToolState), the frame's dynamics (Dynamics, explicit or implicit) and
+/// (ToolStage), the frame's dynamics (Dynamics, explicit or implicit) and
 /// the cut test (CutPipeline). Each stage owns its state;
 /// the engine hands them what they need, frame by frame.
 template <typename T>
@@ -207,12 +207,12 @@ class Engine final : public Simulation {
 
   /// What Memo() copies: see SimulationMemo.
   struct EngineMemo final : SimulationMemo {
-    EngineMemo(const fem::State<T>& s, const std::optional<ToolState<T>>& t,
+    EngineMemo(const fem::State<T>& s, const std::optional<ToolStage<T>>& t,
                std::optional<typename CutPipeline<T>::AttemptState> c, const RunCounters& r, const SessionMeter<T>& m,
                const SurfaceTracker& f, const std::optional<IncisionScorer>& i)
         : state(s), tool(t), tracker(std::move(c)), run(r), meter(m), surface(f), scorer(i) {}
     fem::State<T> state;
-    std::optional<ToolState<T>> tool;
+    std::optional<ToolStage<T>> tool;
     std::optional<typename CutPipeline<T>::AttemptState> tracker;
     RunCounters run;
     SessionMeter<T> meter;
@@ -511,7 +511,7 @@ class Engine final : public Simulation {
   int64_t frame_budget_ns_;  // the dynamics' wall-clock budget per frame (0: none)
   FrameTimes frame_times_;   // the last frame's stages
   SurfaceTracker surface_;
-  std::optional<ToolState<T>> tool_;      // with a tool
+  std::optional<ToolStage<T>> tool_;      // with a tool
   std::optional<CutPipeline<T>> cuts_;    // with a tool and cutting
   RunCounters run_;
   SessionMeter<T> meter_{{.threads = fem_.threads()}};

@@ -1,4 +1,4 @@
-#include "common/sim/tool_state.h"
+#include "common/sim/tool_stage.h"
 
 #include <algorithm>
 #include <cmath>
@@ -68,7 +68,7 @@ ToolPose ParkedPose(const mesh::TetMesh& mesh, double blade_length) {
 }  // namespace
 
 template <typename T>
-ToolState<T>::ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, const fem::Model<T>& model)
+ToolStage<T>::ToolStage(const LoadedScene& scene, const mesh::TetMesh& mesh, const fem::Model<T>& model)
     : path_(ReadPath(scene)) {
   const auto& tool = scene.scene.tool();
   blade_length_ = tool.blade_length();
@@ -89,13 +89,13 @@ ToolState<T>::ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, con
 }
 
 template <typename T>
-ToolPose ToolState<T>::Sample(double t) const {
+ToolPose ToolStage<T>::Sample(double t) const {
   if (path_.empty()) return pose_;
   return path_.Sample(t);
 }
 
 template <typename T>
-void ToolState<T>::FindContact(const SurfaceTracker& surface, const fem::Model<T>& model, const T* x) {
+void ToolStage<T>::FindContact(const SurfaceTracker& surface, const fem::Model<T>& model, const T* x) {
   facet_ = FindContactFacet(surface.bvh(), surface.world(), surface.triangles(), pose_.tip, pose_.blade_dir,
                             blade_length_, mean_edge_, hits_scratch_, box_scratch_, surface.debris_facets(), in_cut_,
                             surface.wall_nodes());
@@ -130,7 +130,7 @@ void ToolState<T>::FindContact(const SurfaceTracker& surface, const fem::Model<T
 /// cut a facet on the cut releases the grip, and an in-slit contact keeps
 /// one but never takes one (tool_contact.h, in its own cut).
 template <typename T>
-void ToolState<T>::UpdateGrip(const fem::Model<T>& model, const T* x) {
+void ToolStage<T>::UpdateGrip(const fem::Model<T>& model, const T* x) {
   const bool inside =
       facet_.touching && !facet_.on_cut && (facet_.point - pose_.tip).dot(pose_.blade_dir) > indent_limit_;
   if (!inside) {
@@ -162,7 +162,7 @@ void ToolState<T>::UpdateGrip(const fem::Model<T>& model, const T* x) {
 /// are split copies of a few milligrams, where a spring sized for the body
 /// (E·h̄) would otherwise set the limit.
 template <typename T>
-double ToolState<T>::ContactLimitedStep(double dt_max, const fem::Model<T>& model, double safety_factor) const {
+double ToolStage<T>::ContactLimitedStep(double dt_max, const fem::Model<T>& model, double safety_factor) const {
   double w2 = 0;
   double damper_limit = std::numeric_limits<double>::infinity();
   for (int i = 0; i < 3; ++i) {
@@ -179,7 +179,7 @@ double ToolState<T>::ContactLimitedStep(double dt_max, const fem::Model<T>& mode
 }
 
 template <typename T>
-Eigen::Vector3d ToolState<T>::ContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+Eigen::Vector3d ToolStage<T>::ContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
                                            const T* x) {
   const auto& nd = ForceNodes();
   const Eigen::Vector3d x0 = NodeX(x, nd[0]), x1 = NodeX(x, nd[1]), x2 = NodeX(x, nd[2]);
@@ -202,7 +202,7 @@ Eigen::Vector3d ToolState<T>::ContactForce(const Eigen::Vector3d& tip, const Eig
 }
 
 template <typename T>
-void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+void ToolStage<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
                                      fem::State<T>& state) {
   const Eigen::Vector3d F = ContactForce(tip, tool_velocity, state.x.data());
   const auto& nd = ForceNodes();
@@ -219,7 +219,7 @@ void ToolState<T>::ApplyContactForce(const Eigen::Vector3d& tip, const Eigen::Ve
 /// indentation limit, the grip k·(tip − p)⊥ has k·(I − d dᵀ) while its
 /// stretch is below the grip limit. At a cap the force is constant in p.
 template <typename T>
-fem::PenaltyTerm ToolState<T>::ContactPenalty(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
+fem::PenaltyTerm ToolStage<T>::ContactPenalty(const Eigen::Vector3d& tip, const Eigen::Vector3d& tool_velocity,
                                               const T* x) {
   fem::PenaltyTerm term;
   term.force = ContactForce(tip, tool_velocity, x);
@@ -240,7 +240,7 @@ fem::PenaltyTerm ToolState<T>::ContactPenalty(const Eigen::Vector3d& tip, const 
 }
 
 template <typename T>
-void ToolState<T>::ClearContactForce(fem::State<T>& state) {
+void ToolStage<T>::ClearContactForce(fem::State<T>& state) {
   for (const int32_t n : applied_nodes_) {
     if (n < 0) continue;
     for (int k = 0; k < 3; ++k) state.f_ext[3 * static_cast<size_t>(n) + static_cast<size_t>(k)] = T(0);
@@ -254,7 +254,7 @@ void ToolState<T>::ClearContactForce(fem::State<T>& state) {
 /// tissue taken along the stretch (or, unloaded, along the facet normal's
 /// part across the blade).
 template <typename T>
-bool ToolState<T>::StiffnessShape(Eigen::Vector3d& u, Eigen::Matrix3d& shape) const {
+bool ToolStage<T>::StiffnessShape(Eigen::Vector3d& u, Eigen::Matrix3d& shape) const {
   if (!Loaded()) return false;
   u = facet_.normal;
   shape = u * u.transpose();
@@ -270,7 +270,7 @@ bool ToolState<T>::StiffnessShape(Eigen::Vector3d& u, Eigen::Matrix3d& shape) co
 }
 
 template <typename T>
-Eigen::Matrix3d ToolState<T>::ContactStiffness(const fem::Model<T>& model, const T* x) const {
+Eigen::Matrix3d ToolStage<T>::ContactStiffness(const fem::Model<T>& model, const T* x) const {
   Eigen::Vector3d u;
   Eigen::Matrix3d shape;
   if (!StiffnessShape(u, shape)) return Eigen::Matrix3d::Zero();
@@ -280,7 +280,7 @@ Eigen::Matrix3d ToolState<T>::ContactStiffness(const fem::Model<T>& model, const
 
 /// The tissue's stiffness along u for a load along u: 1/(uᵀ K⁻¹ u).
 template <typename T>
-Eigen::Matrix3d ToolState<T>::ContactStiffness(const Eigen::Matrix3d& tissue) const {
+Eigen::Matrix3d ToolStage<T>::ContactStiffness(const Eigen::Matrix3d& tissue) const {
   Eigen::Vector3d u;
   Eigen::Matrix3d shape;
   if (!StiffnessShape(u, shape)) return Eigen::Matrix3d::Zero();
@@ -290,7 +290,7 @@ Eigen::Matrix3d ToolState<T>::ContactStiffness(const Eigen::Matrix3d& tissue) co
 }
 
 template <typename T>
-void ToolState<T>::EnterCut(const CutSweep& sweep) {
+void ToolStage<T>::EnterCut(const CutSweep& sweep) {
   in_cut_ = true;  // the blade is in its own slit now (tool_contact.h, in-cut test)
   sweeps_.push_back(sweep);
 }
@@ -324,7 +324,7 @@ void CheckNodes(const google::protobuf::RepeatedField<int32_t>& nodes, int32_t n
 }  // namespace
 
 template <typename T>
-void ToolState<T>::Save(v1::CheckpointBody& body) const {
+void ToolStage<T>::Save(v1::CheckpointBody& body) const {
   v1::ToolPart& p = *body.mutable_tool();
   PoseToProto(pose_, p.mutable_pose());
   if (external_pose_) PoseToProto(*external_pose_, p.mutable_external_pose());
@@ -354,7 +354,7 @@ void ToolState<T>::Save(v1::CheckpointBody& body) const {
 }
 
 template <typename T>
-void ToolState<T>::Check(const v1::CheckpointBody& body, const PartCheck& check) const {
+void ToolStage<T>::Check(const v1::CheckpointBody& body, const PartCheck& check) const {
   const std::string& src = check.source;
   if (!body.has_tool()) FailPart(src, "tool", "missing: the checkpoint does not hold the tool's state");
   const v1::ToolPart& p = body.tool();
@@ -387,7 +387,7 @@ void ToolState<T>::Check(const v1::CheckpointBody& body, const PartCheck& check)
 }
 
 template <typename T>
-void ToolState<T>::Restore(const v1::CheckpointBody& body) {
+void ToolStage<T>::Restore(const v1::CheckpointBody& body) {
   const v1::ToolPart& p = body.tool();
   const std::string none;  // checked before: nothing throws here
   pose_ = PoseFromPart(p.pose(), none, "");
@@ -418,7 +418,7 @@ void ToolState<T>::Restore(const v1::CheckpointBody& body) {
   applied_nodes_ = {-1, -1, -1};  // no contact force is on f_ext between frames
 }
 
-template class ToolState<float>;
-template class ToolState<double>;
+template class ToolStage<float>;
+template class ToolStage<double>;
 
 }  // namespace cutsim::sim

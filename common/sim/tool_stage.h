@@ -1,6 +1,7 @@
 #pragma once
 /// @file
-/// The tool and its contact with the tissue, frame by frame: the tool's
+/// `sim::ToolStage`, the tool and its contact with the tissue, frame by
+/// frame (the wire's `v1::ToolState` is the pose a station sends): the tool's
 /// set-up from the scene (scripted path or external pose, blade, contact
 /// spring sized to the tissue), the contact facet and the blade's grip
 /// (tool_contact.h has the contact model), the penalty or grip force on the
@@ -30,12 +31,12 @@
 namespace cutsim::sim {
 
 template <typename T>
-class ToolState final : public CheckpointedStage {
+class ToolStage final : public CheckpointedStage {
  public:
   /// The scene's tool over the uncut `mesh`, its contact spring as stiff as
   /// one element of the model's first material (E·h̄) unless the scene
   /// sets it. Throws InputError for an unreadable path file.
-  ToolState(const LoadedScene& scene, const mesh::TetMesh& mesh, const fem::Model<T>& model);
+  ToolStage(const LoadedScene& scene, const mesh::TetMesh& mesh, const fem::Model<T>& model);
 
   // ---- pose -------------------------------------------------------------
   /// Drives the tool from outside (haptic link) from the next frame on.
@@ -132,7 +133,7 @@ class ToolState final : public CheckpointedStage {
   mutable PatchScratch patch_;  // ContactStiffness's scratch, reused across frames
 };
 
-extern template class ToolState<float>;
-extern template class ToolState<double>;
+extern template class ToolStage<float>;
+extern template class ToolStage<double>;
 
 }  // namespace cutsim::sim
