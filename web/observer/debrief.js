@@ -13,7 +13,9 @@
 
 const FORCE_COLOUR = '#3cc85a';
 const DEVIATION_COLOUR = '#5b8def';
-const BAND_COLOUR = 'rgba(224, 96, 90, 0.18)';
+// The plan's tolerance band: where a cut step's deviation is acceptable, so
+// a calm green under the blue dots, not a warning colour.
+const BAND_COLOUR = 'rgba(90, 190, 120, 0.16)';
 const STEP_COLOUR = '#ebb91e';
 const CURSOR_COLOUR = '#ffffff';
 const SPEEDS = [0.25, 0.5, 1, 2, 4];
