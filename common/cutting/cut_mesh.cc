@@ -58,7 +58,7 @@ int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   // face has at most two tets, so every star finds the same mate.
   if (star_block_[Idx(b)].size < star_block_[Idx(a)].size) std::swap(a, b);
   if (star_block_[Idx(c)].size < star_block_[Idx(a)].size) std::swap(a, c);
-  for (const int32_t u : Star(a)) {
+  for (const int32_t u : node_tets(a)) {
     if (u == t) continue;
     const auto& m = recs_[Idx(u)].nodes;
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
@@ -118,9 +118,6 @@ CutMesh::CutMesh(const mesh::TetMesh& mesh, int32_t node_capacity) {
   }
   copies_.resize(Idx(n));
   BuildFaces();
-  // Step scratch sized here, not in the first cut step (an O(N) fill).
-  node_marks_.rows.reserve(Idx(cap));
-  node_marks_.rows.resize(Idx(n));
   tet_marks_.rows.resize(recs_.size());
   star_connected0_.resize(Idx(n));
   for (int32_t v = 0; v < n; ++v) star_connected0_[Idx(v)] = StarIsOneGroup(v) ? 1 : 0;
@@ -162,7 +159,7 @@ std::array<int32_t, 2> CutMesh::FaceTets(int32_t a, int32_t b, int32_t c) const 
   std::array<int32_t, 2> out{-1, -1};
   if (a < 0 || a >= num_nodes()) return out;
   int k = 0;
-  for (const int32_t u : Star(a)) {
+  for (const int32_t u : node_tets(a)) {
     const auto& m = recs_[Idx(u)].nodes;
     const bool has_b = m[0] == b || m[1] == b || m[2] == b || m[3] == b;
     const bool has_c = m[0] == c || m[1] == c || m[2] == c || m[3] == c;
@@ -209,7 +206,7 @@ std::array<int32_t, 3> CutMesh::SurfaceTriangle(int32_t slot) const {
 
 std::vector<int32_t> CutMesh::ContactElements(int32_t node, int32_t facet_tet) const {
   std::vector<int32_t> out;
-  if (node >= 0 && node < num_nodes()) out.assign(Star(node).begin(), Star(node).end());
+  if (node >= 0 && node < num_nodes()) out.assign(node_tets(node).begin(), node_tets(node).end());
   if (facet_tet >= 0 && facet_tet < num_tets() && !std::binary_search(out.begin(), out.end(), facet_tet)) {
     out.insert(std::lower_bound(out.begin(), out.end(), facet_tet), facet_tet);
   }
@@ -234,6 +231,35 @@ void CutMesh::TwinsInto(int32_t node, const WorldAccess& world, std::vector<int3
   consider(o);
   for (const int32_t k : copies_[Idx(o)]) consider(k);
   // Ascending: the original first, copies in creation order.
+}
+
+int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Eigen::Vector3d& cp, const Eigen::Vector3d& normal,
+                          const WorldAccess& world) const {
+  const Eigen::Vector3d n = normal.normalized();
+  auto tangential = [&](const Eigen::Vector3d& a) { return Eigen::Vector3d(a - n.dot(a) * n); };
+  const Eigen::Vector3d s1 = tangential(world.Get(v1) - world.Get(v0));
+  if (!(s1.norm() > 0.0)) return -1;
+  int32_t best = -1;
+  double best_cos = -2.0;
+  for (const int32_t t : node_tets(v1)) {
+    const auto& tn = recs_[Idx(t)].nodes;
+    for (int f = 0; f < 4; ++f) {
+      if (tn[Idx(f)] == v1 || recs_[Idx(t)].neighbour[Idx(f)] >= 0) continue;  // surface faces through v1
+      for (int c = 0; c < 4; ++c) {
+        const int32_t vi = tn[Idx(c)];
+        if (c == f || vi == v1 || origin_[Idx(vi)] == origin_[Idx(v0)] || origin_[Idx(vi)] == origin_[Idx(v1)])
+          continue;
+        const Eigen::Vector3d si = tangential(world.Get(vi) - cp);  // eq. (12): s_i from C_p(t)
+        if (!(si.norm() > 0.0)) continue;
+        const double c_angle = s1.dot(si) / (s1.norm() * si.norm());
+        if (c_angle > best_cos || (c_angle == best_cos && vi < best)) {
+          best_cos = c_angle;
+          best = vi;
+        }
+      }
+    }
+  }
+  return best;
 }
 
 int32_t CutMesh::NewSlot(int32_t t, int f, bool opened) {
@@ -362,7 +388,17 @@ void CutMesh::RetargetTet(int32_t t, int32_t from, int32_t to) {
   if (journaling_) journal_.push_back(Op{t, from, to});
 }
 
-void CutMesh::Rollback(size_t journal_mark, int32_t node_mark) {
+size_t CutMesh::BeginJournal() {
+  journaling_ = true;
+  return journal_.size();
+}
+
+void CutMesh::EndJournal(size_t journal_mark) {
+  journaling_ = false;
+  journal_.resize(journal_mark);
+}
+
+void CutMesh::RollBack(size_t journal_mark, int32_t node_mark) {
   const bool was_journaling = journaling_;
   journaling_ = false;
   while (journal_.size() > journal_mark) {
@@ -391,7 +427,7 @@ int32_t CutMesh::SplitNode(int32_t node, std::span<const int32_t> moved, Topolog
 }
 
 void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32_t to) {
-  CUTSIM_CHECK(Star(to).empty(), "tets move to a fresh copy only");
+  CUTSIM_CHECK(node_tets(to).empty(), "tets move to a fresh copy only");
   // All at once rather than RetargetTet one by one: a face between two
   // moved tets stays interior (its neighbour entries are per local face,
   // and the corner is replaced in place), a surface face keeps its slot
@@ -428,70 +464,10 @@ void CutMesh::MoveTetsToCopy(std::span<const int32_t> moved, int32_t from, int32
   }
 }
 
-namespace {
-
-// Union–find over scratch `parent` (0..n−1, path halving, the smaller index
-// is the root) and relabelling in order of first appearance.
-int32_t FindRoot(std::vector<int32_t>& parent, int32_t i) {
-  while (parent[static_cast<size_t>(i)] != i) {
-    auto& p = parent[static_cast<size_t>(i)];
-    p = parent[static_cast<size_t>(p)];
-    i = p;
-  }
-  return i;
-}
-void UnionRoots(std::vector<int32_t>& parent, int32_t a, int32_t b) {
-  a = FindRoot(parent, a);
-  b = FindRoot(parent, b);
-  if (a == b) return;
-  if (a < b) std::swap(a, b);
-  parent[static_cast<size_t>(a)] = b;
-}
-int32_t RelabelRoots(std::vector<int32_t>& parent, std::vector<int32_t>& labels, std::vector<int32_t>& root_label) {
-  const size_t n = parent.size();
-  labels.assign(n, -1);
-  root_label.assign(n, -1);
-  int32_t count = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const auto r = static_cast<size_t>(FindRoot(parent, static_cast<int32_t>(i)));
-    if (root_label[r] < 0) root_label[r] = count++;
-    labels[i] = root_label[r];
-  }
-  return count;
-}
-
-}  // namespace
-
-int32_t CutMesh::StarGroups(int32_t node) {
-  const std::span<const int32_t> star = Star(node);
-  ds_parent_.resize(star.size());
-  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
-  for (size_t i = 0; i < star.size(); ++i) {
-    const int32_t t = star[i];
-    const auto& n = recs_[Idx(t)].nodes;
-    for (int f = 0; f < 4; ++f) {
-      if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
-      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
-      if (u < 0) continue;
-      const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
-      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
-    }
-  }
-  const int32_t k = RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
-  // Counting sort by label: groups in label order, tets ascending within.
-  group_begin_.assign(Idx(k) + 1, 0);
-  for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(ds_label_[i]) + 1];
-  for (int32_t g = 0; g < k; ++g) group_begin_[Idx(g) + 1] += group_begin_[Idx(g)];
-  group_tets_.resize(star.size());
-  ds_root_label_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
-  for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(ds_root_label_[Idx(ds_label_[i])]++)] = star[i];
-  return k;
-}
-
-bool CutMesh::StarIsOneGroup(int32_t node) {
+bool CutMesh::StarIsOneGroup(int32_t node) const {
   // Flood over the faces through `node` from the first tet of its star; a
   // tet across such a face holds the face, hence the node: it is in the star.
-  const std::span<const int32_t> star = Star(node);
+  const std::span<const int32_t> star = node_tets(node);
   if (star.size() <= 1) return true;
   tet_marks_.Clear(kInStar);
   tet_marks_.Insert(kInStar, star[0]);
@@ -508,39 +484,16 @@ bool CutMesh::StarIsOneGroup(int32_t node) {
   return star_queue_.size() == star.size();
 }
 
-int CutMesh::EdgeGroupCount(int32_t a, int32_t b) {
-  const std::span<const int32_t> sa = Star(a);
-  const std::span<const int32_t> sb = Star(b);
-  around_.clear();
-  std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around_));
-  if (around_.size() <= 1) return static_cast<int>(around_.size());
-  ds_parent_.resize(around_.size());
-  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
-  for (size_t i = 0; i < around_.size(); ++i) {
-    const int32_t t = around_[i];
-    const auto& n = recs_[Idx(t)].nodes;
-    for (int f = 0; f < 4; ++f) {
-      if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
-      const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
-      if (u < 0) continue;
-      const auto j = std::lower_bound(around_.begin(), around_.end(), u) - around_.begin();
-      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
-    }
-  }
-  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
-}
-
 bool CutMesh::SurfaceManifoldAt(int32_t node) const {
-  BuildLink(node);
-  return link_.empty() || LinkIsOneCycle();  // empty: an interior vertex
+  SurfaceLinkInto(node, link_);
+  return link_.empty() || LinkIsOneCycle(link_, heads_);  // empty: an interior vertex
 }
 
-void CutMesh::BuildLink(int32_t node) const {
-  // Link of the node in the surface: each surface triangle (node, p, q)
-  // contributes the directed link edge p → q.
-  auto& link = link_;
+void CutMesh::SurfaceLinkInto(int32_t node, SurfaceLink& link) const {
+  // Each surface triangle (node, p, q) contributes the directed link edge
+  // p → q.
   link.clear();
-  for (const int32_t t : Star(node)) {
+  for (const int32_t t : node_tets(node)) {
     const auto& nb = recs_[Idx(t)].neighbour;
     if ((nb[0] | nb[1] | nb[2] | nb[3]) >= 0) continue;  // no surface face (the usual tet)
     const auto& n = recs_[Idx(t)].nodes;
@@ -560,10 +513,9 @@ void CutMesh::BuildLink(int32_t node) const {
   }
 }
 
-bool CutMesh::LinkIsOneCycle() const {
+bool CutMesh::LinkIsOneCycle(SurfaceLink& link, std::vector<int32_t>& heads) {
   // A closed, oriented manifold fan is exactly one cycle: every link vertex
   // has one out- and one in-edge, and the walk from one edge visits all.
-  auto& link = link_;
   if (link.empty()) return false;
   const size_t k = link.size();
   if (k <= 32) {
@@ -596,7 +548,6 @@ bool CutMesh::LinkIsOneCycle() const {
   std::sort(link.begin(), link.end());
   for (size_t i = 1; i < link.size(); ++i)
     if (link[i].first == link[i - 1].first) return false;  // two out-edges
-  auto& heads = heads_;
   heads.clear();
   for (const auto& e : link) heads.push_back(e.second);
   std::sort(heads.begin(), heads.end());
@@ -657,9 +608,8 @@ void CutMesh::ApplyEvent(const TopologyEvent& event) {
     const Move& m = event.moves[i];
     if (!m.rest.allFinite() || !m.world.allFinite()) fail("event.moves[" + std::to_string(i) + "]", "non-finite position");
   }
-  const size_t journal_mark = journal_.size();
+  const size_t journal_mark = BeginJournal();
   const int32_t node_mark = num_nodes();
-  journaling_ = true;
   std::string error_field, error_why;
   for (size_t i = 0; i < event.splits.size() && error_field.empty(); ++i) {
     const Split& s = event.splits[i];
@@ -691,13 +641,11 @@ void CutMesh::ApplyEvent(const TopologyEvent& event) {
     }
   }
   if (!error_field.empty()) {
-    Rollback(journal_mark, node_mark);
-    journaling_ = false;
-    journal_.resize(journal_mark);
+    RollBack(journal_mark, node_mark);
+    EndJournal(journal_mark);
     fail(error_field, error_why);
   }
-  journaling_ = false;
-  journal_.resize(journal_mark);
+  EndJournal(journal_mark);
   for (const Move& m : event.moves) rest_[Idx(m.node)] = m.rest;
   version_ = event.version;
 }

@@ -32,7 +32,7 @@ struct CutParams {
   /// Sliver guard of the remeshing moves: a move must also keep every
   /// touched tet (rest and world) at mean-ratio quality ≥ min(keep_quality,
   /// its quality before), dimensionless in [0, 1). min_quality alone lets
-  /// repeated moves in one region grind elements down to it (see cut_mesh.h).
+  /// repeated moves in one region grind elements down to it (see cut_stepper.h).
   double keep_quality = 0.4;
   /// Remeshing moves are halved at most this many times before being skipped.
   int32_t max_move_halvings = 8;
@@ -40,7 +40,7 @@ struct CutParams {
   /// included); a step needing more is rejected and rolled back.
   int32_t max_splits_per_step = 4096;
   /// Fragment guard: a step must not cut loose a piece of fewer tets than
-  /// this (discretisation debris, see cut_mesh.h); 0 disables the guard. It
+  /// this (discretisation debris, see cut_stepper.h); 0 disables the guard. It
   /// is also off on meshes of fewer than 4× this many tets.
   int32_t min_fragment_tets = 8;
 };

@@ -1,4 +1,4 @@
-// Steps 1–2 of a cut step (cut_mesh.h): the cut plane P and the split set
+// Steps 1–2 of a cut step (cut_stepper.h): the cut plane P and the split set
 // S, found by a walk through the slab the blade swept. They change no
 // topology, so PrepareCut may run them ahead of ExecuteCut.
 #include <algorithm>
@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "common/core/error.h"
-#include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "common/cutting/cut_step_internal.h"
 
 namespace cutsim::cutting {
@@ -93,72 +93,40 @@ bool ChoosePlane(const CutStep& step, const Vector3d& n, double h, bool blade_pl
 
 }  // namespace
 
-int32_t CutMesh::SelectV2(int32_t v0, int32_t v1, const Vector3d& cp, const Vector3d& normal,
-                          const WorldAccess& world) const {
-  const Vector3d n = normal.normalized();
-  auto tangential = [&](const Vector3d& a) { return Vector3d(a - n.dot(a) * n); };
-  const Vector3d s1 = tangential(world.Get(v1) - world.Get(v0));
-  if (!(s1.norm() > 0.0)) return -1;
-  int32_t best = -1;
-  double best_cos = -2.0;
-  for (const int32_t t : Star(v1)) {
-    const auto& tn = recs_[Idx(t)].nodes;
-    for (int f = 0; f < 4; ++f) {
-      if (tn[Idx(f)] == v1 || recs_[Idx(t)].neighbour[Idx(f)] >= 0) continue;  // surface faces through v1
-      for (int c = 0; c < 4; ++c) {
-        const int32_t vi = tn[Idx(c)];
-        if (c == f || vi == v1 || origin_[Idx(vi)] == origin_[Idx(v0)] || origin_[Idx(vi)] == origin_[Idx(v1)])
-          continue;
-        const Vector3d si = tangential(world.Get(vi) - cp);  // eq. (12): s_i from C_p(t)
-        if (!(si.norm() > 0.0)) continue;
-        const double c_angle = s1.dot(si) / (s1.norm() * si.norm());
-        if (c_angle > best_cos || (c_angle == best_cos && vi < best)) {
-          best_cos = c_angle;
-          best = vi;
-        }
-      }
-    }
-  }
-  return best;
-}
-
-void CutMesh::PrefetchLastWalk(const double* xyz) const {
+void CutStepper::PrefetchLastWalk(const double* xyz) const {
   // Asked for all at once, the misses overlap; the walk itself takes them
   // nearly one by one (its next vertex comes out of the last one's tets).
   // The ids come from an earlier step: checked against the mesh as it is.
+  const CutMesh& m = mesh();
   for (const int32_t t : walked_tets_) {
-    if (t >= num_tets()) continue;
-    __builtin_prefetch(&recs_[Idx(t)]);
+    if (t >= m.num_tets()) continue;
+    m.PrefetchTet(t);
     __builtin_prefetch(&tet_marks_.rows[Idx(t)]);
-    __builtin_prefetch(&slot_[Idx(t)]);
   }
-  const int32_t n = num_nodes();
+  const int32_t n = m.num_nodes();
   for (const auto& [a, level] : slab_seen_) {
     if (a >= n) continue;
-    __builtin_prefetch(&star_block_[Idx(a)]);
+    m.PrefetchNode(a);
     __builtin_prefetch(&node_marks_.rows[Idx(a)]);
-    __builtin_prefetch(&rest_[Idx(a)]);
-    __builtin_prefetch(&origin_[Idx(a)]);
     if (xyz != nullptr) __builtin_prefetch(xyz + 3 * Idx(a));
   }
   // The stars themselves: the loop above has asked for their block records.
-  for (const auto& [a, level] : slab_seen_)
-    if (a < n) __builtin_prefetch(star_pool_.data() + star_block_[Idx(a)].begin);
+  for (const auto& [a, level] : slab_seen_) m.PrefetchStar(a);
 }
 
-void CutMesh::NextPositionGeneration() {
+void CutStepper::NextPositionGeneration() {
   if (++pos_generation_ == 0) {  // wrap-around, once in 4 billion steps
     for (auto& c : x_cache_) c.generation = 0;
     pos_generation_ = 1;
   }
 }
 
-std::optional<double> CutMesh::MeanEdgeLength(int32_t node, const Vector3d& x,
+std::optional<double> CutStepper::MeanEdgeLength(int32_t node, const Vector3d& x,
                                               const internal::StepWorld& world) const {
   double h = 0.0;
   int edges = 0;
-  for (const int32_t t : Star(node)) {
-    for (const int32_t a : recs_[Idx(t)].nodes) {
+  for (const int32_t t : mesh().node_tets(node)) {
+    for (const int32_t a : mesh().tet(t)) {
       if (a == node) continue;
       h += (world.Get(a) - x).norm();
       ++edges;
@@ -168,14 +136,11 @@ std::optional<double> CutMesh::MeanEdgeLength(int32_t node, const Vector3d& x,
   return h / edges;
 }
 
-PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
+PreparedCut CutStepper::PrepareOnPlane(const CutStep& step, const WorldAccess& world, const CutParams& params,
                                     bool blade_plane, const std::atomic<bool>* cancel) {
-  const int32_t n0 = num_nodes();
+  const int32_t n0 = mesh().num_nodes();
   if (!StepInputValid(step, n0)) return {};
   NextPositionGeneration();
-  // Node rows for every node before the step: the slab walk's stamp sets
-  // are unchecked.
-  if (node_marks_.rows.size() < Idx(n0)) node_marks_.rows.resize(Idx(n0));
   if (blade_plane) PrefetchLastWalk(world.Xyz());
   const TopologyEvent no_splits;
   const internal::StepWorld w(world, n0, no_splits, x_cache_, pos_generation_);
@@ -187,10 +152,10 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
   if (!h) return {};
   slab.band = params.band_fraction * *h;
   if (!ChoosePlane(step, n, *h, blade_plane, slab)) return {};  // 1
-  const int32_t v2 = SelectV2(step.v0, step.v1, step.cp, n, world);
+  const int32_t v2 = mesh().SelectV2(step.v0, step.v1, step.cp, n, world);
   if (!CollectSplitSet(step, w, slab, cancel)) return {};  // 2
   return PreparedCut{.valid = true,
-                     .version = version_,
+                     .version = mesh().version(),
                      .generation = pos_generation_,
                      .v0 = step.v0,
                      .v1 = step.v1,
@@ -202,7 +167,7 @@ PreparedCut CutMesh::PrepareOnPlane(const CutStep& step, const WorldAccess& worl
                      .origin = slab.origin};
 }
 
-bool CutMesh::CollectSplitSet(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
+bool CutStepper::CollectSplitSet(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
                               const std::atomic<bool>* cancel) {
   slab_.clear();
   if (!step.blade) {
@@ -214,14 +179,14 @@ bool CutMesh::CollectSplitSet(const CutStep& step, const internal::StepWorld& wo
   return !slab.blade_plane || SnapPlane(step, world, slab, cancel);
 }
 
-void CutMesh::AddSlabEnds(const CutStep& step, const internal::SweptSlab& slab) {
+void CutStepper::AddSlabEnds(const CutStep& step, const internal::SweptSlab& slab) {
   // v1 only if it is near P: the closest vertex of the contact facet may
   // lie on the far row of a blade passing between two rows of nodes.
   if (!slab.blade_plane || std::abs(slab.Distance(slab.x1)) <= slab.band) slab_.push_back(step.v1);
   if (slab.blade_plane && slab.Level(slab.x0) == 1) slab_.push_back(step.v0);
 }
 
-bool CutMesh::WalkSlab(const CutStep& step, const internal::StepWorld& world, const internal::SweptSlab& slab,
+bool CutStepper::WalkSlab(const CutStep& step, const internal::StepWorld& world, const internal::SweptSlab& slab,
                        const std::atomic<bool>* cancel) {
   std::vector<int32_t>& S = slab_;
   S.clear();
@@ -232,7 +197,7 @@ bool CutMesh::WalkSlab(const CutStep& step, const internal::StepWorld& world, co
   // below), do not depend on the walk's order. No copies exist yet (step 3
   // makes them), and the node rows are sized for every node: unchecked
   // stamp sets.
-  CUTSIM_CHECK(tet_marks_.rows.size() >= recs_.size(), "step scratch");
+  CUTSIM_CHECK(tet_marks_.rows.size() >= Idx(mesh().num_tets()), "step scratch");
   node_marks_.Clear(internal::kSeen);
   tet_marks_.Clear(kSlab);
   const auto seen = node_marks_.View(internal::kSeen);
@@ -246,16 +211,16 @@ bool CutMesh::WalkSlab(const CutStep& step, const internal::StepWorld& world, co
     // The step runs on caches the FEM steps in between have evicted: ask
     // for the star's tets (and the next vertex's star record) before
     // walking them, so the misses overlap.
-    if (head + 1 < slab_queue_.size()) __builtin_prefetch(&star_block_[Idx(slab_queue_[head + 1])]);
-    const std::span<const int32_t> star = Star(u);
+    if (head + 1 < slab_queue_.size()) mesh().PrefetchStarRecord(slab_queue_[head + 1]);
+    const std::span<const int32_t> star = mesh().node_tets(u);
     for (const int32_t t : star) {
-      __builtin_prefetch(&recs_[Idx(t)]);
+      mesh().PrefetchTetRecord(t);
       __builtin_prefetch(&tet_marks_.rows[Idx(t)]);
     }
     for (const int32_t t : star) {
       if (!slab_tets.Insert(t)) continue;
       walked_tets_.push_back(t);
-      for (const int32_t a : recs_[Idx(t)].nodes) {
+      for (const int32_t a : mesh().tet(t)) {
         if (!seen.Insert(a)) continue;
         const int k = slab.Level(world.Get(a));
         slab_seen_.emplace_back(a, k);
@@ -269,7 +234,7 @@ bool CutMesh::WalkSlab(const CutStep& step, const internal::StepWorld& world, co
   return true;
 }
 
-bool CutMesh::SnapPlane(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
+bool CutStepper::SnapPlane(const CutStep& step, const internal::StepWorld& world, internal::SweptSlab& slab,
                         const std::atomic<bool>* cancel) {
   // Not snapped onto v1: the vertices under the blade are pushed around by
   // the contact, and a plane through v1 drifts onto the next layer below

@@ -1,15 +1,16 @@
-// Step 5 of a cut step (cut_mesh.h): the local remeshing moves of v0 and
+// Step 5 of a cut step (cut_stepper.h): the local remeshing moves of v0 and
 // v1, limited by the quality rule (with the sliver guard). They change
 // positions only, after the topology is final.
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
+#include <span>
 #include <vector>
 
 #include <Eigen/LU>
 
-#include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "common/cutting/cut_step_internal.h"
 #include "common/mesh/quality.h"
 
@@ -24,7 +25,7 @@ double QualityCubed(const std::array<Vector3d, 4>& p) { return mesh::MeanRatioCu
 
 }  // namespace
 
-void CutMesh::Remesh(internal::StepState& s) {
+void CutStepper::Remesh(internal::StepState& s) {
   const CutStep& step = s.step;
   if (!step.remesh) return;
   if (!step.blade) {  // the method paper's moves: to C_p(t0) and C_p(t)
@@ -44,11 +45,11 @@ void CutMesh::Remesh(internal::StepState& s) {
   }
 }
 
-void CutMesh::MoveTwins(internal::StepState& s, int32_t node, const Vector3d& target) {
+void CutStepper::MoveTwins(internal::StepState& s, int32_t node, const Vector3d& target) {
   const std::vector<int32_t>& group = move_twins_;
-  TwinsInto(node, s.world, move_twins_);
+  mesh().TwinsInto(node, s.world, move_twins_);
   const Vector3d x_old = s.world.Get(node);
-  const Vector3d u_old = rest_[Idx(node)];
+  const Vector3d u_old = mesh().rest(node);
   if (!((target - x_old).norm() > 1e-12 * s.plane.h)) return;
   GatherMoveStar();
   const Vector3d u_target = RestPreimage(s.world, target, u_old);
@@ -58,7 +59,7 @@ void CutMesh::MoveTwins(internal::StepState& s, int32_t node, const Vector3d& ta
   q_rest_.assign(move_star_.size(), std::numeric_limits<double>::quiet_NaN());
   q_world_.assign(move_star_.size(), std::numeric_limits<double>::quiet_NaN());
   // Sliver guard: the floor is keep_quality, not only min_quality (see
-  // cut_mesh.h, step 5): v0 and v1 move at every step, passes over one
+  // cut_stepper.h, step 5): v0 and v1 move at every step, passes over one
   // region move the same twins again and again, and with a floor of
   // min_quality alone each move may take a tet down to it.
   const double floor_q = std::max(s.params.min_quality, s.params.keep_quality);
@@ -73,7 +74,7 @@ void CutMesh::MoveTwins(internal::StepState& s, int32_t node, const Vector3d& ta
     }
     if (!ok) continue;
     for (const int32_t g : group) {
-      rest_[Idx(g)] = un;
+      s.mesh.SetRest(g, un);
       s.world.Set(g, xn);
       s.ev.moves.push_back(Move{g, un, xn});
     }
@@ -83,17 +84,20 @@ void CutMesh::MoveTwins(internal::StepState& s, int32_t node, const Vector3d& ta
   ++s.out.moves_skipped;
 }
 
-void CutMesh::GatherMoveStar() {
+void CutStepper::GatherMoveStar() {
   std::vector<int32_t>& star = move_star_;
   star.clear();
-  for (const int32_t g : move_twins_) star.insert(star.end(), Star(g).begin(), Star(g).end());
+  for (const int32_t g : move_twins_) {
+    const std::span<const int32_t> tets = mesh().node_tets(g);
+    star.insert(star.end(), tets.begin(), tets.end());
+  }
   if (move_twins_.size() > 1) {  // one node's tets are sorted and unique already
     std::sort(star.begin(), star.end());
     star.erase(std::unique(star.begin(), star.end()), star.end());
   }
 }
 
-Vector3d CutMesh::RestPreimage(const internal::StepWorld& world, const Vector3d& target, const Vector3d& fallback) {
+Vector3d CutStepper::RestPreimage(const internal::StepWorld& world, const Vector3d& target, const Vector3d& fallback) {
   // Barycentric coordinates of the target in the world tet that contains it
   // best (the largest smallest barycentric coordinate, a score < 0 outside),
   // mapped to rest. Ties go to the lowest tet id, as a scan in ascending
@@ -121,7 +125,7 @@ Vector3d CutMesh::RestPreimage(const internal::StepWorld& world, const Vector3d&
       if (i == search.size()) break;
     }
     const int32_t t = search[i];
-    const auto& tn = recs_[Idx(t)].nodes;
+    const auto& tn = mesh().tet(t);
     const Vector3d p0 = world.Get(tn[0]);
     Eigen::Matrix3d D;  // edge vectors from corner 0, one per column
     D << world.Get(tn[1]) - p0, world.Get(tn[2]) - p0, world.Get(tn[3]) - p0;
@@ -133,14 +137,14 @@ Vector3d CutMesh::RestPreimage(const internal::StepWorld& world, const Vector3d&
     if (score > best_score || (score == best_score && t < best_tet)) {
       best_score = score;
       best_tet = t;
-      u_target = b0 * rest_[Idx(tn[0])] + lam[0] * rest_[Idx(tn[1])] + lam[1] * rest_[Idx(tn[2])] +
-                 lam[2] * rest_[Idx(tn[3])];
+      u_target = b0 * mesh().rest(tn[0]) + lam[0] * mesh().rest(tn[1]) + lam[1] * mesh().rest(tn[2]) +
+                 lam[2] * mesh().rest(tn[3]);
     }
   }
   return u_target;
 }
 
-void CutMesh::AddRingCandidates(const internal::StepWorld& world, const Vector3d& target) {
+void CutStepper::AddRingCandidates(const internal::StepWorld& world, const Vector3d& target) {
   // The tets around the corners of move_star_ (each corner's star once, a
   // corner is in several star tets; the twins' own stars are the star
   // itself) whose world bounding box, padded by 1e-6 of its size, holds the
@@ -151,11 +155,11 @@ void CutMesh::AddRingCandidates(const internal::StepWorld& world, const Vector3d
   node_marks_.Clear(internal::kRingNode);
   for (const int32_t g : move_twins_) node_marks_.Insert(internal::kRingNode, g);
   for (const int32_t st : move_star_) {
-    for (const int32_t a : recs_[Idx(st)].nodes) {
+    for (const int32_t a : mesh().tet(st)) {
       if (!node_marks_.Insert(internal::kRingNode, a)) continue;
-      for (const int32_t u : Star(a)) {
+      for (const int32_t u : mesh().node_tets(a)) {
         if (!tet_marks_.Insert(kInSearch, u)) continue;
-        const auto& un = recs_[Idx(u)].nodes;
+        const auto& un = mesh().tet(u);
         Vector3d lo = world.Get(un[0]), hi = lo;
         for (int c = 1; c < 4; ++c) {
           const Vector3d pc = world.Get(un[Idx(c)]);
@@ -170,21 +174,21 @@ void CutMesh::AddRingCandidates(const internal::StepWorld& world, const Vector3d
   }
 }
 
-std::array<Vector3d, 4> CutMesh::MoveCorners(const internal::StepWorld& world, int32_t t, bool rest_config,
+std::array<Vector3d, 4> CutStepper::MoveCorners(const internal::StepWorld& world, int32_t t, bool rest_config,
                                              const Vector3d* moved) const {
   std::array<Vector3d, 4> p;
   for (int c = 0; c < 4; ++c) {
-    const int32_t a = recs_[Idx(t)].nodes[Idx(c)];
+    const int32_t a = mesh().tet(t)[Idx(c)];
     if (moved != nullptr && std::find(move_twins_.begin(), move_twins_.end(), a) != move_twins_.end()) {
       p[Idx(c)] = *moved;
     } else {
-      p[Idx(c)] = rest_config ? rest_[Idx(a)] : world.Get(a);
+      p[Idx(c)] = rest_config ? mesh().rest(a) : world.Get(a);
     }
   }
   return p;
 }
 
-bool CutMesh::KeepsQuality(const internal::StepWorld& world, size_t i, bool rest_config, const Vector3d& moved,
+bool CutStepper::KeepsQuality(const internal::StepWorld& world, size_t i, bool rest_config, const Vector3d& moved,
                            double floor_quality) {
   const double q = QualityCubed(MoveCorners(world, move_star_[i], rest_config, &moved));
   if (!(q > 0.0)) return false;

@@ -1,33 +1,66 @@
-// Steps 3–4b of a cut step (cut_mesh.h): split S by the plane sides,
+// Steps 3–4b of a cut step (cut_stepper.h): split S by the plane sides,
 // remove the singularities the splits leave, and guard against fragments.
-// They change the complex under the journal, so a rejected step rolls back.
+// They change the complex under its journal, so a rejected step rolls back.
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <iterator>
+#include <numeric>
 #include <span>
 #include <utility>
 #include <vector>
 
-#include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "common/cutting/cut_step_internal.h"
 
 namespace cutsim::cutting {
+namespace {
 
-void CutMesh::BeginSeparation(internal::StepState& s) {
-  tet_marks_.Clear(kFlipped);  // tets the fragment guard moved to the other side
-  s.journal_mark = journal_.size();
-  journaling_ = true;
+// Union–find over scratch `parent` (0..n−1, path halving, the smaller index
+// is the root) and relabelling in order of first appearance.
+int32_t FindRoot(std::vector<int32_t>& parent, int32_t i) {
+  while (parent[static_cast<size_t>(i)] != i) {
+    auto& p = parent[static_cast<size_t>(i)];
+    p = parent[static_cast<size_t>(p)];
+    i = p;
+  }
+  return i;
+}
+void UnionRoots(std::vector<int32_t>& parent, int32_t a, int32_t b) {
+  a = FindRoot(parent, a);
+  b = FindRoot(parent, b);
+  if (a == b) return;
+  if (a < b) std::swap(a, b);
+  parent[static_cast<size_t>(a)] = b;
+}
+int32_t RelabelRoots(std::vector<int32_t>& parent, std::vector<int32_t>& labels, std::vector<int32_t>& root_label) {
+  const size_t n = parent.size();
+  labels.assign(n, -1);
+  root_label.assign(n, -1);
+  int32_t count = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const auto r = static_cast<size_t>(FindRoot(parent, static_cast<int32_t>(i)));
+    if (root_label[r] < 0) root_label[r] = count++;
+    labels[i] = root_label[r];
+  }
+  return count;
 }
 
-void CutMesh::EndSeparation(const internal::StepState& s, bool roll_back) {
-  if (roll_back) Rollback(s.journal_mark, s.n0);
-  journaling_ = false;
-  journal_.resize(s.journal_mark);
+}  // namespace
+
+void CutStepper::BeginSeparation(internal::StepState& s) {
+  tet_marks_.Clear(kFlipped);  // tets the fragment guard moved to the other side
+  s.journal_mark = s.mesh.BeginJournal();
+}
+
+void CutStepper::EndSeparation(const internal::StepState& s, bool roll_back) {
+  if (roll_back) s.mesh.RollBack(s.journal_mark, s.n0);
+  s.mesh.EndJournal(s.journal_mark);
 }
 
 // ---- 3. plane sides --------------------------------------------------------
 
-void CutMesh::SplitByPlaneSides(internal::StepState& s) {
+void CutStepper::SplitByPlaneSides(internal::StepState& s) {
   // A new pass: no side known, no vertex split or queued yet.
   tet_marks_.Clear(kSideKnown);
   work_.clear();
@@ -37,10 +70,10 @@ void CutMesh::SplitByPlaneSides(internal::StepState& s) {
   for (const int32_t w : slab_) PlaneSplit(s, w);
 }
 
-int8_t CutMesh::Side(internal::StepState& s, int32_t t) {
+int8_t CutStepper::Side(internal::StepState& s, int32_t t) {
   if (tet_marks_.Contains(kSideKnown, t)) return tet_marks_.rows[Idx(t)].side;
   double far = 0.0;
-  for (const int32_t a : recs_[Idx(t)].nodes) {
+  for (const int32_t a : mesh().tet(t)) {
     const double da = s.PlaneDistance(s.world.Get(a));
     if (std::abs(da) > std::abs(far)) far = da;  // strict: ties keep the first corner
   }
@@ -51,12 +84,12 @@ int8_t CutMesh::Side(internal::StepState& s, int32_t t) {
   return side;
 }
 
-bool CutMesh::PlaneSplit(internal::StepState& s, int32_t w) {
+bool CutStepper::PlaneSplit(internal::StepState& s, int32_t w) {
   node_marks_.Insert(internal::kPlaneDone, w);
   std::vector<int32_t>& negative = negative_;
   negative.clear();
   bool has_positive = false;
-  for (const int32_t t : Star(w)) {
+  for (const int32_t t : mesh().node_tets(w)) {
     if (Side(s, t) < 0) {
       negative.push_back(t);
     } else {
@@ -64,12 +97,12 @@ bool CutMesh::PlaneSplit(internal::StepState& s, int32_t w) {
     }
   }
   if (negative.empty() || !has_positive) return false;
-  SplitNode(w, negative, &s.ev);
+  s.mesh.SplitNode(w, negative, &s.ev);
   EnqueueSplit(w, negative);
   return true;
 }
 
-void CutMesh::EnqueueSplit(int32_t w, std::span<const int32_t> tets) {
+void CutStepper::EnqueueSplit(int32_t w, std::span<const int32_t> tets) {
   // The vertices whose star or link changed: the corners of the moved tets
   // (the copy among them) and w. A face changes only between a moved and an
   // unmoved tet, and all its nodes are corners of the moved one, so the
@@ -77,14 +110,14 @@ void CutMesh::EnqueueSplit(int32_t w, std::span<const int32_t> tets) {
   // manifold when the step began (every step leaves the mesh so) or were
   // queued by the split that changed them.
   for (const int32_t t : tets)
-    for (const int32_t a : recs_[Idx(t)].nodes)
+    for (const int32_t a : mesh().tet(t))
       if (node_marks_.Insert(internal::kQueued, a)) work_.push_back(a);
   if (node_marks_.Insert(internal::kQueued, w)) work_.push_back(w);
 }
 
 // ---- 4. singularities ------------------------------------------------------
 
-bool CutMesh::RemoveSingularities(internal::StepState& s) {
+bool CutStepper::RemoveSingularities(internal::StepState& s) {
   node_marks_.Clear(internal::kLinkOk);
   while (s.work_head < work_.size()) {
     const int32_t v = work_[s.work_head++];
@@ -95,7 +128,7 @@ bool CutMesh::RemoveSingularities(internal::StepState& s) {
   return ManifoldAfterSplits(s.ev);
 }
 
-void CutMesh::VisitVertex(internal::StepState& s, int32_t v) {
+void CutStepper::VisitVertex(internal::StepState& s, int32_t v) {
   // The link of v in the surface (one edge per surface face through v)
   // decides most visits without the star's groups:
   // - Empty: the star is closed, every face through v is shared with
@@ -113,14 +146,14 @@ void CutMesh::VisitVertex(internal::StepState& s, int32_t v) {
   //   then has exactly two surface faces: no edge-rule candidate.
   // Either way v is manifold (kLinkOk), and ManifoldAfterSplits skips it:
   // a later change to its star would queue it again.
-  BuildLink(v);
-  const bool link_ok = link_.empty() || LinkIsOneCycle();
+  mesh().SurfaceLinkInto(v, link_);
+  const bool link_ok = link_.empty() || CutMesh::LinkIsOneCycle(link_, heads_);
   if (link_ok) {
     node_marks_.Insert(internal::kLinkOk, v);
   } else {
     node_marks_.Erase(internal::kLinkOk, v);
   }
-  if (link_ok && star_connected0_[Idx(origin_[Idx(v)])] != 0) return;
+  if (link_ok && mesh().UncutStarIsOneGroup(v)) return;
   // Edge-rule candidates: the other two nodes of each surface face through
   // v (gathered before a split below changes the link).
   nbrs_.clear();
@@ -130,12 +163,12 @@ void CutMesh::VisitVertex(internal::StepState& s, int32_t v) {
   }
   // Vertex rule: parts of the star joined only through v. (A flood answers
   // the usual "one group" first; the groups only when split.)
-  const int32_t num_groups = StarIsOneGroup(v) ? 1 : StarGroups(v);
+  const int32_t num_groups = mesh().StarIsOneGroup(v) ? 1 : StarGroups(v);
   if (num_groups > 1) {
     for (int32_t g = 1; g < num_groups; ++g) {
       const std::span<const int32_t> group(group_tets_.data() + group_begin_[Idx(g)],
                                            Idx(group_begin_[Idx(g) + 1] - group_begin_[Idx(g)]));
-      SplitNode(v, group, &s.ev);
+      s.mesh.SplitNode(v, group, &s.ev);
       EnqueueSplit(v, group);
     }
     return;
@@ -143,7 +176,7 @@ void CutMesh::VisitVertex(internal::StepState& s, int32_t v) {
   ApplyEdgeRule(s, v);
 }
 
-void CutMesh::ApplyEdgeRule(internal::StepState& s, int32_t v) {
+void CutStepper::ApplyEdgeRule(internal::StepState& s, int32_t v) {
   // Parts around an edge joined only through the edge. The star of each
   // endpoint is connected (the vertex rule found one group), so no vertex
   // copy alone separates them; splitting an endpoint by the plane sides
@@ -179,18 +212,18 @@ void CutMesh::ApplyEdgeRule(internal::StepState& s, int32_t v) {
   }
 }
 
-bool CutMesh::ManifoldAfterSplits(const TopologyEvent& ev) const {
+bool CutStepper::ManifoldAfterSplits(const TopologyEvent& ev) const {
   // Faces change only on retargeted tets and on their neighbours across the
   // old faces, whose vertices are the split node and the other corners.
   // Every vertex here was queued by the split that last changed its star
   // and visited after it (the queue ran dry), so a vertex whose link was
   // empty or one cycle at that visit is manifold; the others (a visit that
   // found a singularity it could not remove) are checked again.
-  auto manifold = [&](int32_t a) { return node_marks_.Contains(internal::kLinkOk, a) || SurfaceManifoldAt(a); };
+  auto manifold = [&](int32_t a) { return node_marks_.Contains(internal::kLinkOk, a) || mesh().SurfaceManifoldAt(a); };
   for (const Split& sp : ev.splits) {
     if (!manifold(sp.node)) return false;
     for (const int32_t t : sp.tets)
-      for (const int32_t a : recs_[Idx(t)].nodes)
+      for (const int32_t a : mesh().tet(t))
         if (!manifold(a)) return false;
   }
   return true;
@@ -198,7 +231,7 @@ bool CutMesh::ManifoldAfterSplits(const TopologyEvent& ev) const {
 
 // ---- 4b. fragment guard ----------------------------------------------------
 
-bool CutMesh::GuardFragments(internal::StepState& s) {
+bool CutStepper::GuardFragments(internal::StepState& s) {
   // Tets cut loose into a piece of fewer than min_fragment_tets tets (a tet
   // whose farthest vertex put it on one side while its face neighbours went
   // to the other, or a corner the singularity rules severed) are
@@ -210,7 +243,7 @@ bool CutMesh::GuardFragments(internal::StepState& s) {
     size_t newly = 0;
     for (const int32_t t : fragments) newly += tet_marks_.Insert(kFlipped, t) ? 1 : 0;
     if (newly == 0) break;  // flipping again would undo a flip: keep this result
-    Rollback(s.journal_mark, s.n0);
+    s.mesh.RollBack(s.journal_mark, s.n0);
     s.ev = TopologyEvent{};  // s.world reads it by reference: the copies are gone again
     SplitByPlaneSides(s);
     if (!RemoveSingularities(s)) return false;
@@ -218,12 +251,12 @@ bool CutMesh::GuardFragments(internal::StepState& s) {
   return true;
 }
 
-const std::vector<int32_t>& CutMesh::FindFragments(const TopologyEvent& ev, const CutParams& params) {
+const std::vector<int32_t>& CutStepper::FindFragments(const TopologyEvent& ev, const CutParams& params) {
   // Local: flood fills from the retargeted tets stop at min_fragment_tets.
   std::vector<int32_t>& small = fragments_;
   small.clear();
   const auto limit = static_cast<size_t>(params.min_fragment_tets);
-  if (limit == 0 || static_cast<size_t>(num_tets()) < 4 * limit) return small;
+  if (limit == 0 || static_cast<size_t>(mesh().num_tets()) < 4 * limit) return small;
   tet_marks_.Clear(kFloodDone);
   for (const Split& sp : ev.splits) {
     for (const int32_t start : sp.tets) {
@@ -235,7 +268,7 @@ const std::vector<int32_t>& CutMesh::FindFragments(const TopologyEvent& ev, cons
       for (size_t i = 0; i < piece.size() && piece.size() < limit; ++i) {
         const int32_t t = piece[i];
         for (int f = 0; f < 4; ++f) {
-          const int32_t u = recs_[Idx(t)].neighbour[Idx(f)];
+          const int32_t u = mesh().Neighbour(t, f);
           if (u >= 0 && tet_marks_.Insert(kInFlood, u)) piece.push_back(u);
         }
       }
@@ -244,6 +277,56 @@ const std::vector<int32_t>& CutMesh::FindFragments(const TopologyEvent& ev, cons
     }
   }
   return small;
+}
+
+// ---- star and edge groups (step 4) ----------------------------------------
+
+int32_t CutStepper::StarGroups(int32_t node) {
+  const std::span<const int32_t> star = mesh().node_tets(node);
+  ds_parent_.resize(star.size());
+  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
+  for (size_t i = 0; i < star.size(); ++i) {
+    const int32_t t = star[i];
+    const auto& n = mesh().tet(t);
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
+      const int32_t u = mesh().Neighbour(t, f);
+      if (u < 0) continue;
+      const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
+      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
+    }
+  }
+  const int32_t k = RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+  // Counting sort by label: groups in label order, tets ascending within.
+  group_begin_.assign(Idx(k) + 1, 0);
+  for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(ds_label_[i]) + 1];
+  for (int32_t g = 0; g < k; ++g) group_begin_[Idx(g) + 1] += group_begin_[Idx(g)];
+  group_tets_.resize(star.size());
+  ds_root_label_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
+  for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(ds_root_label_[Idx(ds_label_[i])]++)] = star[i];
+  return k;
+}
+
+int CutStepper::EdgeGroupCount(int32_t a, int32_t b) {
+  const std::span<const int32_t> sa = mesh().node_tets(a);
+  const std::span<const int32_t> sb = mesh().node_tets(b);
+  around_.clear();
+  std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around_));
+  if (around_.size() <= 1) return static_cast<int>(around_.size());
+  ds_parent_.resize(around_.size());
+  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
+  for (size_t i = 0; i < around_.size(); ++i) {
+    const int32_t t = around_[i];
+    const auto& n = mesh().tet(t);
+    for (int f = 0; f < 4; ++f) {
+      if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
+      const int32_t u = mesh().Neighbour(t, f);
+      if (u < 0) continue;
+      const auto j = std::lower_bound(around_.begin(), around_.end(), u) - around_.begin();
+      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
+    }
+  }
+  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
 }
 
 }  // namespace cutsim::cutting

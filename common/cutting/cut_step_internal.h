@@ -1,7 +1,7 @@
 #pragma once
 // Internal to the cut step (cut_step.cc, cut_plane.cc, cut_separate.cc,
 // cut_remesh.cc): the step's view of world positions and the state its
-// numbered steps (cut_mesh.h) share. Not part of the library's interface.
+// numbered steps (cut_stepper.h) share. Not part of the library's interface.
 
 #include <cmath>
 #include <cstdint>
@@ -11,12 +11,14 @@
 #include <Eigen/Core>
 
 #include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 
 namespace cutsim::cutting::internal {
 
 // World positions during a step: the FEM's for nodes that existed before,
-// the source's for copies made in this step (AddNodeCopy copies x), and
-// staged moves. Nothing is written to the FEM: the event carries it.
+// the source's for copies made in this step (a copy starts where its
+// source is), and staged moves. Nothing is written to the FEM: the event
+// carries it.
 class StepWorld final : public WorldAccess {
  public:
   // `cache`/`generation`: for a base without packed positions, a per-node
@@ -132,16 +134,17 @@ struct SweptSlab {
 // Steps 3–6 of one ExecuteCutOnPlane: its input, plane, event and
 // outcome, passed by reference from step to step.
 struct StepState {
-  StepState(const CutStep& step_in, const CutParams& params_in, const PreparedCut& plane_in,
-            const WorldAccess& base, int32_t nodes_before, std::vector<CachedPosition>& cache,
-            uint32_t generation, CutOutcome& out_in)
-      : step(step_in),
+  StepState(CutMesh& mesh_in, const CutStep& step_in, const CutParams& params_in, const PreparedCut& plane_in,
+            const WorldAccess& base, std::vector<CachedPosition>& cache, uint32_t generation, CutOutcome& out_in)
+      : mesh(mesh_in),
+        step(step_in),
         params(params_in),
         plane(plane_in),
-        n0(nodes_before),
+        n0(mesh_in.num_nodes()),
         out(out_in),
-        world(base, nodes_before, ev, cache, generation) {}
+        world(base, n0, ev, cache, generation) {}
 
+  CutMesh& mesh;             // the complex the step changes
   const CutStep& step;
   const CutParams& params;
   const PreparedCut& plane;  // P (normal, origin), h, band

@@ -145,7 +145,7 @@ void CutPipeline<T>::WalkBesideCriterion(StepRun& run, const CutTargets<T>& t) {
   lanes_.Run(criterion, [&] {
     Stopwatch w;
     if (!run.cancel.load(std::memory_order_relaxed)) {
-      run.prepared = cut_.PrepareCut(run.step, t.world, params_, &run.cancel);
+      run.prepared = stepper_.PrepareCut(cut_, run.step, t.world, params_, &run.cancel);
     }
     run.prepare_time = w.ElapsedSeconds();
   });
@@ -196,7 +196,7 @@ bool CutPipeline<T>::Separate(StepRun& run, const CutTargets<T>& t) {
   };
   SideBySide::JoinGuard join(lanes_);
   Stopwatch topology_watch;
-  run.outcome = cut_.ExecuteCut(run.step, t.world, params_, &run.prepared, &on_separated);
+  run.outcome = stepper_.ExecuteCut(cut_, run.step, t.world, params_, &run.prepared, &on_separated);
   // With one thread the surface half ran inside ExecuteCut: not topology.
   const double surface_here = lanes_.two_threads() ? 0.0 : run.surface_time;
   timing_.topology = run.prepare_time + topology_watch.ElapsedSeconds() - surface_here;
@@ -246,7 +246,7 @@ void CutPipeline<T>::FemHalf(const cutting::TopologyEvent& event, const CutTarge
 template <typename T>
 void CutPipeline<T>::Finish(StepRun& run, const CutTargets<T>& t) {
   if (!run.outcome.event.empty()) {
-    // Every executed step calls on_separated (cut_mesh.h); without it the
+    // Every executed step calls on_separated (cut_stepper.h); without it the
     // surface would silently miss this cut.
     CUTSIM_CHECK(run.surface_started, "cut executed without its surface half");
     Stopwatch flags_watch;

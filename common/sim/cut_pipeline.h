@@ -7,12 +7,12 @@
 ///
 /// - attempt: the contact feeds the cut-attempt tracker (t0, v0, v1); a
 ///   step needs the tool itself to have moved along the surface since t0.
-/// - walk: CutMesh::PrepareCut, the blade's plane and the split set (reads
-///   the cut complex and the world positions only);
+/// - walk: CutStepper::PrepareCut, the blade's plane and the split set
+///   (reads the cut complex and the world positions only);
 ///   criterion: the stress criterion (eqs. 6–11) on the contact elements,
 ///   which cancels the walk when it says no.
-/// - topology: CutMesh::ExecuteCut: splits, singularities, then the
-///   remeshing moves.
+/// - topology: CutStepper::ExecuteCut on the cut complex (CutMesh):
+///   splits, singularities, then the remeshing moves.
 /// - FEM half: the event's nodes, elements, node masses and stable-step
 ///   leaves (fem_event.h); surface half: surface slots, BVH and debris
 ///   (SurfaceTracker::UpdateAfterCut), started as soon as the topology is
@@ -38,6 +38,7 @@
 #include "common/cutting/cut_attempt.h"
 #include "common/cutting/cut_mesh.h"
 #include "common/cutting/cut_params.h"
+#include "common/cutting/cut_stepper.h"
 #include "common/cutting/topology_event.h"
 #include "common/cutting/world_access.h"
 #include "common/fem/model.h"
@@ -132,6 +133,7 @@ class CutPipeline final : public CheckpointedStage {
 
   cutting::CutParams params_;
   cutting::CutMesh cut_;
+  cutting::CutStepper stepper_;  // runs the cut steps on cut_, with their scratch
   cutting::CutAttemptTracker tracker_;
   SideBySide lanes_;
   std::vector<cutting::TopologyEvent> events_;

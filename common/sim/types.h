@@ -156,7 +156,7 @@ struct ToolReport {
 struct CutStepTiming {
   double wall = 0;       ///< the whole step, wall time
   double criterion = 0;  ///< contact elements + stress criterion (eqs. 6–11)
-  double topology = 0;   ///< CutMesh::PrepareCut + ExecuteCut: plane, splits, singularities, remeshing
+  double topology = 0;   ///< CutStepper::PrepareCut + ExecuteCut: plane, splits, singularities, remeshing
   double fem = 0;        ///< the event applied to the FEM: nodes, elements, masses, incidence, stable step
   double surface = 0;    ///< surface slots + BVH update + debris flags
   double apply = 0;      ///< wall time from the event's nodes to the end of fem and surface

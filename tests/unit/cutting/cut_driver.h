@@ -11,6 +11,7 @@
 
 #include "common/cutting/cut_attempt.h"
 #include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "tests/unit/cutting/test_util.h"
 
 namespace cutsim::cutting::testing {
@@ -49,12 +50,14 @@ struct DriveStats {
 /// Drives the tool along `points` (world, on the top face) with a blade
 /// `depth` m deep below the contact point; applies every executed event to
 /// `world` and `events`, and runs `check` after each. `prepare`: each step
-/// through CutMesh::PrepareCut first, as the simulation does with two threads.
+/// through CutStepper::PrepareCut first, as the simulation does with two
+/// threads.
 template <typename Check>
 DriveStats DrivePath(CutMesh& cm, VectorWorld& world, const std::vector<Eigen::Vector3d>& points, double depth,
                      const CutParams& params, std::vector<TopologyEvent>* events, Check&& check,
                      bool prepare = false) {
   DriveStats stats;
+  CutStepper stepper;
   CutAttemptTracker tracker(params);
   for (const Eigen::Vector3d& p : points) {
     Contact c;
@@ -74,8 +77,8 @@ DriveStats DrivePath(CutMesh& cm, VectorWorld& world, const std::vector<Eigen::V
     step.blade.emplace(Blade{p - depth * Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ(), depth + 0.01});
     const auto t_start = std::chrono::steady_clock::now();
     PreparedCut prepared;
-    if (prepare) prepared = cm.PrepareCut(step, world, params);
-    const CutOutcome out = cm.ExecuteCut(step, world, params, prepare ? &prepared : nullptr);
+    if (prepare) prepared = stepper.PrepareCut(cm, step, world, params);
+    const CutOutcome out = stepper.ExecuteCut(cm, step, world, params, prepare ? &prepared : nullptr);
     stats.cut_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
     if (out.status == CutStatus::kRejected) {
       ++stats.rejected;

@@ -1,5 +1,5 @@
-// CutMesh: complex and surface bookkeeping, the straight cut through a box,
-// singularity removal, event replay.
+// CutMesh and CutStepper: complex and surface bookkeeping, the straight cut
+// through a box, singularity removal, event replay.
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -10,6 +10,7 @@
 
 #include "common/core/error.h"
 #include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "tests/unit/cutting/cut_driver.h"
 #include "tests/unit/cutting/test_util.h"
 
@@ -126,17 +127,18 @@ TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
 TEST(CutMesh, InvalidStepChangesNothing) {
   const mesh::TetMesh m = Box();
   CutMesh cm(m);
+  CutStepper stepper;
   const VectorWorld w = WorldFromRest(m);
   CutStep step;
   step.v0 = 0;
   step.v1 = 0;
-  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  EXPECT_EQ(stepper.ExecuteCut(cm, step, w, CutParams{}).status, CutStatus::kInvalidInput);
   step.v1 = 1;  // s1 along x, normal along x: no plane
   step.normal = Vector3d::UnitX();
-  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  EXPECT_EQ(stepper.ExecuteCut(cm, step, w, CutParams{}).status, CutStatus::kInvalidInput);
   step.normal = Vector3d::UnitZ();
   step.v1 = cm.num_nodes();
-  EXPECT_EQ(cm.ExecuteCut(step, w, CutParams{}).status, CutStatus::kInvalidInput);
+  EXPECT_EQ(stepper.ExecuteCut(cm, step, w, CutParams{}).status, CutStatus::kInvalidInput);
   EXPECT_EQ(cm.version(), 0u);
   EXPECT_EQ(cm.num_nodes(), m.num_nodes());
 }
@@ -192,6 +194,7 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
   // plane: two parts, no fragment, every opened face in that plane.
   const mesh::TetMesh m = Box();
   CutMesh cm(m);
+  CutStepper stepper;
   VectorWorld world = WorldFromRest(m);
   const Reference ref(m);
   CutParams params;
@@ -207,7 +210,7 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
     step.cp = Vector3d(i * kH, y, top);
     const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
     step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
-    const CutOutcome out = cm.ExecuteCut(step, world, params);
+    const CutOutcome out = stepper.ExecuteCut(cm, step, world, params);
     ASSERT_EQ(out.status, CutStatus::kExecuted) << "step " << i;
     world.ApplyEvent(out.event);
     ExpectInvariants(cm, world, ref, "step " + std::to_string(i));
@@ -243,6 +246,7 @@ TEST(CutMesh, AWorldWithoutPackedPositionsCutsTheSame) {
   // (Xyz) and through Get, cached, where it does not: same events.
   const mesh::TetMesh m = Box();
   CutMesh packed_mesh(m), unpacked_mesh(m);
+  CutStepper packed_stepper, unpacked_stepper;
   VectorWorld packed = WorldFromRest(m), unpacked_store = WorldFromRest(m);
   UnpackedWorld unpacked(unpacked_store);
   ASSERT_NE(packed.Xyz(), nullptr);
@@ -261,8 +265,8 @@ TEST(CutMesh, AWorldWithoutPackedPositionsCutsTheSame) {
     step.cp = Vector3d(i * kH, y, top);
     const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
     step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
-    const CutOutcome a = packed_mesh.ExecuteCut(step, packed, params);
-    const CutOutcome b = unpacked_mesh.ExecuteCut(step, unpacked, params);
+    const CutOutcome a = packed_stepper.ExecuteCut(packed_mesh, step, packed, params);
+    const CutOutcome b = unpacked_stepper.ExecuteCut(unpacked_mesh, step, unpacked, params);
     ASSERT_EQ(a.status, CutStatus::kExecuted) << "step " << i;
     ASSERT_EQ(b.status, a.status) << "step " << i;
     ASSERT_EQ(b.event.splits.size(), a.event.splits.size()) << "step " << i;
@@ -387,6 +391,7 @@ TEST(CutMesh, PartsJoinedOnlyByAVertexAreSeparated) {
   }
   ASSERT_NO_THROW(mesh::ValidateTetMesh(m, "fan"));
   CutMesh cm(m);
+  CutStepper stepper;
   const VectorWorld w = WorldFromRest(m);
   const Reference ref(m);
   CutStep step;
@@ -394,7 +399,7 @@ TEST(CutMesh, PartsJoinedOnlyByAVertexAreSeparated) {
   step.v1 = 1;
   step.normal = Vector3d::UnitX();
   step.remesh = false;
-  const CutOutcome out = cm.ExecuteCut(step, w, CutParams{});
+  const CutOutcome out = stepper.ExecuteCut(cm, step, w, CutParams{});
   ASSERT_EQ(out.status, CutStatus::kExecuted);
   // c1 by the plane, then c0, r0 and r2 by the vertex rule.
   ASSERT_EQ(out.event.splits.size(), 4u);

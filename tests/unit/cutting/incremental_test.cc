@@ -88,7 +88,7 @@ TEST(IncrementalIncidence, RandomSplitsMatchRebuildAndKeepMass) {
   EXPECT_NEAR(model.TotalMass(), m0, 1e-12 * m0);
 }
 
-// CutMesh::PrepareCut (steps 1–2 ahead, as the simulation runs them beside
+// CutStepper::PrepareCut (steps 1–2 ahead, as the simulation runs them beside
 // the criterion with two threads) then ExecuteCut must cut exactly as
 // ExecuteCut alone: strokes along, across and diagonally through a jittered
 // block (twins, snaps, singularities), every event equal. A prepared cut
@@ -136,6 +136,7 @@ TEST(PreparedCut, CutsAsExecuteCutAlone) {
 
   // Stale: prepared for one step, then another cut executed first.
   cutting::CutMesh fresh(m), stale(m);
+  cutting::CutStepper fresh_stepper, stale_stepper;
   cutting::VectorWorld world_fresh = cutting::testing::WorldFromRest(m);
   cutting::VectorWorld world_stale = world_fresh;
   const auto first = Segment(Vector3d(0.001, 0.021, 0.02), Vector3d(0.03, 0.019, 0.02), 20);
@@ -154,23 +155,24 @@ TEST(PreparedCut, CutsAsExecuteCutAlone) {
   other.v0 = cutting::testing::ClosestTopVertex(fresh, world_fresh, other.cp0);
   other.v1 = cutting::testing::ClosestTopVertex(fresh, world_fresh, other.cp);
   other.blade.emplace(cutting::Blade{other.cp - 0.012 * Vector3d::UnitZ(), Vector3d::UnitZ(), 0.022});
-  const cutting::PreparedCut old = stale.PrepareCut(next, world_stale, params);
+  const cutting::PreparedCut old = stale_stepper.PrepareCut(stale, next, world_stale, params);
   ASSERT_TRUE(old.valid);
   for (auto* pair : {&fresh, &stale}) {
     cutting::VectorWorld& w = pair == &fresh ? world_fresh : world_stale;
-    const cutting::CutOutcome o = pair->ExecuteCut(other, w, params);
+    cutting::CutStepper& stepper = pair == &fresh ? fresh_stepper : stale_stepper;
+    const cutting::CutOutcome o = stepper.ExecuteCut(*pair, other, w, params);
     ASSERT_EQ(o.status, cutting::CutStatus::kExecuted);
     w.ApplyEvent(o.event);
   }
-  const cutting::CutOutcome a = fresh.ExecuteCut(next, world_fresh, params);
-  const cutting::CutOutcome b = stale.ExecuteCut(next, world_stale, params, &old);
+  const cutting::CutOutcome a = fresh_stepper.ExecuteCut(fresh, next, world_fresh, params);
+  const cutting::CutOutcome b = stale_stepper.ExecuteCut(stale, next, world_stale, params, &old);
   ASSERT_EQ(a.status, b.status);
   ASSERT_EQ(a.event.splits.size(), b.event.splits.size());
   for (size_t k = 0; k < a.event.splits.size(); ++k) EXPECT_EQ(a.event.splits[k].tets, b.event.splits[k].tets);
   EXPECT_EQ(fresh.TetsMatrix(), stale.TetsMatrix());
 
   const std::atomic<bool> cancel{true};
-  EXPECT_FALSE(fresh.PrepareCut(next, world_fresh, params, &cancel).valid);
+  EXPECT_FALSE(fresh_stepper.PrepareCut(fresh, next, world_fresh, params, &cancel).valid);
 }
 
 // ExecuteCut's SeparatedCallback (the sim updates the surface beside the
@@ -206,7 +208,7 @@ TEST(SeparatedCallback, SeesTheFinalTopologyBeforeTheMoves) {
     tets_then = cm.TetsMatrix();
     rest_then = cm.RestMesh();
   };
-  const cutting::CutOutcome o = cm.ExecuteCut(next, world, params, nullptr, &hook);
+  const cutting::CutOutcome o = cutting::CutStepper().ExecuteCut(cm, next, world, params, nullptr, &hook);
   ASSERT_EQ(o.status, cutting::CutStatus::kExecuted);
   EXPECT_EQ(calls, 1);
   ASSERT_FALSE(o.event.splits.empty());

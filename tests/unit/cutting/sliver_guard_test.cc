@@ -1,4 +1,4 @@
-// The remeshing sliver guard (CutParams::keep_quality, cut_mesh.h step 5):
+// The remeshing sliver guard (CutParams::keep_quality, cut_stepper.h step 5):
 // many parallel passes over one block, with the world pushed apart under
 // the blade as by the contact, keep every element at ≥ min(keep_quality,
 // uncut quality), the property the stable time step rests on (it needs
@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "common/cutting/cut_mesh.h"
+#include "common/cutting/cut_stepper.h"
 #include "common/mesh/quality.h"
 #include "tests/unit/cutting/cut_driver.h"
 #include "tests/unit/cutting/test_util.h"
@@ -61,6 +62,7 @@ VectorWorld PushedWorld(const CutMesh& cm, const Vector3d& contact, const Vector
 PassResult CutParallelPasses(const CutParams& params, double* uncut_quality) {
   const mesh::TetMesh box = testing::KuhnBox(Vector3d::Zero(), Vector3d(0.04, 0.02, 0.01), 16, 8, 4);
   CutMesh cm(box);
+  CutStepper stepper;
   *uncut_quality = MinQuality(cm, nullptr);
   PassResult r;
   for (int pass = 0; pass < 14; ++pass) {  // each line twice, there and back
@@ -84,7 +86,7 @@ PassResult CutParallelPasses(const CutParams& params, double* uncut_quality) {
       step.cp = a.cp;
       step.normal = a.normal;
       step.blade.emplace(Blade{p - 0.005 * Vector3d::UnitZ(), Vector3d::UnitZ(), 0.015});
-      const CutOutcome out = cm.ExecuteCut(step, world, params);
+      const CutOutcome out = stepper.ExecuteCut(cm, step, world, params);
       if (out.status != CutStatus::kExecuted) continue;
       ++r.executed;
       tracker.OnCutExecuted();
