@@ -281,22 +281,26 @@ const std::vector<int32_t>& CutStepper::FindFragments(const TopologyEvent& ev, c
 
 // ---- star and edge groups (step 4) ----------------------------------------
 
-int32_t CutStepper::StarGroups(int32_t node) {
-  const std::span<const int32_t> star = mesh().node_tets(node);
-  ds_parent_.resize(star.size());
+int32_t CutStepper::FaceGroups(std::span<const int32_t> tets, int32_t a, int32_t b) {
+  ds_parent_.resize(tets.size());
   std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
-  for (size_t i = 0; i < star.size(); ++i) {
-    const int32_t t = star[i];
+  for (size_t i = 0; i < tets.size(); ++i) {
+    const int32_t t = tets[i];
     const auto& n = mesh().tet(t);
     for (int f = 0; f < 4; ++f) {
-      if (n[Idx(f)] == node) continue;  // the face opposite the node does not touch it
+      if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // a face without both pivots
       const int32_t u = mesh().Neighbour(t, f);
       if (u < 0) continue;
-      const auto j = std::lower_bound(star.begin(), star.end(), u) - star.begin();
+      const auto j = std::lower_bound(tets.begin(), tets.end(), u) - tets.begin();
       UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
     }
   }
-  const int32_t k = RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+}
+
+int32_t CutStepper::StarGroups(int32_t node) {
+  const std::span<const int32_t> star = mesh().node_tets(node);
+  const int32_t k = FaceGroups(star, node, node);
   // Counting sort by label: groups in label order, tets ascending within.
   group_begin_.assign(Idx(k) + 1, 0);
   for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(ds_label_[i]) + 1];
@@ -313,20 +317,7 @@ int CutStepper::EdgeGroupCount(int32_t a, int32_t b) {
   around_.clear();
   std::set_intersection(sa.begin(), sa.end(), sb.begin(), sb.end(), std::back_inserter(around_));
   if (around_.size() <= 1) return static_cast<int>(around_.size());
-  ds_parent_.resize(around_.size());
-  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
-  for (size_t i = 0; i < around_.size(); ++i) {
-    const int32_t t = around_[i];
-    const auto& n = mesh().tet(t);
-    for (int f = 0; f < 4; ++f) {
-      if (n[Idx(f)] == a || n[Idx(f)] == b) continue;  // only faces holding the edge
-      const int32_t u = mesh().Neighbour(t, f);
-      if (u < 0) continue;
-      const auto j = std::lower_bound(around_.begin(), around_.end(), u) - around_.begin();
-      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
-    }
-  }
-  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+  return FaceGroups(around_, a, b);
 }
 
 }  // namespace cutsim::cutting

@@ -302,6 +302,11 @@ class CutStepper {
   /// is [group_begin_[g], group_begin_[g + 1]), groups in order of their
   /// lowest tet, tets ascending); returns the number of groups.
   int32_t StarGroups(int32_t node);
+  /// Face-connected groups of `tets` (ascending, each holding a and b):
+  /// two join across a face that holds both a and b (a = b: a node's
+  /// star); labels in ds_label_, in order of first appearance. Returns the
+  /// count.
+  int32_t FaceGroups(std::span<const int32_t> tets, int32_t a, int32_t b);
   /// Number of face-connected groups of the tets around edge (a, b).
   [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b);
 

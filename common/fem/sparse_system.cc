@@ -4,7 +4,6 @@
 #include <atomic>
 #include <bit>
 #include <cstddef>
-#include <span>
 #include <vector>
 
 #include "common/core/headroom.h"
