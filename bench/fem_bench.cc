@@ -261,7 +261,7 @@ void BM_SessionSample(benchmark::State& st) {
     benchmark::DoNotOptimize(out.data());
     const auto t1 = Clock::now();
     meter.Sample(model, state.x.data(), incision, 0.0);
-    benchmark::DoNotOptimize(meter.metrics().stress_outside);
+    benchmark::DoNotOptimize(meter.metrics().stress_outside());
     const auto t2 = Clock::now();
     force_s.push_back(std::chrono::duration<double>(t1 - t0).count());
     sample_s.push_back(std::chrono::duration<double>(t2 - t1).count());

@@ -12,11 +12,11 @@ namespace cutsim::fem {
 
 namespace {
 
-/// Adds `sign`·M[J,J] of a full symmetric CSC matrix into `out` (k×k), with
-/// `pos` mapping a DOF to its index in J (−1 outside). Only columns of J
-/// below `n` are read.
+/// Appends `sign`·M[J,J] of a full symmetric CSC matrix to `out` as
+/// triplets (k×k), with `pos` mapping a DOF to its index in J (−1 outside).
+/// Only columns of J below `m.n` are read.
 void AddBlockOnJ(const CscView& m, std::span<const int32_t> j, const std::vector<int32_t>& pos, double sign,
-                 Eigen::MatrixXd& out) {
+                 std::vector<Eigen::Triplet<double>>& out) {
   for (size_t b = 0; b < j.size(); ++b) {
     const int32_t col = j[b];
     if (col >= m.n) continue;
@@ -24,7 +24,7 @@ void AddBlockOnJ(const CscView& m, std::span<const int32_t> j, const std::vector
       const int32_t row = m.row_index[p];
       if (row >= static_cast<int32_t>(pos.size())) continue;
       const int32_t a = pos[static_cast<size_t>(row)];
-      if (a >= 0) out(a, static_cast<Eigen::Index>(b)) += sign * m.values[p];
+      if (a >= 0) out.emplace_back(a, static_cast<int32_t>(b), sign * m.values[p]);
     }
   }
 }
@@ -38,11 +38,11 @@ void FactorCorrection::Clear() {
   stats_ = {};
 }
 
-bool FactorCorrection::Build(const SupernodalSolver<float>& factor, const CscView& a0, const SparseSystem& system,
-                             const double* b_values, std::span<const int32_t> changed_nodes, int32_t max_rank) {
+bool FactorCorrection::Build(const SupernodalSolver<float>& factor, const CscView& a0, const CscView& b,
+                             std::span<const int32_t> changed_nodes, int32_t max_rank) {
   const auto t0 = std::chrono::steady_clock::now();
   Clear();
-  const int32_t n = system.num_dofs();
+  const int32_t n = b.n;
   const int32_t n0 = a0.n;
   if (factor.size() != n0 || n < n0 || n0 % 3 != 0) return false;
   std::vector<int32_t> j;
@@ -73,34 +73,47 @@ bool FactorCorrection::Build(const SupernodalSolver<float>& factor, const CscVie
     if (c >= 0) reach_rows_[static_cast<size_t>(c)] = r;
   }
 
-  // C = blockdiag(GᵀG, D⁻¹); Δ = B[J,J] − P0[J,J].
+  // C = blockdiag(GᵀG, D⁻¹); Δ = B[J,J] − P0[J,J], sparse: J couples only
+  // through the elements of its nodes.
   Eigen::MatrixXf gtg = Eigen::MatrixXf::Zero(k_old, k_old);
   if (k_old > 0) {
     cblas_ssyrk(CblasColMajor, CblasLower, CblasTrans, k_old, nr, 1.0f, g_.data(), nr, 0.0f, gtg.data(), k_old);
   }
   std::vector<int32_t> pos(static_cast<size_t>(n), -1);
   for (int32_t a = 0; a < k; ++a) pos[static_cast<size_t>(j[static_cast<size_t>(a)])] = a;
-  delta_ = Eigen::MatrixXd::Zero(k, k);
-  AddBlockOnJ({system.col_ptr(), system.row_index(), b_values, n}, j, pos, 1.0, delta_);
-  AddBlockOnJ(a0, std::span(j).first(static_cast<size_t>(k_old)), pos, -1.0, delta_);
+  std::vector<Eigen::Triplet<double>> entries;
+  AddBlockOnJ(b, j, pos, 1.0, entries);
+  AddBlockOnJ(a0, std::span(j).first(static_cast<size_t>(k_old)), pos, -1.0, entries);
+  // P0 = blockdiag(A0, D): Δ has no diagonal block on N, where B's is D.
   const int32_t new_nodes = (n - n0) / 3;
+  std::vector<double> d_blocks(9 * static_cast<size_t>(new_nodes), 0.0);  // #(n−n0)×3, column-major per node
+  std::erase_if(entries, [&](const Eigen::Triplet<double>& e) {
+    const int32_t m = (e.row() - k_old) / 3;
+    if (e.row() < k_old || e.col() < k_old || m != (e.col() - k_old) / 3) return false;
+    d_blocks[9 * static_cast<size_t>(m) + 3 * static_cast<size_t>((e.col() - k_old) % 3) +
+             static_cast<size_t>((e.row() - k_old) % 3)] += e.value();
+    return true;
+  });
+  delta_.resize(k, k);
+  delta_.setFromTriplets(entries.begin(), entries.end());
   d_inv_.assign(9 * static_cast<size_t>(new_nodes), 0.0);
   Eigen::MatrixXd c = Eigen::MatrixXd::Zero(k, k);
   for (int32_t a = 0; a < k_old; ++a) {
-    for (int32_t b = 0; b <= a; ++b) c(a, b) = c(b, a) = gtg(a, b);
+    for (int32_t bb = 0; bb <= a; ++bb) c(a, bb) = c(bb, a) = gtg(a, bb);
   }
   for (int32_t m = 0; m < new_nodes; ++m) {
-    const int32_t a = k_old + 3 * m;
-    const Eigen::Matrix3d d = delta_.block<3, 3>(a, a);  // B's diagonal block (P0 holds nothing here yet)
+    const Eigen::Map<const Eigen::Matrix3d> d(d_blocks.data() + 9 * m);
     Eigen::Matrix3d inv;
     bool invertible = false;
     d.computeInverseWithCheck(inv, invertible);
     if (!invertible) inv = Eigen::Matrix3d::Identity() / std::max(1e-300, d.diagonal().cwiseAbs().maxCoeff());
     Eigen::Map<Eigen::Matrix3d>(d_inv_.data() + 9 * m) = inv;
-    delta_.block<3, 3>(a, a) -= d;  // P0 = blockdiag(A0, D): Δ has no diagonal block on N
-    c.block<3, 3>(a, a) = inv;
+    c.block<3, 3>(k_old + 3 * m, k_old + 3 * m) = inv;
   }
-  lu_.compute(Eigen::MatrixXd::Identity(k, k) + c * delta_);
+  // I + CΔ: C dense times Δ sparse, k·nnz(Δ) work.
+  Eigen::MatrixXd i_plus_c_delta = c * delta_;
+  i_plus_c_delta.diagonal().array() += 1.0;
+  lu_.compute(i_plus_c_delta);
   const double det = lu_.determinant();
   if (!std::isfinite(det) || det == 0 || !lu_.matrixLU().allFinite()) {
     Clear();

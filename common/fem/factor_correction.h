@@ -31,8 +31,8 @@
 
 #include <Eigen/Core>
 #include <Eigen/LU>
+#include <Eigen/SparseCore>
 
-#include "common/fem/sparse_system.h"
 #include "common/fem/supernodal_solve.h"
 
 namespace cutsim::fem {
@@ -55,12 +55,13 @@ class FactorCorrection {
   };
 
   /// Builds the correction of `factor` (of A0, n0 = a0.n DOFs) toward B
-  /// (on `system`'s pattern, n DOFs, n ≥ n0) for the old nodes
-  /// `changed_nodes` (ascending, unique, < n0/3) and the new nodes
-  /// [n0/3, n/3). Refuses (returns false and stays empty) above
-  /// `max_rank` DOFs or when I + CΔ is singular. Allocates.
-  bool Build(const SupernodalSolver<float>& factor, const CscView& a0, const SparseSystem& system,
-             const double* b_values, std::span<const int32_t> changed_nodes, int32_t max_rank);
+  /// (n = b.n DOFs, n ≥ n0) for the old nodes `changed_nodes` (ascending,
+  /// unique, < n0/3) and the new nodes [n0/3, n/3). Refuses (returns false
+  /// and stays empty) above `max_rank` DOFs or when I + CΔ is singular.
+  /// Allocates. Reads `factor` and both matrices only: several threads may
+  /// build corrections of one factor at once.
+  bool Build(const SupernodalSolver<float>& factor, const CscView& a0, const CscView& b,
+             std::span<const int32_t> changed_nodes, int32_t max_rank);
   void Clear();
 
   [[nodiscard]] bool empty() const { return n_ == 0; }
@@ -79,7 +80,7 @@ class FactorCorrection {
   SupernodalSolver<float>::Reach reach_;
   std::vector<int32_t> reach_rows_;  // #reach.rows: the factor row of each compact row
   std::vector<float> g_;           // #reach.rows×k_old: G, column-major
-  Eigen::MatrixXd delta_;          // #k×k: Δ
+  Eigen::SparseMatrix<double> delta_;  // #k×k: Δ, as sparse as the elements that couple J
   Eigen::PartialPivLU<Eigen::MatrixXd> lu_;  // of I + CΔ
   std::vector<double> d_inv_;      // #(n−n0)×3: inverse 3×3 diagonal blocks of B on N, column-major per node
   BuildStats stats_;

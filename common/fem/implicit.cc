@@ -139,6 +139,7 @@ void ImplicitIntegrator::Prepare(const Model<double>& model, ImplicitResult& res
       LumpPatchTerm(model);
     }
     AssignWithHeadroom(factor_values_, nnz, 0.0);
+    ++a_values_version_;
     solver_.Resize(system_);
     have_k_ = false;
     b_values_valid_ = false;
@@ -235,6 +236,7 @@ void ImplicitIntegrator::AssembleJacobian(const Model<double>& model, double h,
   extra_.clear();
   jacobian_penalties_.assign(penalties.begin(), penalties.end());
   AddPenaltyBlocks(penalties, h2, a_values_.data(), &extra_);
+  ++a_values_version_;
 }
 
 void ImplicitIntegrator::AddPenaltyBlocks(std::span<const PenaltyTerm> penalties, double scale, double* values,
@@ -386,10 +388,12 @@ void ImplicitIntegrator::CorrectFactor(const Model<double>& model, ImplicitResul
       (corrected_request_ == request && corrected_pattern_ == system_.pattern_id())) {
     return;
   }
-  corrected_request_ = request;
-  corrected_pattern_ = system_.pattern_id();
   const Signature& sig = signatures_[request % 2];
-  if (sig.request != request) return;  // no record of what the factor saw
+  if (sig.request != request) {  // no record of what the factor saw
+    corrected_request_ = request;
+    corrected_pattern_ = system_.pattern_id();
+    return;
+  }
   const int32_t old_nodes = solver_.factor_dofs() / 3;
   std::vector<uint8_t> mark(static_cast<size_t>(old_nodes), 0);
   for (int32_t t = 0; t < model.num_tets(); ++t) {
@@ -407,9 +411,13 @@ void ImplicitIntegrator::CorrectFactor(const Model<double>& model, ImplicitResul
   for (int32_t n = 0; n < old_nodes; ++n) {
     if (mark[static_cast<size_t>(n)] != 0) changed_nodes_.push_back(n);
   }
-  result.factor_corrected =
-      solver_.CorrectFactor(system_, FactorValues(), changed_nodes_, options_.max_correction_rank,
-                                                   options_.correction_drift);
+  const CorrectionStart start = solver_.CorrectFactor(system_, FactorValues(), changed_nodes_,
+                                                      options_.max_correction_rank, options_.correction_drift);
+  // A busy correction thread is asked again at the next solve.
+  if (start == CorrectionStart::kBusy) return;
+  corrected_request_ = request;
+  corrected_pattern_ = system_.pattern_id();
+  result.correction_started = start == CorrectionStart::kStarted;
 }
 
 /// Direction: PCG on A d = −r; negative curvature switches kAuto to K⁺.

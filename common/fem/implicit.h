@@ -203,7 +203,9 @@ struct ImplicitResult {
   bool pattern_rebuilt = false;     ///< The topology changed since the last step.
   bool bdf2 = false;                ///< The step was BDF2 (else backward Euler).
   bool factor_requested = false;    ///< A refactorisation was asked for.
-  bool factor_corrected = false;    ///< A low-rank correction of the factor was built.
+  /// A low-rank correction of the factor was handed to the correction
+  /// thread (LinearSolver::CorrectFactor; synchronous: built or refused).
+  bool correction_started = false;
   /// Went on past the deadline, its residual above carry_limit: until it
   /// was within, or to the overrun_limit, where it carries what is left.
   bool over_budget = false;
@@ -429,6 +431,8 @@ class ImplicitIntegrator {
   std::vector<double> patch_curvature_;      // c_a = U''(J_a)/V_a at the tangent point  // #N
   mutable std::vector<double> patch_slope_;  // product scratch  // #N
   std::vector<double> factor_values_;        // #nnz
+  uint64_t a_values_version_ = 1;        // bumped by every AssembleJacobian
+  uint64_t factor_values_version_ = 0;   // a_values_version_ factor_values_ was made from
   std::vector<double> patch_lump_;           // β_a of the factor's patch term  // #N
   double volumetric_energy_ = 0;             // J
   double patch_scale_ = 0;                   // h² of a_values_

@@ -141,6 +141,9 @@ void ImplicitIntegrator::LumpPatchTerm(const Model<double>& model) {
 }
 
 const double* ImplicitIntegrator::FactorValues() {
+  // A factor request and a correction in one solve share one computation.
+  if (factor_values_version_ == a_values_version_) return factor_values_.data();
+  factor_values_version_ = a_values_version_;
   std::copy(a_values_.begin(), a_values_.end(), factor_values_.begin());
   AddPenaltyBlocks(jacobian_penalties_, -patch_scale_, factor_values_.data(), nullptr);
   if (!nodal_pressure_) return factor_values_.data();

@@ -40,6 +40,19 @@ struct LinearSolver::Factor {
   uint64_t topology_version = 0;
   int64_t pattern_id = -1;
   uint64_t request = 0;
+  int32_t pins = 0;  // corrections being built from it (guarded by mutex_): not freed while > 0
+};
+
+/// What a correction's build reads besides its factor, copied on the
+/// frame's thread so the build never touches the live system.
+struct LinearSolver::CorrectionJob {
+  Factor* factor = nullptr;  // pinned for the build
+  std::shared_ptr<const Pattern> pattern;  // B's
+  int64_t pattern_id = -1;
+  std::vector<double> values;  // B  // #nnz
+  std::vector<int32_t> changed_nodes;
+  int32_t max_rank = 0;
+  double drift = 0;
 };
 
 /// A copy of A for the worker and the symbolic analysis of its pattern.
@@ -98,19 +111,27 @@ LinearSolver::LinearSolver(bool asynchronous, FactorSolve factor_solve)
   Common(worker_common_)->print = 0;
   Common(solve_common_)->print = 0;
   snapshot_ = new Snapshot;
+  job_ = new CorrectionJob;
+  correction_ = std::make_unique<FactorCorrection>();
+  correction_ready_ = std::make_unique<FactorCorrection>();
+  correction_building_ = std::make_unique<FactorCorrection>();
   LimitBlasThreads();
-  if (asynchronous_) worker_ = std::thread([this] { WorkerLoop(); });
+  if (asynchronous_) {
+    worker_ = std::thread([this] { WorkerLoop(); });
+    corrector_ = std::thread([this] { CorrectionLoop(); });
+  }
 }
 
 LinearSolver::~LinearSolver() {
-  if (worker_.joinable()) {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
-    }
-    cv_.notify_all();
-    worker_.join();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_ = true;
   }
+  cv_.notify_all();
+  correction_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+  if (corrector_.joinable()) corrector_.join();
+  delete job_;
   cholmod_common* cw = Common(worker_common_);
   for (Factor* f : {front_, ready_}) {
     if (f != nullptr) {
@@ -201,17 +222,17 @@ int64_t LinearSolver::factor_pattern_id() const {
 uint64_t LinearSolver::factor_request() const { return front_ != nullptr ? front_->request : 0; }
 
 int32_t LinearSolver::correction_rank() const {
-  return front_ != nullptr && correction_request_ == front_->request ? correction_.rank() : 0;
+  return front_ != nullptr && correction_request_ == front_->request ? correction_->rank() : 0;
 }
 
 /// Scatters each old column of A and of A0 into one dense column to
 /// compare them whatever their patterns: O(nnz(A) + nnz(A0)).
-std::vector<int32_t> LinearSolver::WithDriftedNodes(const SparseSystem& system, const double* values,
+std::vector<int32_t> LinearSolver::WithDriftedNodes(const Factor& factor, const CscView& b,
                                                     std::span<const int32_t> changed_nodes, int32_t max_rank,
-                                                    double drift) const {
+                                                    double drift) {
   std::vector<int32_t> nodes(changed_nodes.begin(), changed_nodes.end());
-  const int32_t n = system.num_dofs();
-  const int32_t n0 = front_->dofs;
+  const int32_t n = b.n;
+  const int32_t n0 = factor.dofs;
   const int32_t budget = max_rank - 3 * static_cast<int32_t>(nodes.size()) - (n - n0);
   if (!(drift < std::numeric_limits<double>::infinity()) || budget < 3 || n0 > n) return nodes;
   const int32_t old_nodes = n0 / 3;
@@ -219,24 +240,27 @@ std::vector<int32_t> LinearSolver::WithDriftedNodes(const SparseSystem& system, 
   for (const int32_t node : nodes) {
     if (node >= 0 && node < old_nodes) taken[static_cast<size_t>(node)] = 1;
   }
-  const Pattern& p0 = *front_->pattern;
-  const double* a0 = front_->values.data();
+  const Pattern& p0 = *factor.pattern;
+  const double* a0 = factor.values.data();
+  const int32_t* col_ptr = b.col_ptr;
+  const int32_t* row_index = b.row_index;
+  const double* values = b.values;
   std::vector<double> column(static_cast<size_t>(n), 0.0);
   std::vector<std::pair<double, int32_t>> drifted;  // (relative drift, node)
   for (int32_t node = 0; node < old_nodes; ++node) {
     if (taken[static_cast<size_t>(node)] != 0) continue;
     double moved = 0, norm = 0;
     for (int32_t c = 3 * node; c < 3 * node + 3; ++c) {
-      for (int32_t k = system.col_ptr()[c]; k < system.col_ptr()[c + 1]; ++k) {
-        column[static_cast<size_t>(system.row_index()[k])] = values[k];
+      for (int32_t k = col_ptr[c]; k < col_ptr[c + 1]; ++k) {
+        column[static_cast<size_t>(row_index[k])] = values[k];
         norm += values[k] * values[k];
       }
       for (int32_t k = p0.col_ptr[static_cast<size_t>(c)]; k < p0.col_ptr[static_cast<size_t>(c) + 1]; ++k) {
         column[static_cast<size_t>(p0.row_index[static_cast<size_t>(k)])] -= a0[k];
       }
       // Read back and clear both patterns' rows (a row in both is read once).
-      for (int32_t k = system.col_ptr()[c]; k < system.col_ptr()[c + 1]; ++k) {
-        double& v = column[static_cast<size_t>(system.row_index()[k])];
+      for (int32_t k = col_ptr[c]; k < col_ptr[c + 1]; ++k) {
+        double& v = column[static_cast<size_t>(row_index[k])];
         moved += v * v;
         v = 0;
       }
@@ -256,34 +280,116 @@ std::vector<int32_t> LinearSolver::WithDriftedNodes(const SparseSystem& system, 
   return nodes;
 }
 
-bool LinearSolver::CorrectFactor(const SparseSystem& system, const double* values,
-                                 std::span<const int32_t> changed_nodes, int32_t max_rank, double drift) {
+CorrectionStart LinearSolver::CorrectFactor(const SparseSystem& system, const double* values,
+                                            std::span<const int32_t> changed_nodes, int32_t max_rank,
+                                            double drift) {
   Acquire();
-  correction_.Clear();
-  correction_request_ = 0;
-  correction_pattern_ = -1;
+  const int32_t n = system.num_dofs();
+  if (front_ == nullptr || front_->dofs > n || front_->single.empty() || !front_->pattern ||
+      3 * static_cast<int32_t>(changed_nodes.size()) + (n - front_->dofs) > max_rank) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++stats_.corrections_refused;
+    return CorrectionStart::kRefused;
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (correction_busy_) return CorrectionStart::kBusy;
+    CorrectionJob& job = *job_;
+    job.factor = front_;
+    ++front_->pins;
+    if (snapshot_->pattern_id == system.pattern_id() && snapshot_->dofs == n && snapshot_->pattern) {
+      job.pattern = snapshot_->pattern;
+    } else if (job.pattern_id != system.pattern_id() || !job.pattern) {
+      auto pattern = std::make_shared<Pattern>();
+      pattern->col_ptr.assign(system.col_ptr(), system.col_ptr() + n + 1);
+      pattern->row_index.assign(system.row_index(), system.row_index() + system.nnz());
+      job.pattern = std::move(pattern);
+    }
+    job.pattern_id = system.pattern_id();
+    job.values.assign(values, values + system.nnz());
+    job.changed_nodes.assign(changed_nodes.begin(), changed_nodes.end());
+    job.max_rank = max_rank;
+    job.drift = drift;
+    correction_busy_ = true;
+    correction_pending_ = true;
+  }
+  if (asynchronous_) {
+    correction_cv_.notify_all();
+  } else {
+    BuildCorrection();
+    Acquire();
+  }
+  return CorrectionStart::kStarted;
+}
+
+void LinearSolver::WaitForCorrection() {
+  if (asynchronous_) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    correction_cv_.wait(lock, [this] { return !correction_busy_; });
+  }
+  Acquire();
+}
+
+bool LinearSolver::correcting() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return correction_busy_;
+}
+
+void LinearSolver::CorrectionLoop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (true) {
+    correction_cv_.wait(lock, [this] { return stop_ || correction_pending_; });
+    if (stop_) return;
+    lock.unlock();
+    // One core, as the factor worker: Eigen's products inside the build
+    // would otherwise open OpenMP teams on the step's cores.
+#pragma omp teams num_teams(1) thread_limit(1)
+    BuildCorrection();
+    lock.lock();
+  }
+}
+
+/// Builds the pending job's correction into correction_building_ (on the
+/// correction thread, or inline when synchronous) and publishes it as
+/// correction_ready_ for the next Acquire. Reads only the job and its
+/// pinned factor.
+void LinearSolver::BuildCorrection() {
+  CorrectionJob& job = *job_;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    correction_pending_ = false;
+  }
   const auto t0 = std::chrono::steady_clock::now();
-  bool ok = false;
-  int32_t drifted = 0;
-  if (front_ != nullptr && front_->dofs <= system.num_dofs() && !front_->single.empty() && front_->pattern) {
-    const CscView a0{front_->pattern->col_ptr.data(), front_->pattern->row_index.data(), front_->values.data(),
-                     front_->dofs};
-    const std::vector<int32_t> nodes = WithDriftedNodes(system, values, changed_nodes, max_rank, drift);
-    drifted = static_cast<int32_t>(nodes.size() - changed_nodes.size());
-    ok = correction_.Build(front_->single, a0, system, values, nodes, max_rank);
+  const Factor& f = *job.factor;
+  const CscView a0{f.pattern->col_ptr.data(), f.pattern->row_index.data(), f.values.data(), f.dofs};
+  const CscView b{job.pattern->col_ptr.data(), job.pattern->row_index.data(), job.values.data(),
+                  static_cast<int32_t>(job.pattern->col_ptr.size()) - 1};
+  const std::vector<int32_t> nodes = WithDriftedNodes(f, b, job.changed_nodes, job.max_rank, job.drift);
+  const auto drifted = static_cast<int32_t>(nodes.size() - job.changed_nodes.size());
+  const bool ok = correction_building_->Build(f.single, a0, b, nodes, job.max_rank);
+  const double seconds = Seconds(t0);  // the drift scan and the build
+  if (const double delay = worker_delay_s_.load(); delay > 0 && asynchronous_) {
+    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
   }
   std::lock_guard<std::mutex> lock(mutex_);
   if (ok) {
-    correction_request_ = front_->request;
-    correction_pattern_ = system.pattern_id();
+    std::swap(correction_building_, correction_ready_);
+    ready_correction_request_ = f.request;
+    ready_correction_pattern_ = job.pattern_id;
+    correction_landed_ = true;
     ++stats_.corrections;
-    stats_.last_correction_rank = correction_.rank();
+    stats_.last_correction_rank = correction_ready_->rank();
     stats_.last_correction_drifted_nodes = drifted;
-    stats_.last_correction_seconds = Seconds(t0);  // the drift scan and the build
+    stats_.last_correction_seconds = seconds;
+    stats_.max_correction_rank = std::max(stats_.max_correction_rank, correction_ready_->rank());
+    stats_.max_correction_seconds = std::max(stats_.max_correction_seconds, seconds);
   } else {
     ++stats_.corrections_refused;
   }
-  return ok;
+  --job.factor->pins;
+  job.factor = nullptr;
+  correction_busy_ = false;
+  correction_cv_.notify_all();  // WaitForCorrection
 }
 
 FactorStats LinearSolver::stats() const {
@@ -381,7 +487,7 @@ void LinearSolver::Factorize(Snapshot& s) {
   if (const double delay = worker_delay_s_.load(); delay > 0) {
     std::this_thread::sleep_for(std::chrono::duration<double>(delay));
   }
-  std::vector<Factor*> to_free;
+  std::vector<Factor*> to_free, kept;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.completed;
@@ -396,7 +502,9 @@ void LinearSolver::Factorize(Snapshot& s) {
       ready_ = f;
       f = nullptr;
     }
-    to_free.swap(retired_);
+    // A factor a correction is being built from stays retired until done.
+    for (Factor* g : retired_) (g->pins > 0 ? kept : to_free).push_back(g);
+    retired_.swap(kept);
     request_pending_ = false;
     busy_.store(false, std::memory_order_release);
   }
@@ -419,6 +527,12 @@ void LinearSolver::Factorize(Snapshot& s) {
 /// CHOLMOD memory).
 void LinearSolver::Acquire() {
   std::lock_guard<std::mutex> lock(mutex_);
+  if (correction_landed_) {
+    std::swap(correction_, correction_ready_);
+    correction_request_ = ready_correction_request_;
+    correction_pattern_ = ready_correction_pattern_;
+    correction_landed_ = false;
+  }
   if (ready_ == nullptr) return;
   if (front_ != nullptr) retired_.push_back(front_);
   front_ = ready_;
@@ -444,7 +558,7 @@ void LinearSolver::BuildBlockJacobi(const SparseSystem& system, const double* va
 int32_t LinearSolver::CoveredDofs(const SparseSystem& system) const {
   if (front_ == nullptr || front_->dofs > system.num_dofs()) return 0;
   if (correction_request_ == front_->request && correction_pattern_ == system.pattern_id() &&
-      correction_.size() == system.num_dofs()) {
+      correction_->size() == system.num_dofs()) {
     return system.num_dofs();
   }
   return front_->dofs;
@@ -455,7 +569,7 @@ void LinearSolver::ApplyPreconditioner(const SparseSystem& system, const uint8_t
   const int32_t nn = system.num_nodes();
   const int32_t covered = CoveredDofs(system);
   if (covered == system.num_dofs() && covered > front_->dofs) {
-    correction_.Apply(front_->single, r, z);
+    correction_->Apply(front_->single, r, z);
   } else if (covered > 0 && factor_solve_ == FactorSolve::kFloat) {
     if (work_f_.size() < static_cast<size_t>(front_->single.work_size())) {
       work_f_.resize(static_cast<size_t>(front_->single.work_size()));

@@ -20,7 +20,11 @@
 /// After a topology change the caller may instead correct the old factor
 /// for the changed and added DOFs (CorrectFactor, factor_correction.h): a
 /// low-rank term that makes it precondition the cut matrix almost as a
-/// fresh factor does, until the factor of the new pattern lands.
+/// fresh factor does, until the factor of the new pattern lands. The
+/// correction is built on a second worker thread of its own (a factor in
+/// the making never delays it) from a copy of A, and solves pick it up as
+/// they pick up a factor; until then they use the old factor and block
+/// Jacobi.
 ///
 /// A snapshot that is not positive definite (an exact, indefinite tangent)
 /// is factored with a diagonal shift A + σI, σ growing from 1e-6 of the
@@ -36,6 +40,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <span>
 #include <thread>
@@ -100,6 +105,15 @@ struct FactorStats {
   int32_t last_correction_rank = 0;
   int32_t last_correction_drifted_nodes = 0;  ///< Nodes the last correction took for drift alone.
   double last_correction_seconds = 0;  ///< Wall time of the last correction (drift scan and build), s.
+  int32_t max_correction_rank = 0;     ///< Largest rank of a correction built.
+  double max_correction_seconds = 0;   ///< Longest correction build, s.
+};
+
+/// What CorrectFactor did with a request.
+enum class CorrectionStart : uint8_t {
+  kStarted,  ///< Handed to the correction thread (synchronous: built, or refused as singular).
+  kBusy,     ///< The thread still builds an earlier one: ask again later.
+  kRefused,  ///< No factor to correct, or above the rank cap on its own nodes.
 };
 
 class LinearSolver {
@@ -139,16 +153,24 @@ class LinearSolver {
   /// Corrects the current factor (of an older pattern whose DOFs are a
   /// prefix of `system`'s) toward `values` on the DOFs of `changed_nodes`
   /// (old nodes whose elements changed since the factor was asked for,
-  /// ascending) and of every new node (factor_correction.h). Solves then
-  /// use it until a factor of `system`'s pattern is acquired. Returns false
-  /// when refused (no factor, above `max_rank` DOFs, singular); solves
-  /// then fall back to the factor on the old DOFs and block Jacobi.
+  /// ascending) and of every new node (factor_correction.h). Copies
+  /// `values` and the pattern and hands them to the correction thread
+  /// (synchronous mode: builds now); solves use the correction from the
+  /// first Acquire after it is built until a factor of `system`'s pattern
+  /// is acquired. Refused without a factor or above `max_rank` DOFs; a
+  /// singular one is refused by the build (FactorStats counts both), and
+  /// solves then keep the factor on the old DOFs and block Jacobi.
   /// Allocates (a topology change).
   /// Old nodes outside `changed_nodes` whose columns moved by more than
   /// `drift` (relative, ‖A_c − A0_c‖/‖A_c‖ over the node's three columns)
   /// join the correction too, largest first, while the rank allows.
-  bool CorrectFactor(const SparseSystem& system, const double* values, std::span<const int32_t> changed_nodes,
-                     int32_t max_rank, double drift = std::numeric_limits<double>::infinity());
+  CorrectionStart CorrectFactor(const SparseSystem& system, const double* values,
+                                std::span<const int32_t> changed_nodes, int32_t max_rank,
+                                double drift = std::numeric_limits<double>::infinity());
+  /// Blocks until the correction thread is idle and picks up its correction.
+  void WaitForCorrection();
+  /// True while a correction is pending or being built.
+  [[nodiscard]] bool correcting() const;
   /// Rank of the correction in use (0: none).
   [[nodiscard]] int32_t correction_rank() const;
 
@@ -158,8 +180,9 @@ class LinearSolver {
   void Precondition(const SparseSystem& system, const double* values, const uint8_t* active, const double* r,
                     double* z, int num_threads = 1);
 
-  /// Test hook: the worker waits this long after each factorisation before
-  /// publishing it, standing in for a slow machine.
+  /// Test hook: the factor worker and the correction thread wait this long
+  /// after each factorisation or correction before publishing it, standing
+  /// in for a slow machine.
   void set_worker_delay_for_testing(double seconds) { worker_delay_s_.store(seconds); }
   /// Makes the newest finished factor current (never waits).
   void Acquire();
@@ -181,17 +204,20 @@ class LinearSolver {
  private:
   struct Factor;
   struct Snapshot;
+  struct CorrectionJob;
   void WorkerLoop();
+  void CorrectionLoop();
+  void BuildCorrection();
   void Factorize(Snapshot& s);
   void BuildBlockJacobi(const SparseSystem& system, const double* values, const uint8_t* active,
                         int32_t first_node, int num_threads);
   [[nodiscard]] int32_t CoveredDofs(const SparseSystem& system) const;
-  /// `changed_nodes` and the old nodes whose columns drifted by more than
-  /// `drift` since the current factor's values, ascending, within
-  /// `max_rank` DOFs with the new nodes' (front_ must be set).
-  [[nodiscard]] std::vector<int32_t> WithDriftedNodes(const SparseSystem& system, const double* values,
-                                                      std::span<const int32_t> changed_nodes, int32_t max_rank,
-                                                      double drift) const;
+  /// `changed_nodes` and the old nodes whose columns of `b` drifted by
+  /// more than `drift` from `factor`'s values, ascending, within `max_rank`
+  /// DOFs with the new nodes'.
+  [[nodiscard]] static std::vector<int32_t> WithDriftedNodes(const Factor& factor, const CscView& b,
+                                                             std::span<const int32_t> changed_nodes,
+                                                             int32_t max_rank, double drift);
   void ApplyPreconditioner(const SparseSystem& system, const uint8_t* active, const double* r,
                            double* z, int num_threads);
 
@@ -212,13 +238,23 @@ class LinearSolver {
   bool request_pending_ = false;
   uint64_t requests_ = 0;
   std::atomic<double> worker_delay_s_{0};
-  // The low-rank correction of front_ toward the pattern `correction_pattern_`.
-  FactorCorrection correction_;
+  // The low-rank correction of front_ toward the pattern `correction_pattern_`
+  // (the solves'); the one built and waiting for Acquire; the one the
+  // correction thread builds into. Swapped, never copied.
+  std::unique_ptr<FactorCorrection> correction_, correction_ready_, correction_building_;
   uint64_t correction_request_ = 0;  // factor_request() of the factor it corrects
   int64_t correction_pattern_ = -1;
+  uint64_t ready_correction_request_ = 0;  // the same for correction_ready_
+  int64_t ready_correction_pattern_ = -1;
+  bool correction_landed_ = false;   // correction_ready_ waits for Acquire
+  bool correction_busy_ = false;     // a job is pending or being built
+  bool correction_pending_ = false;  // job_ waits for the correction thread
+  CorrectionJob* job_ = nullptr;
+  std::condition_variable correction_cv_;
   bool stop_ = false;
   FactorStats stats_;
   std::thread worker_;
+  std::thread corrector_;
   // Solve workspace.  // #3N each
   std::vector<double> r_, z_, z_prev_, p_, q_;
   std::vector<float> work_f_;   // supernodal solve scratch

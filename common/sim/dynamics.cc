@@ -174,14 +174,14 @@ void Dynamics<T>::Count(const fem::ImplicitResult& r, int64_t step) {
   c.max_newton_iterations = std::max(c.max_newton_iterations, r.newton_iterations);
   c.pcg_iterations += r.pcg_iterations;
   c.max_pcg_iterations = std::max(c.max_pcg_iterations, r.pcg_iterations);
-  c.factorizations = implicit_->linear_solver().stats().completed;
+  // The factor and correction counts are the solver's own: both are made
+  // on worker threads and land a few steps after they are asked for.
+  const fem::FactorStats fs = implicit_->linear_solver().stats();
+  c.factorizations = fs.completed;
+  c.factor_corrections = fs.corrections;
+  c.max_correction_rank = fs.max_correction_rank;
+  c.max_correction_seconds = fs.max_correction_seconds;
   c.tangent_assemblies += r.tangent_assemblies;
-  c.factor_corrections += r.factor_corrected ? 1 : 0;
-  if (r.factor_corrected) {
-    const fem::FactorStats fs = implicit_->linear_solver().stats();
-    c.max_correction_rank = std::max(c.max_correction_rank, fs.last_correction_rank);
-    c.max_correction_seconds = std::max(c.max_correction_seconds, fs.last_correction_seconds);
-  }
   c.over_budget_steps += r.over_budget ? 1 : 0;
   if (r.status == fem::ImplicitStatus::kOutOfTime) {
     ++c.out_of_time_steps;

@@ -71,7 +71,7 @@ struct ImplicitCounters {
   int64_t recovered_steps = 0;       ///< failed steps redone in substeps
   int64_t factor_corrections = 0;    ///< low-rank corrections of the factor after cuts
   int max_correction_rank = 0;       ///< largest such correction, DOFs
-  double max_correction_seconds = 0; ///< s, longest build of one (on the frame thread)
+  double max_correction_seconds = 0; ///< s, longest build of one (on the correction thread)
 };
 
 /// Numbers a run reports (the headless JSON summary).

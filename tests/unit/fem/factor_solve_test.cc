@@ -129,7 +129,7 @@ TEST(FactorCorrection, EqualsAFreshFactorOfTheCutMatrix) {
   ASSERT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
   old.Resize(sys);
   const std::vector<double> z_stale = Precondition(old, sys, f.b, r);
-  ASSERT_TRUE(old.CorrectFactor(sys, f.b.data(), f.changed, 10000));
+  ASSERT_EQ(old.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kStarted);
   EXPECT_EQ(old.correction_rank(), 3 * static_cast<int32_t>(f.changed.size()) + sys.num_dofs() - f.old_dofs);
   const std::vector<double> z_corrected = Precondition(old, sys, f.b, r);
 
@@ -153,7 +153,7 @@ TEST(FactorCorrection, RefusedAboveItsRankAndPcgStillConverges) {
   old.Resize(f.before.system());
   ASSERT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
   old.Resize(sys);
-  EXPECT_FALSE(old.CorrectFactor(sys, f.b.data(), f.changed, 6));
+  EXPECT_EQ(old.CorrectFactor(sys, f.b.data(), f.changed, 6), CorrectionStart::kRefused);
   EXPECT_EQ(old.correction_rank(), 0);
   EXPECT_EQ(old.stats().corrections_refused, 1);
   const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
@@ -194,7 +194,7 @@ TEST(FactorCorrection, TakesTheColumnsThatMovedSinceTheFactor) {
     old.Resize(f.before.system());
     EXPECT_TRUE(old.RequestFactor(f.before.system(), f.a0.data()));
     old.Resize(sys);
-    EXPECT_TRUE(old.CorrectFactor(sys, f.b.data(), f.changed, max_rank, drift));
+    EXPECT_EQ(old.CorrectFactor(sys, f.b.data(), f.changed, max_rank, drift), CorrectionStart::kStarted);
     std::vector<double> x(r.size());
     *iterations = old.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-8, 200, 1).iterations;
     return std::make_pair(Precondition(old, sys, f.b, r), old.stats().last_correction_drifted_nodes);
@@ -355,13 +355,61 @@ TEST(AsyncFactor, SlowRefactorisationNeverBlocksAStep) {
   const ImplicitResult r = integ.Step(model, state, 0.01);
   EXPECT_TRUE(r.pattern_rebuilt);
   EXPECT_TRUE(r.factor_requested);
-  EXPECT_TRUE(r.factor_corrected);
+  EXPECT_TRUE(r.correction_started);
   EXPECT_EQ(r.status, ImplicitStatus::kConverged)
       << r.newton_iterations << " Newton, " << r.pcg_iterations << " PCG, residual " << r.residual << " N, tolerance "
       << r.tolerance << " N, halvings " << r.line_search_halvings;
   EXPECT_TRUE(integ.linear_solver().busy());  // the new factor is still being made
+  EXPECT_TRUE(integ.linear_solver().correcting());  // and so is the correction
+  EXPECT_EQ(integ.linear_solver().correction_rank(), 0);
   EXPECT_LT(r.factor_dofs, integ.system().num_dofs());
+  integ.mutable_linear_solver().WaitForCorrection();
+  EXPECT_EQ(integ.linear_solver().stats().corrections, 1);
   integ.mutable_linear_solver().WaitForFactor();
+}
+
+// The correction built on its own thread is the one built inline, and the
+// solves take it up at their next Acquire.
+TEST(AsyncFactor, CorrectionOnItsThreadEqualsTheInlineOne) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
+  const auto corrected = [&](bool asynchronous) {
+    LinearSolver solver(asynchronous);
+    solver.Resize(f.before.system());
+    EXPECT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
+    solver.WaitForFactor();
+    solver.Resize(sys);
+    EXPECT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000, 0.15), CorrectionStart::kStarted);
+    solver.WaitForCorrection();
+    EXPECT_FALSE(solver.correcting());
+    EXPECT_GT(solver.correction_rank(), 0);
+    return Precondition(solver, sys, f.b, r);
+  };
+  const std::vector<double> z_inline = corrected(false);
+  const std::vector<double> z_thread = corrected(true);
+  EXPECT_LT(testing::RelativeDifference(z_thread, z_inline), 1e-12);
+}
+
+// While the thread builds one correction, another is not taken (kBusy):
+// the caller asks again later.
+TEST(AsyncFactor, ABusyCorrectionThreadTakesNoSecondJob) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  LinearSolver solver(true);
+  solver.Resize(f.before.system());
+  ASSERT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
+  solver.WaitForFactor();
+  solver.Resize(sys);
+  solver.set_worker_delay_for_testing(1.0);
+  ASSERT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kStarted);
+  EXPECT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kBusy);
+  solver.set_worker_delay_for_testing(0);
+  solver.WaitForCorrection();
+  EXPECT_EQ(solver.stats().corrections, 1);
+  EXPECT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kStarted);
+  solver.WaitForCorrection();
+  EXPECT_EQ(solver.stats().corrections, 2);
 }
 
 // The worker factors on its own thread alone: the OpenMP regions inside
