@@ -377,6 +377,7 @@ void LinearSolver::BuildCorrection() {
     ready_correction_request_ = f.request;
     ready_correction_pattern_ = job.pattern_id;
     correction_landed_ = true;
+    published_.store(true, std::memory_order_release);
     ++stats_.corrections;
     stats_.last_correction_rank = correction_ready_->rank();
     stats_.last_correction_drifted_nodes = drifted;
@@ -501,6 +502,7 @@ void LinearSolver::Factorize(Snapshot& s) {
       if (ready_ != nullptr) retired_.push_back(ready_);
       ready_ = f;
       f = nullptr;
+      published_.store(true, std::memory_order_release);
     }
     // A factor a correction is being built from stays retired until done.
     for (Factor* g : retired_) (g->pins > 0 ? kept : to_free).push_back(g);
@@ -527,6 +529,7 @@ void LinearSolver::Factorize(Snapshot& s) {
 /// CHOLMOD memory).
 void LinearSolver::Acquire() {
   std::lock_guard<std::mutex> lock(mutex_);
+  published_.store(false, std::memory_order_relaxed);
   if (correction_landed_) {
     std::swap(correction_, correction_ready_);
     correction_request_ = ready_correction_request_;
@@ -628,7 +631,7 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
   const int nt = Threads(num_threads);
   const int32_t nn = system.num_nodes();
   Acquire();
-  const int32_t covered = CoveredDofs(system) / 3;
+  int32_t covered = CoveredDofs(system) / 3;  // nodes the factor (and its correction) cover
   if (covered < nn) BuildBlockJacobi(system, values, active, covered, nt);
   double* r = r_.data();
   double* z = z_.data();
@@ -651,7 +654,20 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
     return res;
   }
   double rz_old = 0;
+  bool restart = false;
   for (int it = 0; it < max_iterations; ++it) {
+    // A factor or correction that lands mid-solve is taken at once (the
+    // frame after a cut need not finish on the stale preconditioner); the
+    // iteration that changes it restarts the directions (β = 0).
+    if (it > 0 && published_.load(std::memory_order_acquire)) {
+      Acquire();
+      restart = true;
+      // A factor of an older pattern can cover fewer nodes than the
+      // correction it replaces: block Jacobi takes the rest.
+      const int32_t now_covered = CoveredDofs(system) / 3;
+      if (now_covered < covered) BuildBlockJacobi(system, values, active, now_covered, nt);
+      covered = now_covered;
+    }
     std::swap(z, z_prev);
     ApplyPreconditioner(system, active, r, z, nt);
     // Flexible (Polak–Ribière) β = rᵀ(z − z_prev)/rz_old: robust to a
@@ -663,8 +679,9 @@ PcgResult LinearSolver::Solve(const SparseSystem& system, const double* values, 
       }
     });
     const double rz = sums[0];
-    const double beta = it == 0 ? 0.0 : std::max(0.0, (rz - sums[1]) / rz_old);
+    const double beta = it == 0 || restart ? 0.0 : std::max(0.0, (rz - sums[1]) / rz_old);
     rz_old = rz;
+    restart = false;
 #pragma omp parallel num_threads(nt)
     {
 #pragma omp for schedule(static)

@@ -247,6 +247,7 @@ class LinearSolver {
   uint64_t ready_correction_request_ = 0;  // the same for correction_ready_
   int64_t ready_correction_pattern_ = -1;
   bool correction_landed_ = false;   // correction_ready_ waits for Acquire
+  std::atomic<bool> published_{false};  // a factor or correction waits for Acquire (read by Solve's loop)
   bool correction_busy_ = false;     // a job is pending or being built
   bool correction_pending_ = false;  // job_ waits for the correction thread
   CorrectionJob* job_ = nullptr;

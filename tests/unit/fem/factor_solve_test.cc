@@ -391,6 +391,33 @@ TEST(AsyncFactor, CorrectionOnItsThreadEqualsTheInlineOne) {
   EXPECT_LT(testing::RelativeDifference(z_thread, z_inline), 1e-12);
 }
 
+// A solve started before the correction lands takes it up when it does
+// (or not, as the threads run): either way PCG converges to A x = b.
+TEST(AsyncFactor, ASolveBesideACorrectionInTheMakingConverges) {
+  CutFixture f;
+  const SparseSystem& sys = f.after.system();
+  const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
+  const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
+  for (int trial = 0; trial < 5; ++trial) {
+    LinearSolver solver(true);
+    solver.Resize(f.before.system());
+    ASSERT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
+    solver.WaitForFactor();
+    solver.Resize(sys);
+    ASSERT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000, 0.15), CorrectionStart::kStarted);
+    std::vector<double> x(r.size());
+    const PcgResult pr = solver.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-9, 2000, 1);
+    EXPECT_TRUE(pr.converged) << pr.iterations << " iterations, residual " << pr.residual;
+    std::vector<double> ax(r.size(), 0.0);
+    sys.MultiplyTeam(f.b.data(), x.data(), ax.data());
+    double misfit = 0;
+    for (size_t i = 0; i < r.size(); ++i) misfit += (ax[i] - r[i]) * (ax[i] - r[i]);
+    EXPECT_LT(std::sqrt(misfit), 1e-8);
+    solver.WaitForCorrection();
+    EXPECT_EQ(solver.stats().corrections, 1);
+  }
+}
+
 // While the thread builds one correction, another is not taken (kBusy):
 // the caller asks again later.
 TEST(AsyncFactor, ABusyCorrectionThreadTakesNoSecondJob) {
