@@ -181,7 +181,7 @@ enum class ImplicitPhase : uint8_t {
   kSetup,        ///< pattern (after a topology change), active set, M + hC, start of step
   kEvaluate,     ///< force and potential evaluations (the first and the line search's)
   kAssemble,     ///< the Jacobian's values (tangent assembly or reuse, penalty blocks)
-  kFactorSetup,  ///< a factor's request (its element signatures) and the low-rank correction
+  kFactorSetup,  ///< a factor's request (its element signatures) and the copy handed to the correction thread
   kSolve,        ///< PCG
 };
 inline constexpr int kNumImplicitPhases = 5;

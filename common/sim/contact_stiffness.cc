@@ -190,6 +190,19 @@ void AddNodalPressureEntries(const fem::Model<T>& model, const T* x, PatchScratc
         if (col >= 0) grad.emplace_back(col, 0.25 * ge.col(c));
       }
     }
+    // One ∇v_a per unknown (a node of several of a's elements appears once
+    // per element above): the outer product then has as many blocks as the
+    // patch has node pairs, not element-corner pairs.
+    std::sort(grad.begin(), grad.end(), [](const auto& l, const auto& r) { return l.first < r.first; });
+    size_t merged = 0;
+    for (size_t k = 0; k < grad.size(); ++k) {
+      if (merged > 0 && grad[merged - 1].first == grad[k].first) {
+        grad[merged - 1].second += grad[k].second;
+      } else {
+        grad[merged++] = grad[k];
+      }
+    }
+    grad.resize(merged);
     for (const auto& [ci, gi] : grad) {
       for (const auto& [cj, gj] : grad) add_block(ci, cj, curvature * gi * gj.transpose());
     }
