@@ -109,6 +109,15 @@ struct CutFixture {
   }
 };
 
+// Gives `solver` the factor of the matrix before the cut and sizes it for
+// the cut one, as a step after a cut finds it.
+void FactorBeforeTheCut(LinearSolver& solver, const CutFixture& f) {
+  solver.Resize(f.before.system());
+  ASSERT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
+  solver.WaitForFactor();
+  solver.Resize(f.after.system());
+}
+
 // Corrected for the changed and added DOFs, the old factor preconditions
 // the cut matrix as a fresh factor of it does (to the float solve's
 // round-off); without the correction it is far off.
@@ -376,10 +385,7 @@ TEST(AsyncFactor, CorrectionOnItsThreadEqualsTheInlineOne) {
   const std::vector<double> r = Wave(sys.num_dofs(), 0.21);
   const auto corrected = [&](bool asynchronous) {
     LinearSolver solver(asynchronous);
-    solver.Resize(f.before.system());
-    EXPECT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
-    solver.WaitForFactor();
-    solver.Resize(sys);
+    FactorBeforeTheCut(solver, f);
     EXPECT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000, 0.15), CorrectionStart::kStarted);
     solver.WaitForCorrection();
     EXPECT_FALSE(solver.correcting());
@@ -400,10 +406,7 @@ TEST(AsyncFactor, ASolveBesideACorrectionInTheMakingConverges) {
   const std::vector<uint8_t> active(static_cast<size_t>(sys.num_nodes()), 1);
   for (int trial = 0; trial < 5; ++trial) {
     LinearSolver solver(true);
-    solver.Resize(f.before.system());
-    ASSERT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
-    solver.WaitForFactor();
-    solver.Resize(sys);
+    FactorBeforeTheCut(solver, f);
     ASSERT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000, 0.15), CorrectionStart::kStarted);
     std::vector<double> x(r.size());
     const PcgResult pr = solver.Solve(sys, f.b.data(), active.data(), r.data(), x.data(), 1e-9, 2000, 1);
@@ -424,10 +427,7 @@ TEST(AsyncFactor, ABusyCorrectionThreadTakesNoSecondJob) {
   CutFixture f;
   const SparseSystem& sys = f.after.system();
   LinearSolver solver(true);
-  solver.Resize(f.before.system());
-  ASSERT_TRUE(solver.RequestFactor(f.before.system(), f.a0.data()));
-  solver.WaitForFactor();
-  solver.Resize(sys);
+  FactorBeforeTheCut(solver, f);
   solver.set_worker_delay_for_testing(1.0);
   ASSERT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kStarted);
   EXPECT_EQ(solver.CorrectFactor(sys, f.b.data(), f.changed, 10000), CorrectionStart::kBusy);
