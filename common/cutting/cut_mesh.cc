@@ -2,53 +2,15 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numeric>
 #include <string>
 #include <unordered_map>
 
+#include "common/core/disjoint_sets.h"
 #include "common/core/error.h"
 #include "common/mesh/face_key.h"
 #include "common/mesh/surface.h"
 
 namespace cutsim::cutting {
-namespace {
-
-// Union–find over 0..n−1 with path halving; small and allocation-light.
-struct DisjointSets {
-  std::vector<int32_t> parent;
-  explicit DisjointSets(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
-  int32_t Find(int32_t i) {
-    while (parent[static_cast<size_t>(i)] != i) {
-      auto& p = parent[static_cast<size_t>(i)];
-      p = parent[static_cast<size_t>(p)];
-      i = p;
-    }
-    return i;
-  }
-  void Union(int32_t a, int32_t b) {
-    a = Find(a);
-    b = Find(b);
-    if (a == b) return;
-    if (a < b) std::swap(a, b);
-    parent[static_cast<size_t>(a)] = b;  // the smaller index is the root
-  }
-};
-
-// Labels 0, 1, … in order of first appearance; returns the count.
-int32_t Relabel(DisjointSets& ds, std::vector<int32_t>& labels) {
-  const size_t n = ds.parent.size();
-  labels.assign(n, -1);
-  std::vector<int32_t> root_label(n, -1);
-  int32_t count = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const auto r = static_cast<size_t>(ds.Find(static_cast<int32_t>(i)));
-    if (root_label[r] < 0) root_label[r] = count++;
-    labels[i] = root_label[r];
-  }
-  return count;
-}
-
-}  // namespace
 
 int32_t CutMesh::FindFaceMate(int32_t t, int f) const {
   const auto& n = recs_[Idx(t)].nodes;
@@ -570,7 +532,7 @@ std::vector<int32_t> CutMesh::ConnectedComponents(int32_t* count) const {
     for (const int32_t u : recs_[Idx(t)].neighbour)
       if (u > t) ds.Union(t, u);
   std::vector<int32_t> labels;
-  const int32_t k = Relabel(ds, labels);
+  const int32_t k = ds.Label(&labels);
   if (count) *count = k;
   return labels;
 }
@@ -591,7 +553,7 @@ std::vector<int32_t> ConnectedComponents(const mesh::Tets& tets, int32_t* count)
     }
   }
   std::vector<int32_t> labels;
-  const int32_t k = Relabel(ds, labels);
+  const int32_t k = ds.Label(&labels);
   if (count) *count = k;
   return labels;
 }

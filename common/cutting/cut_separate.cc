@@ -5,7 +5,6 @@
 #include <array>
 #include <cmath>
 #include <iterator>
-#include <numeric>
 #include <span>
 #include <utility>
 #include <vector>
@@ -14,39 +13,6 @@
 #include "common/cutting/cut_step_internal.h"
 
 namespace cutsim::cutting {
-namespace {
-
-// Union–find over scratch `parent` (0..n−1, path halving, the smaller index
-// is the root) and relabelling in order of first appearance.
-int32_t FindRoot(std::vector<int32_t>& parent, int32_t i) {
-  while (parent[static_cast<size_t>(i)] != i) {
-    auto& p = parent[static_cast<size_t>(i)];
-    p = parent[static_cast<size_t>(p)];
-    i = p;
-  }
-  return i;
-}
-void UnionRoots(std::vector<int32_t>& parent, int32_t a, int32_t b) {
-  a = FindRoot(parent, a);
-  b = FindRoot(parent, b);
-  if (a == b) return;
-  if (a < b) std::swap(a, b);
-  parent[static_cast<size_t>(a)] = b;
-}
-int32_t RelabelRoots(std::vector<int32_t>& parent, std::vector<int32_t>& labels, std::vector<int32_t>& root_label) {
-  const size_t n = parent.size();
-  labels.assign(n, -1);
-  root_label.assign(n, -1);
-  int32_t count = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const auto r = static_cast<size_t>(FindRoot(parent, static_cast<int32_t>(i)));
-    if (root_label[r] < 0) root_label[r] = count++;
-    labels[i] = root_label[r];
-  }
-  return count;
-}
-
-}  // namespace
 
 void CutStepper::BeginSeparation(internal::StepState& s) {
   tet_marks_.Clear(kFlipped);  // tets the fragment guard moved to the other side
@@ -282,8 +248,7 @@ const std::vector<int32_t>& CutStepper::FindFragments(const TopologyEvent& ev, c
 // ---- star and edge groups (step 4) ----------------------------------------
 
 int32_t CutStepper::FaceGroups(std::span<const int32_t> tets, int32_t a, int32_t b) {
-  ds_parent_.resize(tets.size());
-  std::iota(ds_parent_.begin(), ds_parent_.end(), 0);
+  face_sets_.Reset(tets.size());
   for (size_t i = 0; i < tets.size(); ++i) {
     const int32_t t = tets[i];
     const auto& n = mesh().tet(t);
@@ -292,10 +257,10 @@ int32_t CutStepper::FaceGroups(std::span<const int32_t> tets, int32_t a, int32_t
       const int32_t u = mesh().Neighbour(t, f);
       if (u < 0) continue;
       const auto j = std::lower_bound(tets.begin(), tets.end(), u) - tets.begin();
-      UnionRoots(ds_parent_, static_cast<int32_t>(i), static_cast<int32_t>(j));
+      face_sets_.Union(static_cast<int32_t>(i), static_cast<int32_t>(j));
     }
   }
-  return RelabelRoots(ds_parent_, ds_label_, ds_root_label_);
+  return face_sets_.Label(&face_group_);
 }
 
 int32_t CutStepper::StarGroups(int32_t node) {
@@ -303,11 +268,11 @@ int32_t CutStepper::StarGroups(int32_t node) {
   const int32_t k = FaceGroups(star, node, node);
   // Counting sort by label: groups in label order, tets ascending within.
   group_begin_.assign(Idx(k) + 1, 0);
-  for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(ds_label_[i]) + 1];
+  for (size_t i = 0; i < star.size(); ++i) ++group_begin_[Idx(face_group_[i]) + 1];
   for (int32_t g = 0; g < k; ++g) group_begin_[Idx(g) + 1] += group_begin_[Idx(g)];
   group_tets_.resize(star.size());
-  ds_root_label_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
-  for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(ds_root_label_[Idx(ds_label_[i])]++)] = star[i];
+  group_fill_.assign(group_begin_.begin(), group_begin_.end() - 1);  // fill cursor per group
+  for (size_t i = 0; i < star.size(); ++i) group_tets_[Idx(group_fill_[Idx(face_group_[i])]++)] = star[i];
   return k;
 }
 

@@ -95,6 +95,7 @@
 
 #include <Eigen/Core>
 
+#include "common/core/disjoint_sets.h"
 #include "common/core/stamp_sets.h"
 #include "common/cutting/cut_mesh.h"
 #include "common/cutting/cut_params.h"
@@ -304,8 +305,8 @@ class CutStepper {
   int32_t StarGroups(int32_t node);
   /// Face-connected groups of `tets` (ascending, each holding a and b):
   /// two join across a face that holds both a and b (a = b: a node's
-  /// star); labels in ds_label_, in order of first appearance. Returns the
-  /// count.
+  /// star); the group of tets[i] in face_group_[i], groups numbered in
+  /// order of first appearance. Returns the count.
   int32_t FaceGroups(std::span<const int32_t> tets, int32_t a, int32_t b);
   /// Number of face-connected groups of the tets around edge (a, b).
   [[nodiscard]] int EdgeGroupCount(int32_t a, int32_t b);
@@ -341,7 +342,8 @@ class CutStepper {
   const CutMesh* mesh_ = nullptr;
 
   // Scratch of a cut step, cleared, never shrunk (no allocation once warm).
-  std::vector<int32_t> ds_parent_, ds_label_, ds_root_label_;
+  DisjointSets face_sets_;
+  std::vector<int32_t> face_group_, group_fill_;
   std::vector<int32_t> group_tets_, group_begin_, around_;
   SurfaceLink link_;
   std::vector<int32_t> heads_;

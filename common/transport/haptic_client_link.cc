@@ -82,6 +82,9 @@ int HapticClientLink::RunOnce(int wait_ms) {
   int64_t due = publisher_->injector().next_due_ns();
   if (receive_faults_ != nullptr) due = std::min(due, receive_faults_->next_due_ns());
   const int input_fd = receiver_ != nullptr ? receiver_->fd() : bus_.fileno();
+  // Counted before blocking: a caller that sees the count knows the thread
+  // has reached (or is entering) this wait with nothing left to send.
+  stats_.waits.fetch_add(1, std::memory_order_release);
   const bool ready = WaitInputOrWake(input_fd, wake_, WaitMs(now, due, std::max(0, wait_ms)));
   if (ready) {
     if (receiver_ != nullptr) {
@@ -282,6 +285,7 @@ HapticClientLinkStats HapticClientLink::stats() const {
   s.restarts = stats_.restarts.load();
   s.accepted = stats_.accepted.load();
   s.missed = stats_.missed.load();
+  s.waits = stats_.waits.load();
   s.packets = SnapshotPackets(packets_, s.accepted, receiver_.get());
   if (receiver_ != nullptr) s.models_superseded = s.packets[PacketReason::kSuperseded];
   return s;

@@ -292,6 +292,7 @@ struct HapticClientLinkStats {
   uint64_t restarts = 0;          ///< Server restarts detected.
   uint64_t accepted = 0;          ///< Handed to the mailbox.
   uint64_t missed = 0;            ///< Gaps in the accepted models' sequence (lost on the way).
+  uint64_t waits = 0;             ///< Waits the LCM thread began, each counted before it blocks.
   PacketCounts packets;           ///< Every model packet by reason (per datagram on udpm).
 };
 
@@ -375,7 +376,7 @@ class HapticClientLink {
   struct AtomicStats {
     std::atomic<uint64_t> tools_written{0}, tools_published{0}, tools_not_sent{0},
         models_received{0}, models_superseded{0}, decode_errors{0}, foreign_session{0}, stale{0},
-        duplicate{0}, malformed{0}, restarts{0}, accepted{0}, subscription_errors{0}, missed{0};
+        duplicate{0}, malformed{0}, restarts{0}, accepted{0}, subscription_errors{0}, missed{0}, waits{0};
   } stats_;
   PacketCounters packets_;
   std::unique_ptr<UdpmReceiver> receiver_;  // udpm URLs; else `subscription_`

@@ -93,8 +93,18 @@ void ServerPresence::OnMessage(std::span<const uint8_t> bytes) {
     return auth_ == nullptr || skew <= options_.window_ns;
   }();
   if (!fresh) {
-    std::lock_guard lock(mutex_);
-    ++stats_.unauthenticated;
+    bool first_one = false;
+    {
+      std::lock_guard lock(mutex_);
+      first_one = stats_.unauthenticated++ == 0;
+    }
+    // Once: a server with another key on the session, a forger or a replay
+    // is worth a line, and a test can see the message arrived and was ignored.
+    if (first_one) {
+      Log().warn("session '{}': ignored a server message that failed its check (another session key, "
+                 "unsigned, stale or malformed); later ones are counted, not logged",
+                 options_.session);
+    }
     return;
   }
   if (msg.epoch() == epoch_ && msg.pid() == pid_ && msg.host() == host_) return;  // our own, looped back

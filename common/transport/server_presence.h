@@ -19,7 +19,8 @@
 ///   authentic ones signed within `window_ns` of our clock count, so no one
 ///   without the key can keep a server from starting, and an old
 ///   announcement played back cannot either. Without a key (an open
-///   session) anyone on the network can.
+///   session) anyone on the network can. Messages that fail the check are
+///   counted (`unauthenticated`); the first one is also logged.
 ///
 /// The presence uses an LCM instance of its own, so it shares nothing with
 /// the haptic link's threads.

@@ -55,7 +55,9 @@ url="udpm://239.255.76.67:7917?ttl=0"
 "$bin/cutsim-server" --scene scenes/ligament.pbtxt --session live --duration 4 --no-rt --lcm-url "$url" \
   --key-file "$out/session.key" --record "$out/session.lcm" >"$out/live.json" 2>"$out/live.log" &
 live=$!
-sleep 1
+# The station starts once the server runs (its "session 'live': physics … Hz" line).
+for _ in $(seq 600); do grep -q "session 'live': physics" "$out/live.log" && break; sleep 0.05; done
+grep -q "session 'live': physics" "$out/live.log" || fail "the live server did not start (live.log)"
 "$bin/cutsim-haptic" --device scripted --path scenes/ligament-cut.path --session live --lcm-url "$url" \
   --key-file "$out/session.key" --no-rt >"$out/haptic.json" 2>"$out/haptic.log" ||
   fail "the scripted station failed"

@@ -11,7 +11,6 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -58,6 +57,12 @@ bool Running(const Subprocess& server) {
   return server.Stderr().find("physics") != std::string::npos;
 }
 
+// The server has ignored a server message of its session that failed the
+// check (server_presence.cc logs the first).
+bool IgnoredAServerMessage(const Subprocess& server) {
+  return server.Stderr().find("server message that failed its check") != std::string::npos;
+}
+
 TEST(IdentityTest, ASecondServerOnTheSessionIsRefusedAndBothSaySo) {
   Lab s;
   Subprocess first(s.Server("first.json"));
@@ -83,7 +88,10 @@ TEST(IdentityTest, ASecondServerOnTheSessionIsRefusedAndBothSaySo) {
   }
   Subprocess outsider(other);
   ASSERT_TRUE(WaitUntil([&] { return Running(outsider); }, 30s, 50ms)) << outsider.Stderr();
-  std::this_thread::sleep_for(1500ms);  // announcements go out once a second
+  // Each has heard the other (the outsider's probe, the first's
+  // announcements) and ignored it: neither gives way.
+  ASSERT_TRUE(WaitUntil([&] { return IgnoredAServerMessage(outsider); }, 30s, 50ms)) << outsider.Stderr();
+  ASSERT_TRUE(WaitUntil([&] { return IgnoredAServerMessage(first); }, 30s, 50ms)) << first.Stderr();
   outsider.Signal(SIGTERM);
   EXPECT_EQ(outsider.Wait(30s), std::optional<int>(0)) << outsider.Stderr();
 

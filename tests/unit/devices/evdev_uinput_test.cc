@@ -36,6 +36,18 @@ void Check(bool ok, const char* what) {
   if (!ok) ++g_failures;
 }
 
+// Polls `done` until it holds or 10 s pass: the kernel hands events and
+// force-feedback requests over asynchronously.
+template <typename Pred>
+bool PollUntil(Pred done) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (!done()) {
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  return true;
+}
+
 void Emit(int fd, uint16_t type, uint16_t code, int32_t value) {
   input_event e{};
   e.type = type;
@@ -149,15 +161,23 @@ int main() {
     Emit(ui, EV_ABS, ABS_X, 1000);
     Emit(ui, EV_KEY, BTN_TRIGGER, 1);
     Emit(ui, EV_SYN, SYN_REPORT, 0);
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    Check(device.Read(1'000'000, &pose) == CUTSIM_DEVICE_OK, "read");
+    int read_status = CUTSIM_DEVICE_OK;
+    Check(PollUntil([&] {
+            read_status = device.Read(1'000'000, &pose);
+            return read_status != CUTSIM_DEVICE_OK || pose.buttons != 0;
+          }),
+          "the report reached the device");
+    Check(read_status == CUTSIM_DEVICE_OK, "read");
     Check(std::abs(pose.position[0] - 0.05) < 1e-9, "ABS_X at its maximum maps to +half_extent");
     Check(pose.buttons == CUTSIM_BUTTON_CUT, "BTN_TRIGGER sets the cut bit");
     const double force[3] = {0.0, 1.0, 0.0};
     Check(device.WriteForce(2'000'000, force) == CUTSIM_DEVICE_OK, "write_force");
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    Check(PollUntil([&] {
+            std::lock_guard lock(driver.mutex);
+            return driver.uploads.size() >= 2 && driver.plays >= 1;
+          }),
+          "the driver got the uploads and a play within the bounded wait");
     std::lock_guard lock(driver.mutex);
-    Check(driver.uploads.size() >= 2, "the kernel passed the initial upload and the update to the driver");
     if (!driver.uploads.empty()) {
       const ff_effect& last = driver.uploads.back();
       Check(last.type == FF_CONSTANT, "constant effect");

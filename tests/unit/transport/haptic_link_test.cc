@@ -370,13 +370,17 @@ TEST(HapticClientLinkTest, PublishToolWakesTheLcmThreadInsteadOfWaitingForItsTim
   HapticClientLink client(bus, session);
   constexpr int kHourMs = 3'600'000;
   client.Start(kHourMs);
-  auto wait_for = [&](uint64_t n) {
+  auto wait_until = [](const auto& done) {
     const int64_t guard = MonotonicNs() + 30'000'000'000;  // far below the hour
-    while (heard.load() < n && MonotonicNs() < guard) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    return heard.load() >= n;
+    while (!done() && MonotonicNs() < guard) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    return done();
   };
+  auto wait_for = [&](uint64_t n) { return wait_until([&] { return heard.load() >= n; }); };
+  // Once the thread has counted its first wait it is in (or entering) that
+  // wait, with nothing to send: the pose can then only go out through the
+  // wake-up.
+  ASSERT_TRUE(wait_until([&] { return client.stats().waits >= 1; })) << "the LCM thread never began its wait";
   ToolSample t;
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));  // let the thread reach its wait
   const uint64_t first = client.PublishTool(t);
   ASSERT_TRUE(wait_for(1)) << "the pose waited for the LCM thread's timeout";
   EXPECT_EQ(last_seq.load(), first);
