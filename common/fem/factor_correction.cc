@@ -88,10 +88,11 @@ bool FactorCorrection::Build(const SupernodalSolver<float>& factor, const CscVie
   const int32_t new_nodes = (n - n0) / 3;
   std::vector<double> d_blocks(9 * static_cast<size_t>(new_nodes), 0.0);  // #(n−n0)×3, column-major per node
   std::erase_if(entries, [&](const Eigen::Triplet<double>& e) {
-    const int32_t m = (e.row() - k_old) / 3;
-    if (e.row() < k_old || e.col() < k_old || m != (e.col() - k_old) / 3) return false;
-    d_blocks[9 * static_cast<size_t>(m) + 3 * static_cast<size_t>((e.col() - k_old) % 3) +
-             static_cast<size_t>((e.row() - k_old) % 3)] += e.value();
+    if (e.row() < k_old || e.col() < k_old) return false;
+    const int32_t r = e.row() - k_old, c = e.col() - k_old;  // on N
+    if (r / 3 != c / 3) return false;
+    d_blocks[9 * static_cast<size_t>(r / 3) + 3 * static_cast<size_t>(c % 3) + static_cast<size_t>(r % 3)] +=
+        e.value();
     return true;
   });
   delta_.resize(k, k);

@@ -117,8 +117,8 @@ LinearSolver::LinearSolver(bool asynchronous, FactorSolve factor_solve)
   correction_building_ = std::make_unique<FactorCorrection>();
   LimitBlasThreads();
   if (asynchronous_) {
-    worker_ = std::thread([this] { WorkerLoop(); });
-    corrector_ = std::thread([this] { CorrectionLoop(); });
+    worker_ = std::thread([this] { Serve(cv_, request_pending_, [this] { Factorize(*snapshot_); }); });
+    corrector_ = std::thread([this] { Serve(correction_cv_, correction_pending_, [this] { BuildCorrection(); }); });
   }
 }
 
@@ -311,7 +311,7 @@ CorrectionStart LinearSolver::CorrectFactor(const SparseSystem& system, const do
     job.max_rank = max_rank;
     job.drift = drift;
     correction_busy_ = true;
-    correction_pending_ = true;
+    correction_pending_ = asynchronous_;
   }
   if (asynchronous_) {
     correction_cv_.notify_all();
@@ -335,19 +335,6 @@ bool LinearSolver::correcting() const {
   return correction_busy_;
 }
 
-void LinearSolver::CorrectionLoop() {
-  std::unique_lock<std::mutex> lock(mutex_);
-  while (true) {
-    correction_cv_.wait(lock, [this] { return stop_ || correction_pending_; });
-    if (stop_) return;
-    lock.unlock();
-    // One core, as the factor worker: Eigen's products inside the build
-    // would otherwise open OpenMP teams on the step's cores.
-#pragma omp teams num_teams(1) thread_limit(1)
-    BuildCorrection();
-    lock.lock();
-  }
-}
 
 /// Builds the pending job's correction into correction_building_ (on the
 /// correction thread, or inline when synchronous) and publishes it as
@@ -355,10 +342,6 @@ void LinearSolver::CorrectionLoop() {
 /// pinned factor.
 void LinearSolver::BuildCorrection() {
   CorrectionJob& job = *job_;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    correction_pending_ = false;
-  }
   const auto t0 = std::chrono::steady_clock::now();
   const Factor& f = *job.factor;
   const CscView a0{f.pattern->col_ptr.data(), f.pattern->row_index.data(), f.values.data(), f.dofs};
@@ -390,7 +373,6 @@ void LinearSolver::BuildCorrection() {
   --job.factor->pins;
   job.factor = nullptr;
   correction_busy_ = false;
-  correction_cv_.notify_all();  // WaitForCorrection
 }
 
 FactorStats LinearSolver::stats() const {
@@ -398,20 +380,25 @@ FactorStats LinearSolver::stats() const {
   return stats_;
 }
 
-void LinearSolver::WorkerLoop() {
+/// The loop of the factor worker and of the correction thread: waits for
+/// `pending`, clears it and runs `work` on one core, then wakes the waiters
+/// (WaitForFactor, WaitForCorrection). One core: CHOLMOD's supernodal
+/// factorisation opens OpenMP regions of its own (num_threads(4) on its
+/// clears of L) and Eigen's products in a correction would open teams too,
+/// putting more threads on the cores of the step's team. A host teams
+/// region's thread limit holds every region inside it to this thread.
+template <typename Work>
+void LinearSolver::Serve(std::condition_variable& cv, bool& pending, Work work) {
   std::unique_lock<std::mutex> lock(mutex_);
   while (true) {
-    cv_.wait(lock, [this] { return stop_ || request_pending_; });
+    cv.wait(lock, [&] { return stop_ || pending; });
     if (stop_) return;
+    pending = false;
     lock.unlock();
-    // One core: CHOLMOD's supernodal factorisation opens OpenMP regions of
-    // its own (num_threads(4) on its clears of L), which would put three
-    // more threads on the cores of the step's team. A host teams region's
-    // thread limit holds every region inside it to the worker's thread.
 #pragma omp teams num_teams(1) thread_limit(1)
-    Factorize(*snapshot_);
+    work();
     lock.lock();
-    cv_.notify_all();  // WaitForFactor
+    cv.notify_all();
   }
 }
 

@@ -205,8 +205,8 @@ class LinearSolver {
   struct Factor;
   struct Snapshot;
   struct CorrectionJob;
-  void WorkerLoop();
-  void CorrectionLoop();
+  template <typename Work>
+  void Serve(std::condition_variable& cv, bool& pending, Work work);
   void BuildCorrection();
   void Factorize(Snapshot& s);
   void BuildBlockJacobi(const SparseSystem& system, const double* values, const uint8_t* active,
