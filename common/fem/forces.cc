@@ -8,14 +8,13 @@
 #include <vector>
 
 #include "common/fem/nodal_pressure.h"
+#include "common/fem/threads.h"
 
 namespace cutsim::fem {
 
 namespace {
 
 constexpr int kW = Model<double>::kBlock;
-
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
 /// One SIMD block of kW elements starting at t0 (StVK per docs/DESIGN.md):
 /// F = Ds·Dm⁻¹, E = ½(FᵀF − I), S = λ tr(E) I + 2μE [+ φ tr(Ė) I + 2ψĖ],
@@ -527,5 +526,6 @@ void ComputeElementStresses(const Model<T>& model, const T* x, std::span<T> sigm
 
 CUTSIM_FEM_INSTANTIATE(float)
 CUTSIM_FEM_INSTANTIATE(double)
+#undef CUTSIM_FEM_INSTANTIATE
 
 }  // namespace cutsim::fem

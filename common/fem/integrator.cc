@@ -10,12 +10,11 @@
 #include "common/fem/forces.h"
 #include "common/fem/node_sums.h"
 #include "common/fem/stable_dt.h"
+#include "common/fem/threads.h"
 
 namespace cutsim::fem {
 
 namespace {
-
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
 // Step-size policy of Advance (State::dt_held): the held step is this
 // fraction of the estimate when set, and is re-set when the estimate falls
@@ -503,5 +502,6 @@ StepResult Advance(const Model<T>& model, State<T>& state, double frame_time,
 
 CUTSIM_FEM_INSTANTIATE(float)
 CUTSIM_FEM_INSTANTIATE(double)
+#undef CUTSIM_FEM_INSTANTIATE
 
 }  // namespace cutsim::fem

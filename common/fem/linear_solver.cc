@@ -19,6 +19,7 @@
 #include "common/core/clock.h"
 #include "common/core/headroom.h"
 #include "common/fem/node_sums.h"
+#include "common/fem/threads.h"
 
 namespace cutsim::fem {
 
@@ -68,8 +69,6 @@ struct LinearSolver::Snapshot {
 };
 
 namespace {
-
-int Threads(int requested) { return requested > 0 ? requested : omp_get_max_threads(); }
 
 cholmod_common* Common(void* p) { return static_cast<cholmod_common*>(p); }
 

@@ -320,5 +320,6 @@ void RefreshSpectralRatio(const Model<T>& model, State<T>& state, bool explicit_
 
 CUTSIM_FEM_INSTANTIATE(float)
 CUTSIM_FEM_INSTANTIATE(double)
+#undef CUTSIM_FEM_INSTANTIATE
 
 }  // namespace cutsim::fem

@@ -21,7 +21,7 @@ using link_detail::SnapshotPackets;
 using link_detail::WaitInputOrWake;
 using link_detail::WaitMs;
 
-constexpr int64_t kWarnPeriodNs = 1'000'000'000;
+constexpr int64_t kLinkWarnPeriodNs = 1'000'000'000;
 
 }  // namespace
 
@@ -172,7 +172,7 @@ void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_
     const AuthVerdict verdict = gate_.Offer(msg.epoch(), msg.seq(), msg.wall_ns(), RealtimeNowNs(), receive_ns);
     if (!Accepted(verdict)) {
       Refuse(ReasonOf(verdict));
-      if (verdict == AuthVerdict::kOtherSender && receive_ns - last_two_servers_warn_ns_ >= kWarnPeriodNs) {
+      if (verdict == AuthVerdict::kOtherSender && receive_ns - last_two_servers_warn_ns_ >= kLinkWarnPeriodNs) {
         last_two_servers_warn_ns_ = receive_ns;
         Log().warn("two servers publish session '{}': models from a server started at epoch {} are refused "
                    "while the one started at epoch {} is alive",
@@ -227,7 +227,7 @@ void HapticClientLink::ProcessModel(const v1::HapticModel& msg, int64_t receive_
 
 void HapticClientLink::ExplainSilence(int64_t now_ns) {
   const int64_t silent_ns = now_ns - last_accept_ns_;
-  if (silent_ns < options_.silence_ns || now_ns - last_silence_warn_ns_ < kWarnPeriodNs) return;
+  if (silent_ns < options_.silence_ns || now_ns - last_silence_warn_ns_ < kLinkWarnPeriodNs) return;
   auto n = [this](PacketReason r) { return refused_since_warn_[static_cast<size_t>(r)]; };
   uint64_t refused = 0;
   for (const uint64_t v : refused_since_warn_) refused += v;

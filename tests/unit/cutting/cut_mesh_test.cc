@@ -23,9 +23,9 @@ using testing::KuhnBox;
 using testing::Reference;
 using testing::WorldFromRest;
 
-constexpr double kH = 0.01;  // cell size, m
+constexpr double kCell = 0.01;  // cell size, m
 
-mesh::TetMesh Box() { return KuhnBox(Vector3d::Zero(), Vector3d(4 * kH, 3 * kH, 2 * kH), 4, 3, 2); }
+mesh::TetMesh Box() { return KuhnBox(Vector3d::Zero(), Vector3d(4 * kCell, 3 * kCell, 2 * kCell), 4, 3, 2); }
 
 TEST(CutMesh, UncutMeshHasTheExtractedSurfaceAndNoOpenedFace) {
   const mesh::TetMesh m = Box();
@@ -59,13 +59,13 @@ TEST(CutMesh, SelectV2ContinuesAStraightCuttingLine) {
   const VectorWorld w = WorldFromRest(m);
   auto id = [](int i, int j, int k) { return i + 5 * (j + 4 * k); };
   const Vector3d up = Vector3d::UnitZ();
-  const Vector3d cp = w.Get(id(2, 1, 2)) + Vector3d(0.1 * kH, 0.05 * kH, 0.0);
+  const Vector3d cp = w.Get(id(2, 1, 2)) + Vector3d(0.1 * kCell, 0.05 * kCell, 0.0);
   EXPECT_EQ(cm.SelectV2(id(1, 1, 2), id(2, 1, 2), cp, up, w), id(3, 1, 2));
   EXPECT_EQ(cm.SelectV2(id(3, 1, 2), id(2, 1, 2), cp, up, w), id(1, 1, 2));
   EXPECT_EQ(cm.SelectV2(id(2, 0, 2), id(2, 1, 2), cp, up, w), id(2, 2, 2));
   // s1 ∥ n: no direction on the facet plane, no v2.
   VectorWorld stacked = w;
-  stacked.Set(id(1, 1, 2), w.Get(id(2, 1, 2)) - kH * up);
+  stacked.Set(id(1, 1, 2), w.Get(id(2, 1, 2)) - kCell * up);
   EXPECT_EQ(cm.SelectV2(id(1, 1, 2), id(2, 1, 2), cp, up, stacked), -1);
 }
 
@@ -73,14 +73,14 @@ TEST(CutMesh, SelectV2ContinuesAStraightCuttingLine) {
 // triangles, after cuts (so v1 may have twins, which are never v2), for
 // random adjacent pairs on the top face and contact points near v1.
 TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
-  const mesh::TetMesh m = KuhnBox(Vector3d::Zero(), Vector3d(6 * kH, 4 * kH, 2 * kH), 6, 4, 2, 0.2, 3);
+  const mesh::TetMesh m = KuhnBox(Vector3d::Zero(), Vector3d(6 * kCell, 4 * kCell, 2 * kCell), 6, 4, 2, 0.2, 3);
   CutMesh cm(m);
   VectorWorld w = WorldFromRest(m);
   CutParams params;
-  const double top = 2 * kH;
+  const double top = 2 * kCell;
   const std::vector<Vector3d> path =
-      testing::Segment(Vector3d(0.2 * kH, 2.05 * kH, top), Vector3d(3.5 * kH, 1.6 * kH, top), 12);
-  (void)testing::DrivePath(cm, w, path, 0.6 * kH, params, nullptr, [](int) {});
+      testing::Segment(Vector3d(0.2 * kCell, 2.05 * kCell, top), Vector3d(3.5 * kCell, 1.6 * kCell, top), 12);
+  (void)testing::DrivePath(cm, w, path, 0.6 * kCell, params, nullptr, [](int) {});
   ASSERT_GT(cm.version(), 0u) << "no cut: the check below would not meet twins";
   const Vector3d n = Vector3d::UnitZ();
   auto tangential = [&](const Vector3d& a) { return Vector3d(a - n.dot(a) * n); };
@@ -95,7 +95,7 @@ TEST(CutMesh, SelectV2MatchesABruteForceOverTheSurfaceAfterCuts) {
     if (!on_top) continue;
     for (int e = 0; e < 3; ++e) {
       const int32_t v0 = tri[static_cast<size_t>(e)], v1 = tri[static_cast<size_t>((e + 1) % 3)];
-      const Vector3d cp = w.Get(v1) + kH * Vector3d(u(rng), u(rng), 0.0);
+      const Vector3d cp = w.Get(v1) + kCell * Vector3d(u(rng), u(rng), 0.0);
       const Vector3d s1 = tangential(w.Get(v1) - w.Get(v0));
       int32_t best = -1;
       double best_cos = -2.0;
@@ -154,11 +154,11 @@ struct StraightCut {
   testing::DriveStats stats;
   int components_before_last = 0;
 
-  void Run(double y = 1.2 * kH) {
+  void Run(double y = 1.2 * kCell) {
     CutParams params;
     params.alpha = 0.5;
-    const double top = 2 * kH;
-    const auto path = testing::Segment(Vector3d(0, y, top), Vector3d(4 * kH, y, top), 80);
+    const double top = 2 * kCell;
+    const auto path = testing::Segment(Vector3d(0, y, top), Vector3d(4 * kCell, y, top), 80);
     stats = testing::DrivePath(cm, world, path, /*depth=*/top + 0.005, params, &events, [&](int step) {
       ExpectInvariants(cm, world, ref, "straight cut step " + std::to_string(step));
     });
@@ -180,7 +180,7 @@ TEST(CutMesh, StraightCutWithALongBladeSeparatesTheBoxIntoTwo) {
   for (int32_t t = 0; t < rest.num_tets(); ++t) {
     Vector3d c = Vector3d::Zero();
     for (int i = 0; i < 4; ++i) c += rest.nodes.row(rest.tets(t, i)).transpose() / 4.0;
-    EXPECT_EQ(labels[static_cast<size_t>(t)], labels[0] == 0 ? (c.y() < 1.2 * kH ? 0 : 1) : (c.y() < 1.2 * kH ? 1 : 0))
+    EXPECT_EQ(labels[static_cast<size_t>(t)], labels[0] == 0 ? (c.y() < 1.2 * kCell ? 0 : 1) : (c.y() < 1.2 * kCell ? 1 : 0))
         << "tet " << t << " at y = " << c.y();
   }
   EXPECT_EQ(sc.cm.num_tets(), sc.m.num_tets());
@@ -198,18 +198,18 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
   VectorWorld world = WorldFromRest(m);
   const Reference ref(m);
   CutParams params;
-  const double top = 2 * kH, y = 1.01 * kH;
+  const double top = 2 * kCell, y = 1.01 * kCell;
   auto node_at = [&](int i, int j) { return static_cast<int32_t>(i + 5 * (j + 4 * 2)); };  // top layer
   int32_t v0 = node_at(0, 1);
-  Vector3d tip0(-0.2 * kH, y, -0.5 * kH);
+  Vector3d tip0(-0.2 * kCell, y, -0.5 * kCell);
   for (int i = 1; i <= 4; ++i) {
     CutStep step;
     step.v0 = v0;
     step.v1 = node_at(i, i % 2 == 0 ? 2 : 1);
     step.cp0 = Vector3d(tip0.x(), y, top);
-    step.cp = Vector3d(i * kH, y, top);
-    const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
-    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
+    step.cp = Vector3d(i * kCell, y, top);
+    const Vector3d tip(i == 4 ? 4.2 * kCell : i * kCell, y, -0.5 * kCell);
+    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kCell, tip0});
     const CutOutcome out = stepper.ExecuteCut(cm, step, world, params);
     ASSERT_EQ(out.status, CutStatus::kExecuted) << "step " << i;
     world.ApplyEvent(out.event);
@@ -224,7 +224,7 @@ TEST(CutMesh, BladePlaneIgnoresAClosestVertexJumpingBetweenRows) {
   for (int r = 0; r < tris.rows(); ++r) {
     if (!opened[static_cast<size_t>(r)]) continue;
     ++n_opened;
-    for (int k = 0; k < 3; ++k) EXPECT_NEAR(world.Get(tris(r, k)).y(), kH, 0.02 * kH) << "opened face off the plane";
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(world.Get(tris(r, k)).y(), kCell, 0.02 * kCell) << "opened face off the plane";
   }
   EXPECT_EQ(n_opened, 2 * 2 * 4 * 2) << "both sides of the 4 × 2 cell faces";
 }
@@ -252,19 +252,19 @@ TEST(CutMesh, AWorldWithoutPackedPositionsCutsTheSame) {
   ASSERT_NE(packed.Xyz(), nullptr);
   ASSERT_EQ(unpacked.Xyz(), nullptr);
   const CutParams params;
-  const double top = 2 * kH, y = 1.2 * kH;
+  const double top = 2 * kCell, y = 1.2 * kCell;
   auto node_at = [&](int i, int j) { return static_cast<int32_t>(i + 5 * (j + 4 * 2)); };  // top layer
   int32_t v0 = node_at(0, 1);
-  Vector3d tip0(-0.2 * kH, y, -0.5 * kH);
+  Vector3d tip0(-0.2 * kCell, y, -0.5 * kCell);
   int splits = 0;
   for (int i = 1; i <= 4; ++i) {
     CutStep step;
     step.v0 = v0;
     step.v1 = node_at(i, 1);
     step.cp0 = Vector3d(tip0.x(), y, top);
-    step.cp = Vector3d(i * kH, y, top);
-    const Vector3d tip(i == 4 ? 4.2 * kH : i * kH, y, -0.5 * kH);
-    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kH, tip0});
+    step.cp = Vector3d(i * kCell, y, top);
+    const Vector3d tip(i == 4 ? 4.2 * kCell : i * kCell, y, -0.5 * kCell);
+    step.blade.emplace(Blade{tip, Vector3d::UnitZ(), 3 * kCell, tip0});
     const CutOutcome a = packed_stepper.ExecuteCut(packed_mesh, step, packed, params);
     const CutOutcome b = unpacked_stepper.ExecuteCut(unpacked_mesh, step, unpacked, params);
     ASSERT_EQ(a.status, CutStatus::kExecuted) << "step " << i;
@@ -297,9 +297,9 @@ TEST(CutMesh, ShallowBladeDoesNotSeparate) {
   VectorWorld world = WorldFromRest(m);
   const Reference ref(m);
   CutParams params;
-  const double top = 2 * kH;
-  const auto path = testing::Segment(Vector3d(0.5 * kH, 1.2 * kH, top), Vector3d(3.5 * kH, 1.2 * kH, top), 60);
-  const auto stats = testing::DrivePath(cm, world, path, 0.6 * kH, params, nullptr, [&](int step) {
+  const double top = 2 * kCell;
+  const auto path = testing::Segment(Vector3d(0.5 * kCell, 1.2 * kCell, top), Vector3d(3.5 * kCell, 1.2 * kCell, top), 60);
+  const auto stats = testing::DrivePath(cm, world, path, 0.6 * kCell, params, nullptr, [&](int step) {
     ExpectInvariants(cm, world, ref, "shallow step " + std::to_string(step));
   });
   EXPECT_GE(stats.executed, 2);

@@ -12,22 +12,21 @@
 #include "common/fem/stable_dt.h"
 #include "common/fem/state.h"
 #include "tests/unit/fem/test_meshes.h"
+#include "tests/unit/fem/energy_util.h"
 
 namespace cutsim::fem {
 namespace {
 
+using testing::kPaperTissueDamped;
+using testing::TotalEnergy;
+
 const Material kPaperTissue{.lambda = 140000, .mu = 11000, .psi = 0, .phi = 0, .density = 1000};
-const Material kPaperTissueDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
 
 template <typename T>
 void Perturb(State<T>& state, int num_nodes, double amplitude, unsigned seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-amplitude, amplitude);
   for (int i = 0; i < 3 * num_nodes; ++i) state.x[static_cast<size_t>(i)] += static_cast<T>(u(rng));
-}
-
-double TotalEnergy(const Model<double>& m, const State<double>& s) {
-  return StrainEnergy(m, s.x.data()) + KineticEnergy(m, s.v.data()) + GravityPotential(m, s.x.data());
 }
 
 // Both elements: the nodal-pressure element's forces are free of net force

@@ -10,10 +10,13 @@
 #include "common/fem/forces.h"
 #include "common/fem/implicit.h"
 #include "common/fem/integrator.h"
+#include "tests/unit/fem/energy_util.h"
 #include "tests/unit/fem/implicit_fixtures.h"
 
 namespace cutsim::fem {
 namespace {
+
+using testing::TotalEnergy;
 
 /// Synchronous factorisation (reproducible), tight linear solves.
 ImplicitOptions Tight(double relative_tolerance = 1e-10) {
@@ -38,11 +41,6 @@ double RelativeDisplacementError(const Model<double>& model, const std::vector<d
     }
   }
   return std::sqrt(num / den);
-}
-
-double TotalEnergy(const Model<double>& model, const State<double>& s) {
-  return KineticEnergy(model, s.v.data()) + StrainEnergy(model, s.x.data()) +
-         GravityPotential(model, s.x.data());
 }
 
 /// Tip node: the free corner at (lx, 0.02, 0.02).

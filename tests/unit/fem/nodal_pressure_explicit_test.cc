@@ -39,7 +39,7 @@ void Perturb(State<T>& state, int num_nodes, double amplitude, unsigned seed) {
   for (int i = 0; i < 3 * num_nodes; ++i) state.x[static_cast<size_t>(i)] += static_cast<T>(u(rng));
 }
 
-std::vector<double> Kappas(const Model<double>& model) {
+std::vector<double> BulkModuli(const Model<double>& model) {
   return {model.kappas(), model.kappas() + model.num_tets()};
 }
 
@@ -52,7 +52,7 @@ TEST(NodalPressureExplicit, ForcesAreTheDeviatoricPlusTheNodalTerm) {
   // Reference: the deviatoric element (StVK with λ = −2μ/3, one element at a
   // time) plus the nodal term's reference implementation.
   std::vector<double> ref(state.x.size(), 0.0);
-  NodalPressureEnergyAndForce(anp, Kappas(anp), state.x.data(), ref.data());
+  NodalPressureEnergyAndForce(anp, BulkModuli(anp), state.x.data(), ref.data());
   for (int32_t t = 0; t < anp.num_tets(); ++t) {
     const Mat3<double> F = DeformationGradient(anp, state.x.data(), t);
     const Mat3<double> P = StvkFirstPiola<double>(F, anp.element_lambdas()[t], anp.mus()[t]);

@@ -14,16 +14,15 @@
 #include "common/fem/stable_dt.h"
 #include "common/fem/state.h"
 #include "tests/unit/fem/test_meshes.h"
+#include "tests/unit/fem/energy_util.h"
 
 namespace cutsim::fem {
 namespace {
 
-const Material kTissue = Material::FromYoungPoisson(20000, 0.45, 1000);
-const Material kPaperTissueDamped{.lambda = 140000, .mu = 11000, .psi = 10, .phi = 80, .density = 1000};
+using testing::kPaperTissueDamped;
+using testing::TotalEnergy;
 
-double TotalEnergy(const Model<double>& m, const State<double>& s) {
-  return StrainEnergy(m, s.x.data()) + KineticEnergy(m, s.v.data()) + GravityPotential(m, s.x.data());
-}
+const Material kSoftTissue = Material::FromYoungPoisson(20000, 0.45, 1000);
 
 void RandomDeform(State<double>& s, int nodes, double amplitude, unsigned seed) {
   std::mt19937 rng(seed);
@@ -74,7 +73,7 @@ TEST(FemLanczos, MatchesExactEigenvalueAndBoundsTheBound) {
   for (const Case& c : {Case{"rest", 1.0, 1e-7, false}, Case{"fixed bottom", 1.0, 1e-7, true},
                         Case{"stretch x1.5", 1.5, 0, false}, Case{"random", 1.0, 1e-3, false},
                         Case{"compressed", 0.6, 2e-4, true}}) {
-    Model<double> model(mesh, std::span(&kTissue, 1));
+    Model<double> model(mesh, std::span(&kSoftTissue, 1));
     if (c.fixed_bottom) {
       for (int n = 0; n < 12; ++n) model.SetFixed(n, true);
     }
@@ -100,7 +99,7 @@ TEST(FemLanczos, MatchesExactEigenvalueAndBoundsTheBound) {
 TEST(FemLanczos, SameEstimateForAnyThreadCount) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(24, 16, 16, 0.048, 0.032, 0.032);
   for (const bool damped : {false, true}) {
-    Model<double> model(mesh, std::span(damped ? &kPaperTissueDamped : &kTissue, 1));
+    Model<double> model(mesh, std::span(damped ? &kPaperTissueDamped : &kSoftTissue, 1));
     State<double> one(model);
     RandomDeform(one, model.num_nodes(), 2e-4, 11);
     State<double> two = one;
@@ -132,7 +131,7 @@ TEST(FemLanczos, DampingOperatorMatchesExact) {
 /// it failed or the energy grew past 2× (+ a small floor) of the start.
 bool Unstable(const Case& c, double safety, int steps, double* ratio_out) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(3, 3, 3, 0.01, 0.01, 0.01);
-  Model<double> model(mesh, std::span(&kTissue, 1));
+  Model<double> model(mesh, std::span(&kSoftTissue, 1));
   if (c.fixed_bottom) {
     for (int n = 0; n < 16; ++n) model.SetFixed(n, true);
   }
@@ -193,7 +192,7 @@ TEST(FemLanczos, UnstableWellAboveTheTrueLimit) {
 TEST(FemMassDamping, DissipatesAndKeepsTheStaticSolution) {
   const mesh::TetMesh mesh = testing::MakeBoxMesh(4, 1, 1, 0.04, 0.01, 0.01);
   auto run = [&](double alpha, int steps, double* ke_out) {
-    Model<double> model(mesh, std::span(&kTissue, 1), ModelOptions{.gravity = Eigen::Vector3d(0, 0, -9.81)});
+    Model<double> model(mesh, std::span(&kSoftTissue, 1), ModelOptions{.gravity = Eigen::Vector3d(0, 0, -9.81)});
     for (int n = 0; n < model.num_nodes(); ++n) {
       if (model.rest_position(n)(0) == 0) model.SetFixed(n, true);
     }

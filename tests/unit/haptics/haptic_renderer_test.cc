@@ -15,7 +15,7 @@ namespace {
 using testing::ContactModel;
 using testing::kNsPerMs;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kNotANumber = std::numeric_limits<double>::quiet_NaN();
 
 // Drives a renderer at a fixed rate with the tool held still.
 struct Loop {
@@ -285,7 +285,7 @@ TEST(SafetyTest, GarbageModelsAreRejectedCountedAndNeverRendered) {
 
   std::vector<LocalModel> garbage;
   LocalModel m = good;
-  m.f0.x() = kNaN;
+  m.f0.x() = kNotANumber;
   garbage.push_back(m);
   m = good;
   m.stiffness(0, 0) = std::numeric_limits<double>::infinity();
@@ -332,11 +332,11 @@ TEST(SafetyTest, NonFiniteDeviceInputNeverReachesTheOutput) {
   r.SetModel(ContactModel(1, Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 3.0), 500.0), 0);
   loop.RunUntil(50 * kNsPerMs);
   const Eigen::Vector3d before = r.last_force();
-  loop.x = Eigen::Vector3d(kNaN, 0, 0);
+  loop.x = Eigen::Vector3d(kNotANumber, 0, 0);
   const Eigen::Vector3d f = loop.Tick();
   EXPECT_TRUE(f.allFinite());
   EXPECT_LE((f - before).norm(), r.config().device.max_force_rate * 1e-3 + 1e-12);  // ramps, no step
-  EXPECT_TRUE(r.Tick(Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), loop.now_ns, kNaN).allFinite());
+  EXPECT_TRUE(r.Tick(Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), loop.now_ns, kNotANumber).allFinite());
   EXPECT_EQ(r.stats().non_finite_inputs, 2u);
   loop.v = Eigen::Vector3d(0, std::numeric_limits<double>::infinity(), 0);
   EXPECT_TRUE(loop.Tick().allFinite());

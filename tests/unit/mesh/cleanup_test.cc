@@ -25,7 +25,7 @@ double MinQuality(const TetMesh& m) {
   return *std::min_element(q.mean_ratio.begin(), q.mean_ratio.end());
 }
 
-void ExpectClosedSphere(const TetMesh& m) {
+void ExpectClosedSurface(const TetMesh& m) {
   const Surface s = ExtractSurface(m.tets);
   const ManifoldCheck c = CheckClosedManifold(s.tris);
   EXPECT_TRUE(c.ok) << c.problem;
@@ -58,7 +58,7 @@ TetMesh CubeWithCap(double eps) {
 
 TEST(RemoveBoundarySlivers, DeletesCapAndItsApexNode) {
   TetMesh m = CubeWithCap(1e-3);
-  ExpectClosedSphere(m);
+  ExpectClosedSurface(m);
   EXPECT_LT(MinQuality(m), 0.05);
   double vol = 0;
   int32_t nodes = 0;
@@ -68,7 +68,7 @@ TEST(RemoveBoundarySlivers, DeletesCapAndItsApexNode) {
   EXPECT_EQ(m.num_nodes(), 8);
   EXPECT_NEAR(Volume(m), 1.0, 1e-12);
   EXPECT_GT(vol, 0.0);
-  ExpectClosedSphere(m);
+  ExpectClosedSurface(m);
 }
 
 TEST(RemoveBoundarySlivers, KeepsGoodTetsAndTheLastTet) {
@@ -116,7 +116,7 @@ TEST(CleanupMesh, OrganMeetsTheStableStepTargets) {
   opt.fill.report = &rep;
   const TetMesh organ = MakeOrgan(opt);
   EXPECT_GE(organ.num_tets(), 20000);
-  ExpectClosedSphere(organ);
+  ExpectClosedSurface(organ);
   const TetQuality q = ComputeTetQuality(organ);
   const double min_q = *std::min_element(q.mean_ratio.begin(), q.mean_ratio.end());
   std::vector<double> alt = q.shortest_altitude;

@@ -26,7 +26,7 @@ namespace {
 
 using testing::TempDir;
 
-void WriteText(const std::string& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
+void WriteBytes(const std::string& path, const std::string& text) { std::ofstream(path, std::ios::binary) << text; }
 
 template <typename Fn>
 std::string ErrorOf(Fn&& fn) {
@@ -55,11 +55,11 @@ std::string OneTetVtu(const std::string& conn) {
 TEST(HostileMesh, VtuConnectivityIsCheckedBeforeTheTetsAreOriented) {
   TempDir dir;
   const std::string path = dir.File("t.vtu");
-  WriteText(path, OneTetVtu("0 1 2 3"));
+  WriteBytes(path, OneTetVtu("0 1 2 3"));
   EXPECT_EQ(ReadVtu(path).mesh.num_tets(), 1);
   for (const char* conn : {"0 1 2 4", "0 1 2 -1", "0 1 2 nan", "0 1 2 1e20", "0 1 2 -1e20", "0 1 2 2.5",
                            "0 1 2 2147483648", "0 1 2 inf"}) {
-    WriteText(path, OneTetVtu(conn));
+    WriteBytes(path, OneTetVtu(conn));
     const std::string what = ErrorOf([&] { (void)ReadVtu(path); });
     EXPECT_NE(what.find("cell 1"), std::string::npos) << conn << ": " << what;
     EXPECT_NE(what.find("node index"), std::string::npos) << conn << ": " << what;
@@ -71,30 +71,30 @@ TEST(HostileMesh, VtuHeaderCountsAreCapped) {
   const std::string path = dir.File("t.vtu");
   std::string text = OneTetVtu("0 1 2 3");
   text.replace(text.find("NumberOfPoints=\"4\""), 18, "NumberOfPoints=\"100000000000\"");
-  WriteText(path, text);
+  WriteBytes(path, text);
   EXPECT_NE(ErrorOf([&] { (void)ReadVtu(path); }).find("limited to"), std::string::npos);
 }
 
 TEST(HostileMesh, TetGenCountsAreCheckedAgainstTheFileSize) {
   TempDir dir;
   // 20 bytes claiming 10^8 nodes: refused before any allocation.
-  WriteText(dir.File("m.node"), "100000000 3 0 0\n1 0");
-  WriteText(dir.File("m.ele"), "1 4 0\n1 1 2 3 4\n");
+  WriteBytes(dir.File("m.node"), "100000000 3 0 0\n1 0");
+  WriteBytes(dir.File("m.ele"), "1 4 0\n1 1 2 3 4\n");
   const std::string what = ErrorOf([&] { (void)ReadTetGen(dir.File("m.node")); });
   EXPECT_NE(what.find("m.node:1"), std::string::npos) << what;
   EXPECT_NE(what.find("cannot fit"), std::string::npos) << what;
-  WriteText(dir.File("m.node"), "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n");
-  WriteText(dir.File("m.ele"), "2000000000 4 0\n1 1 2 3 4\n");
+  WriteBytes(dir.File("m.node"), "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n");
+  WriteBytes(dir.File("m.ele"), "2000000000 4 0\n1 1 2 3 4\n");
   EXPECT_NE(ErrorOf([&] { (void)ReadTetGen(dir.File("m.node")); }).find("m.ele:1"), std::string::npos);
 }
 
 TEST(HostileMesh, MeditCountsAreCheckedAgainstTheFileSize) {
   TempDir dir;
   const std::string path = dir.File("m.mesh");
-  WriteText(path, "MeshVersionFormatted 2\nDimension 3\nVertices\n100000000\n0 0 0 1\n");
+  WriteBytes(path, "MeshVersionFormatted 2\nDimension 3\nVertices\n100000000\n0 0 0 1\n");
   EXPECT_NE(ErrorOf([&] { (void)ReadMedit(path); }).find("cannot fit"), std::string::npos);
   // A skipped section whose count times its width overflows.
-  WriteText(path, "MeshVersionFormatted 2\nDimension 3\nTriangles\n4611686018427387904\n");
+  WriteBytes(path, "MeshVersionFormatted 2\nDimension 3\nTriangles\n4611686018427387904\n");
   EXPECT_NE(ErrorOf([&] { (void)ReadMedit(path); }).find("cannot fit"), std::string::npos);
 }
 
@@ -103,20 +103,20 @@ TEST(HostileMesh, MeditCountsAreCheckedAgainstTheFileSize) {
 TEST(HostileMesh, MshElementNamingAnUndefinedNodeIsRefusedBeforeGmsh) {
   TempDir dir;
   const std::string path = dir.File("u.msh");
-  WriteText(path,
+  WriteBytes(path,
             "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n$EndNodes\n"
             "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
   const std::string what = ErrorOf([&] { (void)ReadGmsh(path); });
   EXPECT_NE(what.find("u.msh:12"), std::string::npos) << what;
   EXPECT_NE(what.find("node 4"), std::string::npos) << what;
   // The node count disagreeing with the lines (the fuzzer's input).
-  WriteText(path,
+  WriteBytes(path,
             "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 1 00\n$EndNodes\n"
             "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
   EXPECT_NE(ErrorOf([&] { (void)ReadGmsh(path); }).find("$EndNodes"), std::string::npos);
   // A version cutsim does not check (gmsh reads 1.2 as 2.x and crashed on
   // this file): refused, naming the version.
-  WriteText(path,
+  WriteBytes(path,
             "$MeshFormat\n1.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n$EndNodes\n"
             "$Elements\n1\n1 4 2 1 1 1 2 3 4\n$EndElements\n");
   const std::string version = ErrorOf([&] { (void)ReadGmsh(path); });
@@ -152,7 +152,7 @@ TEST(HostileMesh, Msh41AndBinaryFilesAreCheckedBeforeGmsh) {
   const std::string t41 = ReadBytes(a41), u41 = ReadBytes(b41), u22 = ReadBytes(b22);
   const std::string bad = dir.File("bad.msh");
   auto error_for = [&](const std::string& bytes) {
-    WriteText(bad, bytes);
+    WriteBytes(bad, bytes);
     return ErrorOf([&] { (void)ReadGmsh(bad); });
   };
 
@@ -229,7 +229,7 @@ TEST(HostileMesh, NonRegularFilesAreRefusedByEveryReader) {
 TEST(HostileSurface, ObjWithANanVertexIsRefusedBeforeGmsh) {
   TempDir dir;
   const std::string path = dir.File("s.obj");
-  WriteText(path, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 2 3\nf 1 2 4\nf 2 3 4\nf 1 3 4\n");
+  WriteBytes(path, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 2 3\nf 1 2 4\nf 2 3 4\nf 1 3 4\n");
   const std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.1); });
   EXPECT_NE(what.find("s.obj:4"), std::string::npos) << what;
   EXPECT_NE(what.find("NaN or infinite"), std::string::npos) << what;
@@ -238,7 +238,7 @@ TEST(HostileSurface, ObjWithANanVertexIsRefusedBeforeGmsh) {
 TEST(HostileSurface, StlWithANanVertexIsRefusedBeforeGmsh) {
   TempDir dir;
   const std::string ascii = dir.File("s.stl");
-  WriteText(ascii,
+  WriteBytes(ascii,
             "solid x\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 nan 0\n"
             "  endloop\n endfacet\nendsolid x\n");
   std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(ascii, 0.1); });
@@ -250,12 +250,12 @@ TEST(HostileSurface, StlWithANanVertexIsRefusedBeforeGmsh) {
   float tri[12] = {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, std::nanf(""), 0};
   bin.append(reinterpret_cast<const char*>(tri), sizeof(tri));
   bin.append(2, '\0');
-  WriteText(dir.File("b.stl"), bin);
+  WriteBytes(dir.File("b.stl"), bin);
   what = ErrorOf([&] { (void)TetrahedralizeSurface(dir.File("b.stl"), 0.1); });
   EXPECT_NE(what.find("triangle 1"), std::string::npos) << what;
   // A binary file whose triangle count disagrees with its size.
   bin.resize(bin.size() - 10);
-  WriteText(dir.File("c.stl"), bin);
+  WriteBytes(dir.File("c.stl"), bin);
   EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(dir.File("c.stl"), 0.1); }).find("binary STL"),
             std::string::npos);
 }
@@ -266,11 +266,11 @@ TEST(HostileSurface, StlWithANanVertexIsRefusedBeforeGmsh) {
 TEST(HostileSurface, MalformedAsciiStlIsRefusedBeforeGmshReadsItAsBinary) {
   TempDir dir;
   const std::string path = dir.File("m.stl");
-  WriteText(path, "solid t\n facet normal 0 0 0\n  o" + std::string(90, 'u') + "ter \nv l0 0");
+  WriteBytes(path, "solid t\n facet normal 0 0 0\n  o" + std::string(90, 'u') + "ter \nv l0 0");
   const std::string what = ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); });
   EXPECT_NE(what.find("m.stl:3"), std::string::npos) << what;
   EXPECT_NE(what.find("not an ASCII STL keyword"), std::string::npos) << what;
-  WriteText(path, "solid t\nendsolid t\n");
+  WriteBytes(path, "solid t\nendsolid t\n");
   EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); }).find("at least one facet"), std::string::npos);
 }
 

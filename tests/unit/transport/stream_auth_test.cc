@@ -11,9 +11,9 @@
 namespace cutsim::transport {
 namespace {
 
-constexpr int64_t kSecond = 1'000'000'000;
+constexpr int64_t kOneSecond = 1'000'000'000;
 
-SessionKey Key(char fill = 'a') {
+SessionKey TestKey(char fill = 'a') {
   return ParseSessionKey(std::string(64, fill), "test");
 }
 
@@ -38,8 +38,8 @@ v1::HapticModel Model(uint64_t seq) {
 }
 
 TEST(PayloadAuthenticator, SignedBytesParseAndVerifyAndEveryAlterationIsForged) {
-  PayloadAuthenticator sender(Key(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
-  PayloadAuthenticator receiver(Key(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
+  PayloadAuthenticator sender(TestKey(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
+  PayloadAuthenticator receiver(TestKey(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
   const std::vector<uint8_t> body = Serialise(Model(7));
   const std::vector<uint8_t> wire = Signed(sender, body);
   ASSERT_EQ(wire.size(), body.size() + kTrailerBytes);
@@ -67,21 +67,21 @@ TEST(PayloadAuthenticator, SignedBytesParseAndVerifyAndEveryAlterationIsForged) 
 }
 
 TEST(PayloadAuthenticator, TagsDoNotMoveAcrossKeysSessionsOrMessageKinds) {
-  PayloadAuthenticator sender(Key(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
+  PayloadAuthenticator sender(TestKey(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
   const std::vector<uint8_t> wire = Signed(sender, Serialise(Model(1)));
   std::span<const uint8_t> covered;
-  PayloadAuthenticator other_key(Key('b'), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
-  PayloadAuthenticator other_session(Key(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab2");
-  PayloadAuthenticator other_kind(Key(), "cutsim.v1.MeshDelta/hmac-sha256/1", "lab");
+  PayloadAuthenticator other_key(TestKey('b'), "cutsim.v1.HapticModel/hmac-sha256/1", "lab");
+  PayloadAuthenticator other_session(TestKey(), "cutsim.v1.HapticModel/hmac-sha256/1", "lab2");
+  PayloadAuthenticator other_kind(TestKey(), "cutsim.v1.MeshDelta/hmac-sha256/1", "lab");
   EXPECT_EQ(other_key.Check(wire, &covered), AuthVerdict::kForged);
   EXPECT_EQ(other_session.Check(wire, &covered), AuthVerdict::kForged);
   EXPECT_EQ(other_kind.Check(wire, &covered), AuthVerdict::kForged);
 }
 
 TEST(EpochGate, AcceptsRisingSequencesAndRefusesReplaysAndFutureEpochs) {
-  EpochGate gate(2 * kSecond, kSecond / 2);
-  const int64_t t = 100 * kSecond;
-  const uint64_t e = static_cast<uint64_t>(t - 10 * kSecond);
+  EpochGate gate(2 * kOneSecond, kOneSecond / 2);
+  const int64_t t = 100 * kOneSecond;
+  const uint64_t e = static_cast<uint64_t>(t - 10 * kOneSecond);
   EXPECT_EQ(gate.Offer(e, 1, t, t, t), AuthVerdict::kNewEpoch);
   EXPECT_EQ(gate.Offer(e, 3, t, t, t), AuthVerdict::kOk);
   EXPECT_EQ(gate.Offer(e, 3, t, t, t), AuthVerdict::kReplayed);
@@ -92,32 +92,32 @@ TEST(EpochGate, AcceptsRisingSequencesAndRefusesReplaysAndFutureEpochs) {
   EXPECT_EQ(gate.Offer(0, 9, t, t, t), AuthVerdict::kInvalidEpoch);
   EXPECT_EQ(gate.epoch(), e);
   // Outside the window either way.
-  EXPECT_EQ(gate.Offer(e, 4, t - 3 * kSecond, t, t), AuthVerdict::kOutsideWindow);
-  EXPECT_EQ(gate.Offer(e, 4, t + 3 * kSecond, t, t), AuthVerdict::kOutsideWindow);
+  EXPECT_EQ(gate.Offer(e, 4, t - 3 * kOneSecond, t, t), AuthVerdict::kOutsideWindow);
+  EXPECT_EQ(gate.Offer(e, 4, t + 3 * kOneSecond, t, t), AuthVerdict::kOutsideWindow);
   EXPECT_EQ(gate.Offer(e, 4, t, t, t), AuthVerdict::kOk);
 
   // Without a window (observer streams replay old keyframes) only order counts.
-  EpochGate open_window(0, kSecond / 2);
-  EXPECT_EQ(open_window.Offer(e, 1, t - 1000 * kSecond + 2 * kSecond, t, t),
+  EpochGate open_window(0, kOneSecond / 2);
+  EXPECT_EQ(open_window.Offer(e, 1, t - 1000 * kOneSecond + 2 * kOneSecond, t, t),
             AuthVerdict::kInvalidEpoch);  // signed before its epoch began
-  EXPECT_EQ(open_window.Offer(e, 1, t + 1000 * kSecond, t, t), AuthVerdict::kNewEpoch);
+  EXPECT_EQ(open_window.Offer(e, 1, t + 1000 * kOneSecond, t, t), AuthVerdict::kNewEpoch);
 }
 
 TEST(EpochGate, ANewerSenderTakesOverButNeverLocksTheOlderOneOut) {
-  EpochGate gate(0, kSecond / 2);
-  const int64_t t = 100 * kSecond;
-  const uint64_t genuine = static_cast<uint64_t>(t - 10 * kSecond);
-  const uint64_t intruder = static_cast<uint64_t>(t - kSecond);
+  EpochGate gate(0, kOneSecond / 2);
+  const int64_t t = 100 * kOneSecond;
+  const uint64_t genuine = static_cast<uint64_t>(t - 10 * kOneSecond);
+  const uint64_t intruder = static_cast<uint64_t>(t - kOneSecond);
   EXPECT_EQ(gate.Offer(genuine, 1, t, t, t), AuthVerdict::kNewEpoch);
   // A newer epoch is a restarted sender: followed at once.
   EXPECT_EQ(gate.Offer(intruder, 1, t, t, t + 1), AuthVerdict::kNewEpoch);
   EXPECT_EQ(gate.epoch(), intruder);
   // The older sender is refused while the newer one is heard...
-  EXPECT_EQ(gate.Offer(genuine, 2, t, t, t + kSecond / 4), AuthVerdict::kOtherSender);
-  EXPECT_EQ(gate.Offer(intruder, 2, t, t, t + kSecond / 3), AuthVerdict::kOk);
-  EXPECT_EQ(gate.Offer(genuine, 3, t, t, t + kSecond / 2), AuthVerdict::kOtherSender);
+  EXPECT_EQ(gate.Offer(genuine, 2, t, t, t + kOneSecond / 4), AuthVerdict::kOtherSender);
+  EXPECT_EQ(gate.Offer(intruder, 2, t, t, t + kOneSecond / 3), AuthVerdict::kOk);
+  EXPECT_EQ(gate.Offer(genuine, 3, t, t, t + kOneSecond / 2), AuthVerdict::kOtherSender);
   // ...and follows again once the newer one has been quiet for the quiet period.
-  const int64_t later = t + kSecond / 3 + kSecond / 2;
+  const int64_t later = t + kOneSecond / 3 + kOneSecond / 2;
   EXPECT_EQ(gate.Offer(genuine, 4, t, t, later), AuthVerdict::kNewEpoch);
   EXPECT_EQ(gate.epoch(), genuine);
   // Its replay memory held through the detour, and so did the intruder's.
@@ -126,8 +126,8 @@ TEST(EpochGate, ANewerSenderTakesOverButNeverLocksTheOlderOneOut) {
 }
 
 TEST(EpochGate, RefusedMessagesLeaveNoState) {
-  EpochGate gate(0, kSecond / 2);
-  const int64_t t = 100 * kSecond;
+  EpochGate gate(0, kOneSecond / 2);
+  const int64_t t = 100 * kOneSecond;
   const uint64_t followed = static_cast<uint64_t>(t);
   ASSERT_EQ(gate.Offer(followed, 50, t, t, t), AuthVerdict::kNewEpoch);
   // Thirty older epochs, each refused while the followed sender is heard.
@@ -139,8 +139,8 @@ TEST(EpochGate, RefusedMessagesLeaveNoState) {
 }
 
 TEST(EpochGate, LanesNumberIndependently) {
-  EpochGate gate(0, kSecond);
-  const int64_t t = 100 * kSecond;
+  EpochGate gate(0, kOneSecond);
+  const int64_t t = 100 * kOneSecond;
   const uint64_t e = static_cast<uint64_t>(t);
   EXPECT_EQ(gate.Offer(e, 5, t, t, t, 0), AuthVerdict::kNewEpoch);
   EXPECT_EQ(gate.Offer(e, 5, t, t, t, 1), AuthVerdict::kOk);  // same seq, other lane

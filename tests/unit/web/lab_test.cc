@@ -21,9 +21,13 @@
 #include "common/web/lab_bridge.h"
 #include "common/web/observer_server.h"
 #include "tests/support/web_client.h"
+#include "tests/support/web_test_util.h"
 
 namespace cutsim::web {
 namespace {
+
+using test::Eventually;
+using test::Text;
 
 using namespace std::chrono_literals;
 using transport::SessionDirectory;
@@ -150,18 +154,6 @@ TEST(LabListJsonTest, ASessionCarriesItsTraineesTrendAndNoOneElses) {
   EXPECT_LT(trend, bay2) << json;
   EXPECT_NE(json.find(R"({"finished":200,)"), std::string::npos) << json;
   EXPECT_NE(json.find(R"("trend":[])", bay2), std::string::npos) << "bob has no finished session: " << json;
-}
-
-Outgoing Text(const std::string& s) { return {std::make_shared<const std::string>(s), false}; }
-
-template <typename P>
-bool Eventually(P pred) {
-  const auto deadline = std::chrono::steady_clock::now() + 5s;
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(5ms);
-  }
-  return pred();
 }
 
 TEST(ObserverChannelsTest, AClientReceivesOnlyItsSessionsMessages) {

@@ -19,26 +19,18 @@
 #include "common/core/error.h"
 #include "common/web/observer_server.h"
 #include "tests/support/web_client.h"
+#include "tests/support/web_test_util.h"
 
 namespace cutsim::web {
 namespace {
 
+using test::Binary;
+using test::Eventually;
+using test::TempPage;
+using test::Text;
+
 using namespace std::chrono_literals;
 using Client = test::WebSocketClient;
-
-/// A page file in a temporary directory.
-class TempPage {
- public:
-  TempPage() : dir_(std::filesystem::temp_directory_path() / ("cutsim_web_test_" + std::to_string(::getpid()))) {
-    std::filesystem::create_directories(dir_);
-    std::ofstream(dir_ / "index.html") << "<html>observer</html>";
-  }
-  ~TempPage() { std::filesystem::remove_all(dir_); }
-  [[nodiscard]] std::map<std::string, std::filesystem::path> files() const { return {{"/index.html", dir_ / "index.html"}}; }
-
- private:
-  std::filesystem::path dir_;
-};
 
 ObserverServerOptions Options(const TempPage& page) {
   ObserverServerOptions o;
@@ -46,22 +38,8 @@ ObserverServerOptions Options(const TempPage& page) {
   return o;
 }
 
-Outgoing Text(const std::string& s) { return {std::make_shared<const std::string>(s), false}; }
-Outgoing Binary(const std::string& s) { return {std::make_shared<const std::string>(s), true}; }
-
-/// Waits until `pred` holds (the server's I/O thread updates its counters).
-template <typename P>
-bool Eventually(P pred) {
-  const auto deadline = std::chrono::steady_clock::now() + 5s;
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(5ms);
-  }
-  return pred();
-}
-
 TEST(ObserverServerTest, ServesThePageAndNothingElse) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServer server(Options(page));
   EXPECT_EQ(test::HttpGet(server.port(), "/"), std::make_pair(200, std::string("<html>observer</html>")));
   EXPECT_EQ(test::HttpGet(server.port(), "/index.html").first, 200);
@@ -72,7 +50,7 @@ TEST(ObserverServerTest, ServesThePageAndNothingElse) {
 }
 
 TEST(ObserverServerTest, OffLoopbackNeedsATokenAndTheStreamChecksIt) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServerOptions open = Options(page);
   open.address = "0.0.0.0";
   try {
@@ -94,7 +72,7 @@ TEST(ObserverServerTest, OffLoopbackNeedsATokenAndTheStreamChecksIt) {
 }
 
 TEST(ObserverServerTest, ForeignOriginIsRefusedOwnOriginAccepted) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServer server(Options(page));
   Client evil, own;
   EXPECT_FALSE(evil.Open(server.port(), "/ws", "http://evil.example"));
@@ -103,7 +81,7 @@ TEST(ObserverServerTest, ForeignOriginIsRefusedOwnOriginAccepted) {
 }
 
 TEST(ObserverServerTest, ClientCapRefusesTheNextClient) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServerOptions o = Options(page);
   o.max_clients = 2;
   ObserverServer server(o);
@@ -116,7 +94,7 @@ TEST(ObserverServerTest, ClientCapRefusesTheNextClient) {
 }
 
 TEST(ObserverServerTest, JoinMessagesComeFirstThenEveryBroadcastInOrder) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServer server(Options(page));
   server.SetJoinMessages({Text("hello"), Binary(std::string("\x01snap", 5))});
   std::vector<std::unique_ptr<Client>> clients;
@@ -137,7 +115,7 @@ TEST(ObserverServerTest, JoinMessagesComeFirstThenEveryBroadcastInOrder) {
 }
 
 TEST(ObserverServerTest, AClientThatSendsIsClosedAndTheOthersGoOn) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServerOptions o = Options(page);
   o.max_incoming_bytes = 1024;
   ObserverServer server(o);
@@ -157,7 +135,7 @@ TEST(ObserverServerTest, AClientThatSendsIsClosedAndTheOthersGoOn) {
 }
 
 TEST(ObserverServerTest, OnlyTheInstructorControlsAndEveryMessageIsAnswered) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServerOptions o = Options(page);
   o.instructor_token = "instructor-token-0123456789";
   o.max_control_per_s = 5.0;
@@ -199,7 +177,7 @@ TEST(ObserverServerTest, OnlyTheInstructorControlsAndEveryMessageIsAnswered) {
 }
 
 TEST(ObserverServerTest, AClientThatStopsReadingIsClosedNotBufferedFor) {
-  TempPage page;
+  TempPage page("web_test", "<html>observer</html>");
   ObserverServerOptions o = Options(page);
   o.max_queued_bytes = 1u << 20;
   ObserverServer server(o);

@@ -22,7 +22,7 @@ namespace {
 using test::WebSocketClient;
 using namespace std::chrono_literals;
 
-constexpr const char* kToken = "trainee-token-0123";
+constexpr const char* kTraineeToken = "trainee-token-0123";
 
 class TraineeServerTest : public ::testing::Test {
  protected:
@@ -35,7 +35,7 @@ class TraineeServerTest : public ::testing::Test {
   void Start(double idle_s) {
     TraineeServerOptions o;
     o.files = {{"/index.html", dir_ / "index.html"}};
-    o.token = kToken;
+    o.token = kTraineeToken;
     o.idle_timeout_s = idle_s;
     TraineeHandlers h;
     h.on_message = [](std::string_view, int64_t) {};
@@ -43,7 +43,7 @@ class TraineeServerTest : public ::testing::Test {
   }
 
   /// Opens a trainee's WebSocket; false when refused.
-  bool Open(WebSocketClient* ws) { return ws->Open(server_->port(), std::string("/ws?token=") + kToken); }
+  bool Open(WebSocketClient* ws) { return ws->Open(server_->port(), std::string("/ws?token=") + kTraineeToken); }
 
   template <typename P>
   static bool Eventually(P pred) {

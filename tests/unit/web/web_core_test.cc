@@ -30,9 +30,13 @@
 #include "common/web/observer_server.h"
 #include "common/web/trainee_server.h"
 #include "common/web/web_core.h"
+#include "tests/support/web_test_util.h"
 
 namespace cutsim::web {
 namespace {
+
+using test::Eventually;
+using test::TempPage;
 
 namespace net = boost::asio;
 namespace beast = boost::beast;
@@ -103,19 +107,6 @@ TEST(ParseRequestTest, ParsesAHeaderAndRefusesBodiesAndOversizedHeaders) {
 // ---------------------------------------------------------------------------
 // The refusals, once for each server.
 
-class TempPage {
- public:
-  TempPage() : dir_(std::filesystem::temp_directory_path() / ("cutsim_core_test_" + std::to_string(::getpid()))) {
-    std::filesystem::create_directories(dir_);
-    std::ofstream(dir_ / "index.html") << "<html>page</html>";
-  }
-  ~TempPage() { std::filesystem::remove_all(dir_); }
-  [[nodiscard]] std::map<std::string, std::filesystem::path> files() const { return {{"/index.html", dir_ / "index.html"}}; }
-
- private:
-  std::filesystem::path dir_;
-};
-
 struct ObserverUnderTest {
   static constexpr int kClientCap = 3;
   ObserverUnderTest(const TempPage& page, int per_peer) {
@@ -175,16 +166,6 @@ struct Raw {
   }
 };
 
-template <typename P>
-bool Eventually(P pred) {
-  const auto deadline = std::chrono::steady_clock::now() + 5s;
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(5ms);
-  }
-  return pred();
-}
-
 template <typename T>
 class SharedCoreTest : public ::testing::Test {
  protected:
@@ -203,7 +184,7 @@ class SharedCoreTest : public ::testing::Test {
   }
   void StartServer(int per_peer = 64) { server_ = std::make_unique<T>(page_, per_peer); }
 
-  TempPage page_;
+  TempPage page_{"core_test"};
   std::unique_ptr<T> server_;
 };
 
@@ -288,7 +269,7 @@ TYPED_TEST(SharedCoreTest, CapsIdleConnectionsPerPeerAtAcceptAndServesAnotherPee
 // instead of spinning.
 
 TEST(WebCoreTest, RefusesABadHostNameNamingTheFlag) {
-  TempPage page;
+  TempPage page("core_test");
   WebCoreOptions o;
   o.files = page.files();
   o.host_names = {"station.lab", "evil.example/x"};
@@ -307,7 +288,7 @@ TEST(WebCoreTest, AcceptBacksOffWhenTheProcessRunsOutOfDescriptors) {
   // check reports a false "invalid vptr".
   GTEST_SKIP() << "a process without descriptors cannot run under the sanitizers; the release suite runs this";
 #endif
-  TempPage page;
+  TempPage page("core_test");
   WebCoreOptions o;
   o.files = page.files();
   o.reserved_descriptors = 0;
