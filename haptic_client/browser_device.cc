@@ -203,6 +203,7 @@ BrowserDevice::BrowserDevice(const BrowserDeviceOptions& o, DeviceInfo info)
   h.on_open = [this] { return OnOpen(); };
   h.on_message = [this](std::string_view m, int64_t t) { OnMessage(m, t); };
   h.frame = [this] { return MakeFrame(); };
+  h.urgent = [this] { return FrameIsUrgent(); };
   h.on_close = [this] { OnClose(); };
   // Before any page: the tip above the middle of the workspace, clear of the tissue.
   loop_pair_.count = 1;
@@ -351,9 +352,15 @@ void BrowserDevice::OnClose() noexcept {
   stream_.Restart();
 }
 
+bool BrowserDevice::FrameIsUrgent() noexcept {
+  frames_.Read(&io_frame_);
+  return io_frame_.used_ms != sent_used_ms_;
+}
+
 std::string BrowserDevice::MakeFrame() {
   frames_.Read(&io_frame_);
   const BrowserFrame& f = io_frame_;
+  sent_used_ms_ = f.used_ms;
   return fmt::format(R"({{"kind":"force","force":[{:.5f},{:.5f},{:.5f}],"tip":[{:.6f},{:.6f},{:.6f}],)"
                      R"("used_ms":{:.3f},"cuts":{},"contact":{},"buttons":{},"max_force":{}}})",
                      f.force.x(), f.force.y(), f.force.z(), f.tip.x(), f.tip.y(), f.tip.z(), f.used_ms, f.cuts,

@@ -28,8 +28,10 @@
 /// * Threads: the server's I/O thread parses and publishes the newest
 ///   sample pair through a wait-free triple buffer (transport::Mailbox); the
 ///   1 kHz loop takes it and interpolates without allocating or locking, and
-///   publishes its force and the model's cut state through another mailbox
-///   that the I/O thread sends to the page at 60 Hz.
+///   publishes its force and the model's cut state through another mailbox.
+///   The I/O thread looks at that mailbox at 500 Hz and sends a frame as
+///   soon as it answers a new sample, and at least at 60 Hz, so an input
+///   waits for the next poll (≤ 2 ms), not for the next 60 Hz tick.
 /// * A page that leaves releases the buttons (cutting off); the tool holds
 ///   its pose until a page connects again.
 
@@ -190,6 +192,8 @@ class BrowserDevice final : public HapticDevice {
   std::string OnOpen();
   void OnClose() noexcept;
   std::string MakeFrame();
+  /// Whether the newest frame answers a sample the page has no frame for.
+  bool FrameIsUrgent() noexcept;
 
  private:
   DeviceInfo info_;
@@ -199,6 +203,7 @@ class BrowserDevice final : public HapticDevice {
   mutable std::mutex stats_mu_;  // the I/O thread's counters, read by stats()
   BrowserDeviceStats stats_;
   BrowserFrame io_frame_;
+  double sent_used_ms_ = -1.0;  // used_ms of the last frame sent
   // Between the threads.
   transport::Mailbox<SamplePair> samples_;
   transport::Mailbox<BrowserFrame> frames_;

@@ -45,6 +45,8 @@ struct TraineeServerImpl {
   mutable std::mutex stats_mu;
   TraineeServerStats stats;
   std::chrono::nanoseconds frame_period{16666667};
+  std::chrono::nanoseconds poll_period{2000000};
+  std::chrono::steady_clock::time_point last_frame;  // when the last frame went
   std::optional<net::steady_timer> frame_timer;  // on the core's I/O context
   std::unique_ptr<WebCore> core;                 // last: destroyed first, with the sessions it holds
 };
@@ -199,17 +201,23 @@ class TraineeSession : public std::enable_shared_from_this<TraineeSession> {
 
 void TraineeServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<http::empty_body>&& req,
                                   std::shared_ptr<void> hold) {
-  // Small frames at 60 Hz: send each at once rather than wait for an ACK.
+  // Small frames, one per input: send each at once rather than wait for an ACK.
   beast::error_code ignored;
   stream.socket().set_option(tcp::no_delay(true), ignored);
   std::make_shared<TraineeSession>(*this, std::move(stream), std::move(hold))->Run(std::move(req));
 }
 
 void TraineeServerImpl::ScheduleFrame() {
-  frame_timer->expires_after(frame_period);
+  frame_timer->expires_after(poll_period);
   frame_timer->async_wait([this](beast::error_code ec) {
     if (ec) return;
-    if (auto s = trainee.lock(); s && handlers.frame) s->Send(handlers.frame());
+    const auto now = std::chrono::steady_clock::now();
+    auto s = trainee.lock();
+    if (s && handlers.frame &&
+        (now - last_frame >= frame_period || (handlers.urgent && handlers.urgent()))) {
+      s->Send(handlers.frame());
+      last_frame = now;
+    }
     ScheduleFrame();
   });
 }
@@ -228,7 +236,11 @@ TraineeServer::TraineeServer(TraineeServerOptions options, TraineeHandlers handl
   if (!(o.idle_timeout_s >= 0.05 && o.idle_timeout_s <= 3600.0)) {
     ThrowInputError({.field = "idle_timeout_s"}, fmt::format("{} s is out of range [0.05, 3600]", o.idle_timeout_s));
   }
+  if (!(o.poll_hz >= o.frame_hz && o.poll_hz <= 2000.0)) {
+    ThrowInputError({.field = "poll_hz"}, fmt::format("{} Hz is out of range [frame_hz, 2000]", o.poll_hz));
+  }
   impl_->frame_period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / o.frame_hz));
+  impl_->poll_period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / o.poll_hz));
   // One trainee holds the tool: one WebSocket client.
   WebCoreOptions co = CoreOptionsOf(o, "the trainee page's files", 1);
   TraineeServerImpl* impl = impl_.get();

@@ -51,7 +51,10 @@ struct TraineeServerOptions {
   size_t max_incoming_bytes = 256;        ///< Largest WebSocket message the trainee may send.
   double max_messages_per_s = 400.0;      ///< Sustained incoming rate; above it messages are dropped.
   double burst_messages = 40.0;           ///< Token-bucket depth (messages).
-  double frame_hz = 60.0;                 ///< Rate of the outgoing frames while a trainee is connected.
+  double frame_hz = 60.0;                 ///< Least rate of the outgoing frames while a trainee is connected.
+  /// How often the server asks TraineeHandlers::urgent whether a frame
+  /// should go before its `frame_hz` tick (one that answers a new input).
+  double poll_hz = 500.0;
   size_t max_request_header_bytes = 8192; ///< HTTP request header limit.
 };
 
@@ -62,8 +65,12 @@ struct TraineeHandlers {
   /// A message within the size and rate caps (text or binary), with the
   /// CLOCK_MONOTONIC time it was read.
   std::function<void(std::string_view message, int64_t receive_ns)> on_message;
-  /// At `frame_hz` while a trainee is connected: the frame to send ("" = none).
+  /// At `frame_hz` while a trainee is connected, and whenever `urgent`
+  /// says so: the frame to send ("" = none).
   std::function<std::string()> frame;
+  /// At `poll_hz` while a trainee is connected: whether a frame should go
+  /// now rather than at the next `frame_hz` tick. Empty: never.
+  std::function<bool()> urgent;
   /// The trainee left (or was closed).
   std::function<void()> on_close;
 };

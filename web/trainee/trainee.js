@@ -550,7 +550,8 @@ function connect() {
 }
 
 // ---------------------------------------------------------------------------
-// Drawing: every animation frame (the blade moves at the force frames' 60 Hz).
+// Drawing: at the animation frame after anything changed (the blade moves
+// with the force frames, one per new input).
 
 const down = new THREE.Vector3();
 function updateDepthCue(tip, contact) {

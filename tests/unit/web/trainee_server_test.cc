@@ -1,11 +1,12 @@
 // The trainee server's own rules on loopback sockets (the refusals it shares
 // with the observer server are in web_core_test.cc): a silent trainee loses
 // the seat after the idle time, a trainee whose page sends heartbeats keeps
-// it, and mesh frames reach the trainee, the newest snapshot first for one
-// who joins.
+// it, mesh frames reach the trainee, the newest snapshot first for one
+// who joins, and a frame the device marks urgent goes before its tick.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,7 @@
 #include <string>
 #include <thread>
 
+#include "common/core/error.h"
 #include "common/web/trainee_server.h"
 #include "tests/support/web_client.h"
 
@@ -32,12 +34,12 @@ class TraineeServerTest : public ::testing::Test {
   }
   ~TraineeServerTest() override { std::filesystem::remove_all(dir_); }
 
-  void Start(double idle_s) {
+  void Start(double idle_s, TraineeHandlers h = {}, double frame_hz = 60.0) {
     TraineeServerOptions o;
     o.files = {{"/index.html", dir_ / "index.html"}};
     o.token = kTraineeToken;
     o.idle_timeout_s = idle_s;
-    TraineeHandlers h;
+    o.frame_hz = frame_hz;
     h.on_message = [](std::string_view, int64_t) {};
     server_ = std::make_unique<TraineeServer>(o, h);
   }
@@ -95,6 +97,43 @@ TEST_F(TraineeServerTest, MeshFramesReachTheTraineeTheNewestSnapshotFirstOnJoini
   EXPECT_EQ(ws.ReadData(), "S1");
   server_->SendMesh(std::make_shared<const std::string>("U1"), false);
   EXPECT_EQ(ws.ReadData(), "U1");
+}
+
+TEST_F(TraineeServerTest, AnUrgentFrameGoesBeforeItsTick) {
+  // Frames at 1 Hz at least; `urgent` asks for one more whenever it is armed.
+  std::atomic<int> armed{0};
+  std::atomic<int> made{0};
+  TraineeHandlers h;
+  h.frame = [&] { return "f" + std::to_string(made.fetch_add(1)); };
+  h.urgent = [&] { return armed.load() > 0 && armed.fetch_sub(1) > 0; };
+  Start(10.0, h, 1.0);
+  WebSocketClient ws;
+  ASSERT_TRUE(Open(&ws));
+  EXPECT_EQ(ws.ReadData(), "f0");  // the first tick is due at once
+  // Five urgent frames, each armed after the last arrived: with only the
+  // 1 Hz tick they would take four seconds more.
+  const auto start = std::chrono::steady_clock::now();
+  for (int i = 1; i <= 5; ++i) {
+    armed = 1;
+    EXPECT_EQ(ws.ReadData(), "f" + std::to_string(i));
+  }
+  EXPECT_LT(std::chrono::steady_clock::now() - start, 3s);
+  EXPECT_EQ(server_->stats().frames_sent, 6u);
+}
+
+TEST(TraineeServerOptionsTest, APollSlowerThanTheFramesIsRefused) {
+  TraineeServerOptions o;
+  o.token = "t";
+  o.frame_hz = 60.0;
+  o.poll_hz = 30.0;
+  TraineeHandlers h;
+  h.on_message = [](std::string_view, int64_t) {};
+  try {
+    TraineeServer server(o, h);
+    FAIL() << "a 30 Hz poll under 60 Hz frames was taken";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("poll_hz"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
