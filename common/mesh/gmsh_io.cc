@@ -3,6 +3,7 @@
 // mutex and runs between its own initialize/finalize.
 
 #include <algorithm>
+#include <array>
 #include <charconv>
 #include <cstring>
 #include <filesystem>
@@ -24,6 +25,7 @@
 #include "common/mesh/mesh_io.h"
 #include "common/mesh/mesh_validation.h"
 #include "common/mesh/msh_check.h"
+#include "common/mesh/surface.h"
 #include "common/mesh/text_io.h"
 
 namespace cutsim::mesh {
@@ -264,6 +266,60 @@ std::vector<std::string> SplitWhitespace(const std::string& line) {
   return out;
 }
 
+// Refuses a surface gmsh cannot fill: one that is not a closed, consistently
+// oriented 2-manifold, or that has a triangle of no area. gmsh's Delaunay
+// does not fail on such input but can search for minutes (a lone triangle
+// with a repeated vertex did), so it must never see it.
+void CheckFillable(const Positions& positions, const Triangles& tris, const std::string& source) {
+  const ManifoldCheck c = CheckClosedManifold(tris);
+  if (!c.ok) {
+    ThrowFileError(source, fmt::format("the surface is not closed and consistently oriented: {} (triangles and "
+                                       "vertices numbered from 0; weld duplicate vertices before export)",
+                                       c.problem));
+  }
+  const Eigen::Vector3d lo = positions.colwise().minCoeff().transpose();
+  const Eigen::Vector3d hi = positions.colwise().maxCoeff().transpose();
+  const double min_area2 = 1e-12 * (hi - lo).squaredNorm();  // (2 · area)² of a sliver on the box's scale
+  for (Eigen::Index f = 0; f < tris.rows(); ++f) {
+    const Eigen::Vector3d a = positions.row(tris(f, 0)).transpose();
+    const Eigen::Vector3d n = (positions.row(tris(f, 1)).transpose() - a).cross(positions.row(tris(f, 2)).transpose() - a);
+    if (!(n.squaredNorm() > min_area2 * min_area2)) {
+      ThrowFileError(source, fmt::format("triangle {} (numbered from 0) has no area: its corners are on one line", f));
+    }
+  }
+  // Enclosed volume by the divergence theorem: a closed surface folded flat
+  // bounds nothing to fill.
+  double volume = 0.0;
+  for (Eigen::Index f = 0; f < tris.rows(); ++f) {
+    const Eigen::Vector3d a = positions.row(tris(f, 0)).transpose() - lo;
+    volume += a.dot((positions.row(tris(f, 1)).transpose() - lo).cross(positions.row(tris(f, 2)).transpose() - lo)) / 6.0;
+  }
+  if (!(std::abs(volume) > 1e-9 * (hi - lo).prod() && std::abs(volume) > 0.0)) {
+    ThrowFileError(source, fmt::format("the surface encloses no volume ({} m³ in a {} × {} × {} m box)", volume,
+                                       hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z()));
+  }
+}
+
+// The facets of an STL file with equal corners welded: what gmsh's merge
+// builds, for CheckFillable. `xyz` holds 9 coordinates per facet.
+void CheckStlFillable(const std::vector<double>& xyz, const std::string& path) {
+  std::map<std::array<double, 3>, int32_t> index;
+  std::vector<double> v;
+  const auto facets = static_cast<Eigen::Index>(xyz.size() / 9);
+  Triangles tris(facets, 3);
+  for (Eigen::Index f = 0; f < facets; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const size_t at = 9 * static_cast<size_t>(f) + 3 * static_cast<size_t>(k);
+      const std::array<double, 3> p{xyz[at], xyz[at + 1], xyz[at + 2]};
+      const auto [it, added] = index.try_emplace(p, static_cast<int32_t>(v.size() / 3));
+      if (added) v.insert(v.end(), p.begin(), p.end());
+      tris(f, k) = it->second;
+    }
+  }
+  const Positions positions = Eigen::Map<const Positions>(v.data(), static_cast<Eigen::Index>(v.size() / 3), 3);
+  CheckFillable(positions, tris, path);
+}
+
 // Refuses what gmsh must never see: non-finite vertices (gmsh aborts on
 // them) and binary files whose triangle count disagrees with their size.
 // ASCII files are those starting with "solid" whose size is not that of a
@@ -274,6 +330,7 @@ void CheckStl(const std::string& path, const std::string& text) {
   const bool sized_binary = text.size() >= kHeader + 4 &&
                             (std::memcpy(&count, text.data() + kHeader, 4), true) &&
                             text.size() == kHeader + 4 + kTriangle * static_cast<size_t>(count);
+  std::vector<double> xyz;  // 9 per facet
   if (!sized_binary && text.compare(0, 5, "solid") == 0) {
     std::istringstream in(text);
     int64_t line_no = 0, vertices = 0;
@@ -303,12 +360,16 @@ void CheckStl(const std::string& path, const std::string& text) {
         if (ec != std::errc() || end != tok[k].data() + tok[k].size()) {
           ThrowInputError(SourceRef{.file = path, .line = line_no}, fmt::format("bad number '{}'", tok[k]));
         }
-        if (tok[0] == "vertex") RequireFinite(x, SourceRef{.file = path, .line = line_no}, "vertex coordinate");
+        if (tok[0] == "vertex") {
+          RequireFinite(x, SourceRef{.file = path, .line = line_no}, "vertex coordinate");
+          xyz.push_back(x);
+        }
       }
     }
     if (vertices == 0 || vertices % 3 != 0) {
       ThrowFileError(path, fmt::format("{} vertices: an ASCII STL needs 3 per facet and at least one facet", vertices));
     }
+    CheckStlFillable(xyz, path);
     return;
   }
   if (!sized_binary) {
@@ -317,12 +378,14 @@ void CheckStl(const std::string& path, const std::string& text) {
   }
   if (count > kMaxMeshTets) ThrowFileError(path, fmt::format("{} triangles: more than {}", count, kMaxMeshTets));
   for (size_t t = 0; t < count; ++t) {
-    float xyz[9];
-    std::memcpy(xyz, text.data() + kHeader + 4 + kTriangle * t + 12, sizeof(xyz));  // after the normal
-    for (const float x : xyz) {
+    float corners[9];
+    std::memcpy(corners, text.data() + kHeader + 4 + kTriangle * t + 12, sizeof(corners));  // after the normal
+    for (const float x : corners) {
       RequireFinite(x, SourceRef{.file = path, .field = fmt::format("triangle {}", t + 1)}, "vertex coordinate");
+      xyz.push_back(static_cast<double>(x));
     }
   }
+  CheckStlFillable(xyz, path);
 }
 
 // Minimal Wavefront OBJ: 'v x y z' and polygonal 'f' lines (fan-triangulated).
@@ -382,6 +445,7 @@ TetMesh TetrahedralizeSurface(const Positions& positions, const Triangles& tris,
 
 TetMesh TetrahedralizeSurface(const Positions& positions, const Triangles& tris, double max_edge_length,
                               const std::string& source_name, const TetrahedralizeOptions& options) {
+  CheckFillable(positions, tris, source_name);
   GmshSession session;
   GmshCall(source_name, "surface import", [&] {
     gmsh::model::add("surface");

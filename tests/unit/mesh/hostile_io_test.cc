@@ -3,6 +3,7 @@
 // the caps, and names the file and element.
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -272,6 +273,47 @@ TEST(HostileSurface, MalformedAsciiStlIsRefusedBeforeGmshReadsItAsBinary) {
   EXPECT_NE(what.find("not an ASCII STL keyword"), std::string::npos) << what;
   WriteBytes(path, "solid t\nendsolid t\n");
   EXPECT_NE(ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); }).find("at least one facet"), std::string::npos);
+}
+
+/// An OBJ tetrahedron surface on points `v` (4 lines "x y z"), outward
+/// faces of the tet (1, 2, 3, 4) when the points are positively oriented.
+std::string TetSurfaceObj(const std::array<const char*, 4>& v) {
+  return fmt::format("v {}\nv {}\nv {}\nv {}\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n", v[0], v[1], v[2], v[3]);
+}
+
+// Found by the surface fuzzer: a lone triangle with a repeated corner kept
+// gmsh's Delaunay searching for minutes. A surface reaches gmsh only when it
+// is closed and consistently oriented, its triangles have area and it
+// encloses a volume.
+TEST(HostileSurface, SurfacesGmshCannotFillAreRefusedBeforeIt) {
+  TempDir dir;
+  const std::string path = dir.File("s.obj");
+  auto error = [&](const std::string& text) {
+    WriteBytes(path, text);
+    return ErrorOf([&] { (void)TetrahedralizeSurface(path, 0.5); });
+  };
+  std::string what = error("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 2 3\nf 1 4 1\n");
+  EXPECT_NE(what.find("s.obj"), std::string::npos) << what;
+  EXPECT_NE(what.find("triangle 0 is degenerate"), std::string::npos) << what;
+  what = error("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+  EXPECT_NE(what.find("not closed"), std::string::npos) << what;
+  what = error(TetSurfaceObj({"0 0 0", "1 0 0", "2 0 0", "0 0 1"}));  // three corners on a line
+  EXPECT_NE(what.find("has no area"), std::string::npos) << what;
+  what = error(TetSurfaceObj({"0 0 0", "1 0 0", "0 1 0", "1 1 0"}));  // folded flat
+  EXPECT_NE(what.find("encloses no volume"), std::string::npos) << what;
+  // The faces of one triangle flipped: not consistently oriented.
+  what = error("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
+  EXPECT_NE(what.find("same direction"), std::string::npos) << what;
+  // An STL facet alone is not closed either.
+  const std::string stl = dir.File("s.stl");
+  WriteBytes(stl, "solid x\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 1 0\n"
+                  "  endloop\n endfacet\nendsolid x\n");
+  what = ErrorOf([&] { (void)TetrahedralizeSurface(stl, 0.5); });
+  EXPECT_NE(what.find("s.stl"), std::string::npos) << what;
+  EXPECT_NE(what.find("not closed"), std::string::npos) << what;
+  // The same tetrahedron, well formed, is filled.
+  WriteBytes(path, TetSurfaceObj({"0 0 0", "1 0 0", "0 1 0", "0 0 1"}));
+  EXPECT_GE(TetrahedralizeSurface(path, 0.5).num_tets(), 1);
 }
 
 TEST(HostileMesh, GeneratorSizesAreCappedBeforeAnyArithmeticOverflows) {
