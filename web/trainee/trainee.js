@@ -44,6 +44,8 @@ const ARROW_FULL_LENGTH = 0.03;  // m, the arrow of the largest force
 
 const state = {
   ws: null,
+  renderer: '',           // the WebGL renderer's name (webglRenderer)
+  antialias: true,        // multisampled: false on a software renderer
   workspace: null,        // {min: [x,y,z], max: [x,y,z]} in m, device
   worldScale: 1, worldOffset: [0, 0, 0],
   bladeLength: 0.02,
@@ -93,7 +95,28 @@ const clamp01 = (x) => Math.min(1, Math.max(0, x));
 // camera), so a still page costs nothing.
 let dirty = true;
 
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+/**
+ * The WebGL renderer's name, and whether it draws in software (SwiftShader,
+ * llvmpipe: a station without a GPU, or a headless browser). There a
+ * multisampled frame takes most of the page's time, and the page's one
+ * thread would hold every input event and force frame behind it, so the
+ * view is drawn without multisampling.
+ */
+function webglRenderer() {
+  const probe = document.createElement('canvas');
+  const gl = probe.getContext('webgl2') || probe.getContext('webgl');
+  if (!gl) return { name: 'none', software: false };
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  const lose = gl.getExtension('WEBGL_lose_context');
+  if (lose) lose.loseContext();
+  return { name, software: /swiftshader|llvmpipe|softpipe|software/i.test(name) };
+}
+const gpu = webglRenderer();
+state.renderer = gpu.name;
+state.antialias = !gpu.software;
+
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: state.antialias, preserveDrawingBuffer: true });
 THREE.ColorManagement.enabled = false;
 renderer.outputColorSpace = THREE.LinearSRGBColorSpace;
 renderer.setPixelRatio(window.devicePixelRatio || 1);

@@ -122,7 +122,9 @@ async function latencyBench(page, n) {
   check('latency-measured', latencyMs.length >= n * 0.9 && pictureMs.length >= n * 0.9,
     `${latencyMs.length} (force) and ${pictureMs.length} (picture) of ${n} inputs timed`);
   const period = (end.t - start.t) / Math.max(1, end.sent - start.sent);
+  const gl = await page.evaluate(() => ({ renderer: window.trainee.state.renderer, antialias: window.trainee.state.antialias }));
   return { kind: 'trainee_latency', scene: 'skin_pad', inputs: n, input_period_ms: Math.round(period * 10) / 10,
+    renderer: gl.renderer, antialias: gl.antialias,
     input_to_force: quantiles(latencyMs), input_to_picture: quantiles(pictureMs) };
 }
 
@@ -130,6 +132,12 @@ async function main() {
   const { browser, page, errors } = await openTraineePage(args);
   await page.waitForFunction(() => window.trainee.state.tissueBox !== null, null, { timeout: 20000 }).catch(() => {});
   await sleep(500);
+  const gl = await page.evaluate(() => ({ renderer: window.trainee.state.renderer, antialias: window.trainee.state.antialias }));
+  // Headless chromium draws with SwiftShader: the page must see it and draw
+  // without multisampling, which would hold its one thread for most of a frame.
+  const software = /swiftshader|llvmpipe|softpipe|software/i.test(gl.renderer);
+  check('software-webgl-draws-without-multisampling', gl.renderer !== '' && gl.antialias === !software,
+    `renderer '${gl.renderer}', antialias ${gl.antialias}`);
   const plan = await page.evaluate(() => window.trainee.state.plan);
   check('page-has-the-plan', plan.length >= 2, `plan ${JSON.stringify(plan)}`);
   const before = await pictureChecks(page, 'page-shows-tissue-and-blade-before', 'incision-before.png', false);
@@ -154,7 +162,8 @@ async function main() {
   check('page-reports-no-errors', errors.length === 0 && s.errors.length === 0, [...errors, ...s.errors].join('; '));
   await browser.close();
   const summary = { kind: 'incision_test', passed: results.every((r) => r.ok), results, draw_seconds: drawSeconds,
-    view_fps: Math.round(fps * 10) / 10, pixels_before: before, pixels_after: after, latency: bench };
+    view_fps: Math.round(fps * 10) / 10, renderer: gl.renderer, antialias: gl.antialias, pixels_before: before,
+    pixels_after: after, latency: bench };
   if (args.out) fs.writeFileSync(path.join(args.out, 'summary.json'), JSON.stringify(summary, null, 1));
   console.log(JSON.stringify(bench ?? summary));
   process.exit(summary.passed ? 0 : 1);
