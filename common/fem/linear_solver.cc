@@ -334,7 +334,6 @@ bool LinearSolver::correcting() const {
   return correction_busy_;
 }
 
-
 /// Builds the pending job's correction into correction_building_ (on the
 /// correction thread, or inline when synchronous) and publishes it as
 /// correction_ready_ for the next Acquire. Reads only the job and its

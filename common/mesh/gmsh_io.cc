@@ -26,6 +26,7 @@
 #include "common/mesh/mesh_validation.h"
 #include "common/mesh/msh_check.h"
 #include "common/mesh/surface.h"
+#include "common/mesh/tet_mesh.h"
 #include "common/mesh/text_io.h"
 
 namespace cutsim::mesh {
@@ -271,28 +272,27 @@ std::vector<std::string> SplitWhitespace(const std::string& line) {
 // does not fail on such input but can search for minutes (a lone triangle
 // with a repeated vertex did), so it must never see it.
 void CheckFillable(const Positions& positions, const Triangles& tris, const std::string& source) {
-  const ManifoldCheck c = CheckClosedManifold(tris);
-  if (!c.ok) {
+  const ManifoldCheck manifold = CheckClosedManifold(tris);
+  if (!manifold.ok) {
     ThrowFileError(source, fmt::format("the surface is not closed and consistently oriented: {} (triangles and "
                                        "vertices numbered from 0; weld duplicate vertices before export)",
-                                       c.problem));
+                                       manifold.problem));
   }
+  // Twice a triangle's area must exceed 1e-12 of the bounding box's squared
+  // diagonal; the enclosed volume (divergence theorem: tets on a corner of
+  // the box) 1e-9 of the box's. A closed surface folded flat bounds nothing.
   const Eigen::Vector3d lo = positions.colwise().minCoeff().transpose();
   const Eigen::Vector3d hi = positions.colwise().maxCoeff().transpose();
-  const double min_area2 = 1e-12 * (hi - lo).squaredNorm();  // (2 · area)² of a sliver on the box's scale
-  for (Eigen::Index f = 0; f < tris.rows(); ++f) {
-    const Eigen::Vector3d a = positions.row(tris(f, 0)).transpose();
-    const Eigen::Vector3d n = (positions.row(tris(f, 1)).transpose() - a).cross(positions.row(tris(f, 2)).transpose() - a);
-    if (!(n.squaredNorm() > min_area2 * min_area2)) {
-      ThrowFileError(source, fmt::format("triangle {} (numbered from 0) has no area: its corners are on one line", f));
-    }
-  }
-  // Enclosed volume by the divergence theorem: a closed surface folded flat
-  // bounds nothing to fill.
+  const double min_twice_area = 1e-12 * (hi - lo).squaredNorm();
   double volume = 0.0;
   for (Eigen::Index f = 0; f < tris.rows(); ++f) {
-    const Eigen::Vector3d a = positions.row(tris(f, 0)).transpose() - lo;
-    volume += a.dot((positions.row(tris(f, 1)).transpose() - lo).cross(positions.row(tris(f, 2)).transpose() - lo)) / 6.0;
+    const Eigen::Vector3d a = positions.row(tris(f, 0)).transpose();
+    const Eigen::Vector3d b = positions.row(tris(f, 1)).transpose();
+    const Eigen::Vector3d c = positions.row(tris(f, 2)).transpose();
+    if (!((b - a).cross(c - a).norm() > min_twice_area)) {
+      ThrowFileError(source, fmt::format("triangle {} (numbered from 0) has no area: its corners are on one line", f));
+    }
+    volume += SignedVolume(lo, a, b, c);
   }
   if (!(std::abs(volume) > 1e-9 * (hi - lo).prod() && std::abs(volume) > 0.0)) {
     ThrowFileError(source, fmt::format("the surface encloses no volume ({} m³ in a {} × {} × {} m box)", volume,

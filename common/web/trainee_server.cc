@@ -208,13 +208,13 @@ void TraineeServerImpl::OnUpgrade(beast::tcp_stream&& stream, http::request<http
 }
 
 void TraineeServerImpl::ScheduleFrame() {
-  frame_timer->expires_after(poll_period);
+  // The fast poll only while a trainee is there to take the frames.
+  frame_timer->expires_after(trainee.expired() ? frame_period : poll_period);
   frame_timer->async_wait([this](beast::error_code ec) {
     if (ec) return;
     const auto now = std::chrono::steady_clock::now();
     auto s = trainee.lock();
-    if (s && handlers.frame &&
-        (now - last_frame >= frame_period || (handlers.urgent && handlers.urgent()))) {
+    if (s && handlers.frame && (now - last_frame >= frame_period || (handlers.urgent && handlers.urgent()))) {
       s->Send(handlers.frame());
       last_frame = now;
     }

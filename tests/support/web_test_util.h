@@ -29,7 +29,6 @@ class TempPage {
   ~TempPage() { std::filesystem::remove_all(dir_); }
   TempPage(const TempPage&) = delete;
   TempPage& operator=(const TempPage&) = delete;
-  [[nodiscard]] const std::filesystem::path& dir() const { return dir_; }
   [[nodiscard]] std::map<std::string, std::filesystem::path> files() const { return {{"/index.html", dir_ / "index.html"}}; }
 
  private:

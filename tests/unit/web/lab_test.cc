@@ -4,15 +4,11 @@
 // only its session's messages; a bad session name is refused), and the lab
 // list's JSON (escaping, non-finite numbers).
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <array>
 #include <chrono>
-#include <filesystem>
-#include <fstream>
 #include <optional>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "common/transport/dds.h"
@@ -157,11 +153,9 @@ TEST(LabListJsonTest, ASessionCarriesItsTraineesTrendAndNoOneElses) {
 }
 
 TEST(ObserverChannelsTest, AClientReceivesOnlyItsSessionsMessages) {
-  const auto dir = std::filesystem::temp_directory_path() / ("cutsim_lab_test_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  std::ofstream(dir / "index.html") << "<html>lab</html>";
+  const test::TempPage page("lab_test", "<html>lab</html>");
   ObserverServerOptions o;
-  o.files = {{"/index.html", dir / "index.html"}};
+  o.files = page.files();
   o.channels = true;
   ObserverServer server(o);
   server.SetJoinMessages("", {Text("list")});
@@ -185,7 +179,6 @@ TEST(ObserverChannelsTest, AClientReceivesOnlyItsSessionsMessages) {
   const auto bytes = server.stats().channel_bytes;
   EXPECT_EQ(bytes.at("a"), std::string("join-a").size() + std::string("frame-a").size());
   EXPECT_EQ(bytes.at("b"), std::string("frame-b").size());
-  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

@@ -4,12 +4,9 @@
 // it, mesh frames reach the trainee, the newest snapshot first for one
 // who joins, and a frame the device marks urgent goes before its tick.
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
-#include <filesystem>
-#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
@@ -17,10 +14,13 @@
 #include "common/core/error.h"
 #include "common/web/trainee_server.h"
 #include "tests/support/web_client.h"
+#include "tests/support/web_test_util.h"
 
 namespace cutsim::web {
 namespace {
 
+using test::Eventually;
+using test::TempPage;
 using test::WebSocketClient;
 using namespace std::chrono_literals;
 
@@ -28,15 +28,9 @@ constexpr const char* kTraineeToken = "trainee-token-0123";
 
 class TraineeServerTest : public ::testing::Test {
  protected:
-  TraineeServerTest() : dir_(std::filesystem::temp_directory_path() / ("cutsim_trainee_test_" + std::to_string(::getpid()))) {
-    std::filesystem::create_directories(dir_);
-    std::ofstream(dir_ / "index.html") << "<html>trainee</html>";
-  }
-  ~TraineeServerTest() override { std::filesystem::remove_all(dir_); }
-
   void Start(double idle_s, TraineeHandlers h = {}, double frame_hz = 60.0) {
     TraineeServerOptions o;
-    o.files = {{"/index.html", dir_ / "index.html"}};
+    o.files = page_.files();
     o.token = kTraineeToken;
     o.idle_timeout_s = idle_s;
     o.frame_hz = frame_hz;
@@ -47,17 +41,7 @@ class TraineeServerTest : public ::testing::Test {
   /// Opens a trainee's WebSocket; false when refused.
   bool Open(WebSocketClient* ws) { return ws->Open(server_->port(), std::string("/ws?token=") + kTraineeToken); }
 
-  template <typename P>
-  static bool Eventually(P pred) {
-    const auto deadline = std::chrono::steady_clock::now() + 10s;
-    while (std::chrono::steady_clock::now() < deadline) {
-      if (pred()) return true;
-      std::this_thread::sleep_for(5ms);
-    }
-    return pred();
-  }
-
-  std::filesystem::path dir_;
+  const TempPage page_{"trainee_test", "<html>trainee</html>"};
   std::unique_ptr<TraineeServer> server_;
 };
 
